@@ -1,0 +1,54 @@
+"""Taichi start-up: one place decides the backend and the float precision.
+
+Owns: ``ti.init`` and the record of how Taichi was started, so that building a second
+scene with the same settings reuses the compiled kernels instead of resetting Taichi.
+"""
+from __future__ import annotations
+
+import os
+
+import taichi as ti
+
+_current: tuple | None = None
+
+
+def gpu_available() -> bool:
+    """True when Taichi can start on CUDA here (probed in a way that does not keep CUDA)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libcuda.so.1")
+    except OSError:
+        return False
+    return True
+
+
+def init(arch: str = "auto", precision: str = "float32", threads: int | None = None, debug: bool = False) -> str:
+    """Start Taichi on ``arch`` ('auto', 'cpu', 'cuda') with ``precision`` ('float32'|'float64').
+
+    Re-initialises only when the settings change (re-init drops every field and kernel).
+    Returns the arch actually used ('cpu' or 'cuda').
+    """
+    global _current
+    if arch == "auto":
+        arch = "cuda" if gpu_available() else "cpu"
+    key = (arch, precision, threads, debug)
+    if _current == key:
+        return arch
+    fp = ti.f64 if precision == "float64" else ti.f32
+    kwargs = dict(default_fp=fp, default_ip=ti.i32, debug=debug, log_level=ti.WARN)
+    if arch == "cpu":
+        kwargs["cpu_max_num_threads"] = threads or os.cpu_count() or 1
+        ti.init(arch=ti.cpu, **kwargs)
+    elif arch == "cuda":
+        ti.init(arch=ti.cuda, device_memory_fraction=0.9, **kwargs)
+    else:
+        raise ValueError(f"unknown arch {arch!r}")
+    _current = key
+    return arch
+
+
+def reset() -> None:
+    """Forget the current settings so the next init() restarts Taichi (used by tests)."""
+    global _current
+    _current = None
