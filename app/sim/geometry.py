@@ -13,7 +13,6 @@ sides of its walls, so its clearance is the minimum over walls. Units: metres.
 The list of walls is fixed when a scene is built, so kernels unroll it with
 ``ti.static`` and each wall keeps its own contact history slot.
 """
-from __future__ import annotations
 
 import dataclasses
 from typing import Sequence

@@ -1,0 +1,51 @@
+"""The `fbed` command line: argument parsing and error reporting only (no physics here).
+
+    fbed run PRESET [--set section.key=value]... [--out DIR] [--arch auto|cpu|cuda] [--resume DIR]
+
+Bad input (preset, key, unit, range, file) prints one clear message and exits with 2.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .config import ConfigError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="fbed", description="GPU CFD-DEM simulator of gas-solid fluidized beds")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    r = sub.add_parser("run", help="run a preset", description="Run a TOML preset and write its outputs.")
+    r.add_argument("preset", nargs="?", help="preset file (.toml); optional with --resume")
+    r.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override a preset key (repeatable), e.g. --set run.duration=0.05")
+    r.add_argument("--out", help="output folder (default: runs/<preset name>, numbered if taken)")
+    r.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto",
+                   help="where the kernels run (auto: CUDA when a GPU is present)")
+    r.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its checkpoint")
+    r.add_argument("--overwrite", action="store_true", help="replace an existing run in --out")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.command is None:
+        build_parser().print_help()
+        return 2
+    try:
+        if args.command == "run":
+            from .run import run
+
+            return run(args.preset, args.overrides, args.out, args.arch, args.resume, args.overwrite)
+    except ConfigError as err:
+        print(f"fbed: error: {err}", file=sys.stderr)
+        return 2
+    return 2
+
+
+def entry() -> None:
+    sys.exit(main())
+
+
+if __name__ == "__main__":
+    entry()

@@ -1,0 +1,188 @@
+"""Values derived from a Config, computed in one place: grain sizes and masses, contact
+constants, damping from restitution, collision times and the DEM step.
+
+Owns: every number the kernels use that is not written in the preset. Plain Python
+(numpy/scipy), so it can be unit-tested against hand values.
+
+Damping from restitution is solved exactly, not by a fitted formula: with the normal
+force clamped at zero (no attraction), the restitution of a linear spring-dashpot depends
+only on the damping ratio zeta, and that of a Hertz spring with damping
+``alpha * sqrt(m* k_n) * delta^(1/4) * d(delta)/dt`` depends only on alpha (Antypov &
+Elliott 2011, EPL 94:50004, scale invariance). We integrate the dimensionless contact
+ODE once and invert it with a root finder, so the set restitution is what the DEM
+produces up to its time-step error.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.optimize import brentq
+
+from .loader import ConfigError
+from .schema import Config
+
+HERTZ_DURATION_COEFF = 2.868  # t_c = 2.868 (m*^2 / (R* E*^2 v))^(1/5), undamped Hertz impact
+
+
+# ---------------------------------------------------------------------------- restitution
+
+def _rebound(model: str, c: float) -> float:
+    """Restitution of the dimensionless contact with damping parameter c (zeta or alpha)."""
+    if c <= 0.0:
+        return 1.0
+
+    def rhs(_, y):
+        x, v = y
+        xp = max(x, 0.0)
+        if model == "linear":
+            f = xp + 2.0 * c * v
+        else:
+            f = xp ** 1.5 + c * xp ** 0.25 * v
+        return [v, -max(f, 0.0)]
+
+    def back_at_zero(_, y):
+        return y[0]
+
+    back_at_zero.terminal, back_at_zero.direction = True, -1
+    sol = solve_ivp(rhs, (0.0, 100.0), [1e-12, 1.0], events=back_at_zero, rtol=1e-10, atol=1e-12, max_step=0.01)
+    return float(-sol.y_events[0][0][1]) if sol.t_events[0].size else 0.0
+
+
+@functools.lru_cache(maxsize=64)
+def damping_from_restitution(model: str, restitution: float) -> float:
+    """Damping parameter giving ``restitution``: zeta (linear) or alpha (hertz_mindlin)."""
+    if restitution >= 1.0:
+        return 0.0
+    hi = 1.0 if model == "linear" else 4.0
+    while _rebound(model, hi) > restitution:
+        hi *= 2.0
+    return float(brentq(lambda c: _rebound(model, c) - restitution, 0.0, hi, xtol=1e-12, rtol=1e-10))
+
+
+# ---------------------------------------------------------------------------- materials
+
+def effective_moduli(e1: float, nu1: float, e2: float, nu2: float) -> tuple[float, float]:
+    """Hertz E* and Mindlin G* [Pa] of two materials."""
+    e_star = 1.0 / ((1 - nu1 ** 2) / e1 + (1 - nu2 ** 2) / e2)
+    g1, g2 = e1 / (2 * (1 + nu1)), e2 / (2 * (1 + nu2))
+    g_star = 1.0 / ((2 - nu1) / g1 + (2 - nu2) / g2)
+    return e_star, g_star
+
+
+def hertz_duration(m_eff: float, r_eff: float, e_star: float, speed: float) -> float:
+    """Undamped Hertz contact duration [s] for an impact at ``speed`` [m/s]."""
+    return HERTZ_DURATION_COEFF * (m_eff ** 2 / (r_eff * e_star ** 2 * speed)) ** 0.2
+
+
+def rayleigh_time(radius: float, density: float, youngs: float, poisson: float) -> float:
+    """Rayleigh-wave time [s] across a grain (the other common DEM step estimate)."""
+    g = youngs / (2 * (1 + poisson))
+    return math.pi * radius * math.sqrt(density / g) / (0.1631 * poisson + 0.8766)
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactPair:
+    """Constants of one kind of contact (grain-grain or grain-wall), read by the kernels."""
+
+    model: str            # 'hertz_mindlin' | 'linear'
+    e_star: float         # [Pa] effective Young's modulus (hertz)
+    g_star: float         # [Pa] effective shear modulus (hertz)
+    kn: float             # [N/m] normal stiffness (linear)
+    kt: float             # [N/m] tangential stiffness (linear)
+    damping: float        # zeta (linear) or alpha (hertz), from the restitution
+    restitution: float
+    friction: float
+    rolling_friction: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Derived:
+    diameters: tuple[float, ...]        # [m] size classes
+    number_fractions: tuple[float, ...]  # by number, sum 1
+    density: float                      # [kg/m^3]
+    polydisperse: bool
+    radius_min: float                   # [m]
+    radius_max: float                   # [m]
+    mass_min: float                     # [kg]
+    pair: ContactPair
+    wall: ContactPair
+    collision_time: float               # [s] shortest grain-grain contact duration at impact_speed
+    wall_collision_time: float          # [s]
+    rayleigh_time: float                # [s] of the smallest grain (hertz), else 0
+    dt: float                           # [s] DEM step actually used
+    dt_limit: float                     # [s] largest step accepted without force_dt
+    substeps: int                       # DEM steps per run.step
+    skin: float                         # [m] Verlet skin
+    friction: bool                      # any tangential force (grain or wall)
+    rolling: str                        # 'none' | 'constant_torque' | 'epsd'
+
+    def mass(self, d):
+        return self.density * math.pi * np.asarray(d) ** 3 / 6.0
+
+
+def size_distribution(cfg: Config) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Size classes and number fractions; mass fractions are converted (n_k ~ f_k / d_k^3)."""
+    p = cfg.particles
+    if p.diameters:
+        d = np.asarray(p.diameters, float)
+        f = np.asarray(p.fractions, float)
+        if p.fractions_by == "mass":
+            f = f / d ** 3
+        f = f / f.sum()
+        return tuple(d.tolist()), tuple(f.tolist())
+    return (p.diameter,), (1.0,)
+
+
+def _pair(model, e_star, g_star, kn, kt_ratio, e, mu, mu_r) -> ContactPair:
+    return ContactPair(model=model, e_star=e_star, g_star=g_star, kn=kn, kt=kt_ratio * kn,
+                       damping=damping_from_restitution(model, e), restitution=e, friction=mu, rolling_friction=mu_r)
+
+
+def derive(cfg: Config, file: str = "<preset>") -> Derived:
+    """All derived values of a validated Config (raises ConfigError for a refused DEM step)."""
+    c, p = cfg.contact, cfg.particles
+    diam, frac = size_distribution(cfg)
+    rmin, rmax = min(diam) / 2, max(diam) / 2
+    mmin = p.density * math.pi * min(diam) ** 3 / 6
+    e_w = c.wall_youngs_modulus if c.wall_youngs_modulus is not None else c.youngs_modulus
+    nu_w = c.wall_poisson_ratio if c.wall_poisson_ratio is not None else c.poisson_ratio
+    es, gs = effective_moduli(c.youngs_modulus, c.poisson_ratio, c.youngs_modulus, c.poisson_ratio)
+    esw, gsw = effective_moduli(c.youngs_modulus, c.poisson_ratio, e_w, nu_w)
+    wall_e = c.wall_restitution if c.wall_restitution is not None else c.restitution
+    wall_mu = c.wall_friction if c.wall_friction is not None else c.friction
+    wall_mur = c.wall_rolling_friction if c.wall_rolling_friction is not None else c.rolling_friction
+    pair = _pair(c.model, es, gs, c.normal_stiffness, c.tangential_stiffness_ratio, c.restitution, c.friction, c.rolling_friction)
+    wall = _pair(c.model, esw, gsw, c.normal_stiffness, c.tangential_stiffness_ratio, wall_e, wall_mu, wall_mur)
+
+    v = cfg.dem.impact_speed
+    if c.model == "hertz_mindlin":
+        tc = hertz_duration(mmin / 2, rmin / 2, es, v)
+        tcw = hertz_duration(mmin, rmin, esw, v)
+        t_r = rayleigh_time(rmin, p.density, c.youngs_modulus, c.poisson_ratio)
+    else:
+        tc = math.pi * math.sqrt((mmin / 2) / c.normal_stiffness)
+        tcw = math.pi * math.sqrt(mmin / c.normal_stiffness)
+        t_r = 0.0
+    t_short = min(tc, tcw)
+    limit = cfg.dem.max_dt_fraction * t_short
+    dt = cfg.dem.dt if cfg.dem.dt > 0 else cfg.dem.dt_fraction * t_short
+    if dt > limit and not cfg.dem.force_dt:
+        raise ConfigError(
+            f"{dt:.3g} s is above the stable limit {limit:.3g} s "
+            f"({cfg.dem.max_dt_fraction:g} x the {t_short:.3g} s collision time at {v:g} m/s)",
+            file, "dem.dt",
+            hint="lower dem.dt (0 picks dt_fraction x collision time), soften contact.youngs_modulus, "
+                 "or set dem.force_dt = true to run anyway")
+    substeps = max(1, math.ceil(cfg.run.step / dt - 1e-9))
+    dt = cfg.run.step / substeps
+    skin = cfg.dem.skin if cfg.dem.skin > 0 else 0.15 * 2 * rmax
+    friction = c.friction > 0 or wall_mu > 0
+    return Derived(diameters=diam, number_fractions=frac, density=p.density, polydisperse=len(diam) > 1,
+                   radius_min=rmin, radius_max=rmax, mass_min=mmin, pair=pair, wall=wall,
+                   collision_time=tc, wall_collision_time=tcw, rayleigh_time=t_r, dt=dt, dt_limit=limit,
+                   substeps=substeps, skin=skin, friction=friction,
+                   rolling=c.rolling_model if (c.rolling_friction > 0 or wall_mur > 0) else "none")

@@ -1,0 +1,70 @@
+"""Rules that involve more than one key (each names the key to change)."""
+from __future__ import annotations
+
+from .loader import ConfigError, _find_line
+from .schema import Config
+
+
+def check(cfg: Config, file: str, text: str) -> None:
+    def fail(section, key, message, hint=""):
+        raise ConfigError(message, file, f"{section}.{key}", _find_line(text, section, key), hint)
+
+    d = cfg.domain
+    for a, (lo, hi) in enumerate(zip(d.lo, d.hi)):
+        if hi <= lo:
+            fail("domain", "hi", f"upper corner must exceed the lower one along {'xyz'[a]} "
+                 f"({hi:g} m <= {lo:g} m)", "swap or correct domain.lo / domain.hi")
+    v = cfg.vessel
+    if v.shape == "cylinder":
+        if v.radius <= 0:
+            fail("vessel", "radius", "a cylinder vessel needs a radius > 0 m", "set vessel.radius in metres")
+        cx, cy = v.center
+        if cx - v.radius < d.lo[0] - 1e-12 or cx + v.radius > d.hi[0] + 1e-12 or \
+           cy - v.radius < d.lo[1] - 1e-12 or cy + v.radius > d.hi[1] + 1e-12:
+            fail("vessel", "radius", f"the cylinder (radius {v.radius:g} m at {v.center}) does not fit in the domain "
+                 f"x {d.lo[0]:g}..{d.hi[0]:g} m, y {d.lo[1]:g}..{d.hi[1]:g} m", "enlarge the domain or reduce the radius")
+    if v.shape == "sampled" and not v.sdf_file:
+        fail("vessel", "sdf_file", "shape = 'sampled' needs an sdf_file (.npz)")
+    for key in ("floor", "lid"):
+        z = getattr(v, key)
+        if z is not None and not (d.lo[2] <= z <= d.hi[2]):
+            fail("vessel", key, f"{z:g} m lies outside the domain's z range {d.lo[2]:g}..{d.hi[2]:g} m")
+    if v.floor is not None and v.lid is not None and v.lid <= v.floor:
+        fail("vessel", "lid", f"the lid ({v.lid:g} m) must be above the floor ({v.floor:g} m)")
+
+    p = cfg.particles
+    if p is not None:
+        if p.diameters:
+            if p.diameter:
+                fail("particles", "diameter", "give either diameter (monodisperse) or diameters (a size distribution), not both")
+            if len(p.fractions) != len(p.diameters):
+                fail("particles", "fractions", f"{len(p.fractions)} fractions for {len(p.diameters)} diameters",
+                     "give one fraction per diameter")
+            if any(not isinstance(x, float) or x <= 0 for x in p.diameters):
+                fail("particles", "diameters", "every diameter must be a number > 0 (m)")
+            if any(not isinstance(x, float) or x < 0 for x in p.fractions) or sum(p.fractions) <= 0:
+                fail("particles", "fractions", "fractions must be numbers >= 0 with a positive sum")
+        elif p.diameter <= 0:
+            fail("particles", "diameter", "grains need a diameter > 0 m", "set particles.diameter (m) or particles.diameters")
+        dmax = max(p.diameters) if p.diameters else p.diameter
+        width = min(h - l for l, h in zip(d.lo, d.hi))
+        if dmax >= width:
+            fail("particles", "diameter", f"grains of {dmax:g} m do not fit in a domain {width:g} m wide")
+        sources = sum([p.count > 0, p.bed_height > 0, bool(p.initial_state)])
+        if sources == 0:
+            fail("particles", "count", "say how many grains: count, bed_height (m) or initial_state (a bed.h5)")
+        if sources > 1:
+            fail("particles", "count", "give only one of count, bed_height and initial_state")
+        c = cfg.contact
+        if c.model == "linear" and c.normal_stiffness <= 0:
+            fail("contact", "normal_stiffness", "the linear model needs normal_stiffness > 0 N/m")
+        rolling = c.rolling_friction > 0 or (c.wall_rolling_friction or 0) > 0
+        if rolling and c.rolling_model == "none":
+            fail("contact", "rolling_model", "rolling_friction is set but rolling_model = 'none'",
+                 "choose 'constant_torque' or 'epsd', or set rolling_friction = 0")
+        if c.rolling_model != "none" and not rolling:
+            fail("contact", "rolling_friction", f"rolling_model = '{c.rolling_model}' needs rolling_friction > 0")
+        if c.rolling_model != "none" and c.friction == 0 and (c.wall_friction or 0) == 0:
+            fail("contact", "friction", "rolling resistance needs friction > 0 (grains must be able to roll)")
+    if cfg.output.particles_interval and cfg.output.particles_interval < cfg.run.step:
+        fail("output", "particles_interval", f"shorter than run.step ({cfg.run.step:g} s)")

@@ -1,0 +1,138 @@
+"""The preset schema: every section and key a preset may hold, with its SI unit and range.
+
+Owns: the frozen dataclasses a preset loads into. Each field's metadata gives its unit,
+a one-line doc, and the range or choices the loader checks; ``fbed`` never reads a key
+that is not declared here, and an undeclared key in a preset is an error.
+
+Plain Python (no Taichi): the CLI, analysis and tests read configs without a GPU.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Optional
+
+
+def spec(default=dataclasses.MISSING, *, unit: str = "-", doc: str, lo=None, hi=None, lo_open=False,
+         choices=None, length=None):
+    """A schema field: ``unit`` (SI), ``doc``, inclusive range [lo, hi] (``lo_open`` makes lo exclusive)."""
+    meta = dict(unit=unit, doc=doc, lo=lo, hi=hi, lo_open=lo_open, choices=choices, length=length)
+    if isinstance(default, (list, dict)):
+        return field(default_factory=lambda d=default: type(d)(d), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    duration: float = spec(unit="s", doc="simulated time to run", lo=0.0, lo_open=True)
+    step: float = spec(1.0e-3, unit="s", doc="coupling step: the fluid step when the scene has gas; in DEM-only "
+                       "scenes the interval at which callbacks (output, guard, progress) are checked", lo=0.0, lo_open=True, hi=1.0)
+    name: str = spec("", doc="run name stamped on outputs (default: the preset file's name)")
+    seed: int = spec(0, doc="random seed for filling and size sampling", lo=0)
+    precision: str = spec("float32", doc="floating-point precision of the kernels", choices=("float32", "float64"))
+    threads: int = spec(0, doc="CPU threads (0 = all cores); 1 makes CPU runs bit-reproducible", lo=0)
+
+
+@dataclass(frozen=True)
+class DomainConfig:
+    lo: tuple[float, float, float] = spec(unit="m", doc="lower corner of the simulation box (x, y, z)", length=3)
+    hi: tuple[float, float, float] = spec(unit="m", doc="upper corner of the simulation box (x, y, z); "
+                                          "grains that leave it are removed and counted", length=3)
+    gravity: tuple[float, float, float] = spec((0.0, 0.0, -9.81), unit="m/s^2", doc="gravitational acceleration", length=3)
+
+
+@dataclass(frozen=True)
+class VesselConfig:
+    shape: str = spec("cylinder", doc="vessel walls: a vertical cylinder, the domain box, a sampled SDF, or none",
+                      choices=("cylinder", "box", "sampled", "none"))
+    radius: float = spec(0.0, unit="m", doc="cylinder radius", lo=0.0)
+    center: tuple[float, float] = spec((0.0, 0.0), unit="m", doc="cylinder axis position (x, y)", length=2)
+    floor: Optional[float] = spec(None, unit="m", doc="height of the floor plane (default: the domain's lower z)")
+    lid: Optional[float] = spec(None, unit="m", doc="height of a lid plane (default: no lid, open top)")
+    sdf_file: str = spec("", doc="for shape = 'sampled': .npz with 'values' (clearance at nodes, m, positive "
+                         "inside the vessel), 'origin' (m, 3) and 'spacing' (m); relative to the preset")
+
+
+@dataclass(frozen=True)
+class ParticlesConfig:
+    density: float = spec(unit="kg/m^3", doc="grain material density", lo=1.0, hi=3.0e4)
+    diameter: float = spec(0.0, unit="m", doc="grain diameter (monodisperse)", lo=0.0, hi=1.0)
+    diameters: list = spec([], unit="m", doc="grain diameters of a discrete size distribution (polydisperse)")
+    fractions: list = spec([], doc="fraction of each diameter in `diameters`; normalised to sum 1")
+    fractions_by: str = spec("mass", doc="whether `fractions` are mass (volume) or number fractions",
+                             choices=("mass", "number"))
+    count: int = spec(0, doc="number of grains to place (or give bed_height)", lo=0)
+    bed_height: float = spec(0.0, unit="m", doc="fill to about this settled bed height instead of a count", lo=0.0)
+    fill_solid_fraction: float = spec(0.6, doc="solid fraction assumed when converting bed_height to a count",
+                                      lo=0.1, hi=0.74)
+    fill_spacing: float = spec(1.05, doc="lattice spacing of the filler over the largest diameter", lo=1.0, hi=3.0)
+    initial_state: str = spec("", doc="start from the grains of an earlier run (its bed.h5 or checkpoint.h5) "
+                              "instead of filling; relative to the preset")
+
+
+@dataclass(frozen=True)
+class ContactConfig:
+    model: str = spec("hertz_mindlin", doc="normal/tangential contact law", choices=("hertz_mindlin", "linear"))
+    youngs_modulus: float = spec(5.0e6, unit="Pa", doc="Young's modulus of the grains (hertz_mindlin); "
+                                 "softer than the real material to allow a larger DEM step", lo=1.0e3, hi=1.0e12)
+    poisson_ratio: float = spec(0.3, doc="Poisson's ratio (hertz_mindlin)", lo=0.0, hi=0.5)
+    normal_stiffness: float = spec(0.0, unit="N/m", doc="spring constant of the linear model", lo=0.0)
+    tangential_stiffness_ratio: float = spec(2.0 / 7.0, doc="k_t / k_n of the linear model", lo=0.0, hi=1.0)
+    restitution: float = spec(0.9, doc="grain-grain normal coefficient of restitution", lo=0.01, hi=1.0)
+    friction: float = spec(0.5, doc="grain-grain Coulomb friction coefficient (0: frictionless, no history kept)", lo=0.0, hi=10.0)
+    rolling_friction: float = spec(0.0, doc="grain-grain rolling friction coefficient (dimensionless)", lo=0.0, hi=1.0)
+    rolling_model: str = spec("none", doc="rolling resistance: none, constant_torque, or epsd "
+                              "(elastic-plastic spring-dashpot)", choices=("none", "constant_torque", "epsd"))
+    wall_restitution: Optional[float] = spec(None, doc="grain-wall restitution (default: restitution)", lo=0.01, hi=1.0)
+    wall_friction: Optional[float] = spec(None, doc="grain-wall friction (default: friction)", lo=0.0, hi=10.0)
+    wall_rolling_friction: Optional[float] = spec(None, doc="grain-wall rolling friction (default: rolling_friction)",
+                                                  lo=0.0, hi=1.0)
+    wall_youngs_modulus: Optional[float] = spec(None, unit="Pa", doc="Young's modulus of the walls "
+                                                "(default: the grains')", lo=1.0e3, hi=1.0e12)
+    wall_poisson_ratio: Optional[float] = spec(None, doc="Poisson's ratio of the walls (default: the grains')", lo=0.0, hi=0.5)
+
+
+@dataclass(frozen=True)
+class DemConfig:
+    dt: float = spec(0.0, unit="s", doc="DEM step; 0 picks dt_fraction x the shortest collision time", lo=0.0)
+    dt_fraction: float = spec(0.02, doc="automatic DEM step as a fraction of the collision time", lo=1e-4, hi=0.2)
+    max_dt_fraction: float = spec(0.1, doc="largest DEM step allowed, as a fraction of the collision time "
+                                  "(10 steps per contact); larger steps are refused unless force_dt", lo=1e-3, hi=0.5)
+    force_dt: bool = spec(False, doc="accept a dt above the stability limit (for stress tests)")
+    impact_speed: float = spec(1.0, unit="m/s", doc="impact speed at which the Hertz collision time sets the step "
+                               "(faster impacts are shorter)", lo=1e-4, hi=1e3)
+    skin: float = spec(0.0, unit="m", doc="Verlet neighbour-list skin; 0 = 0.15 x largest diameter", lo=0.0)
+    max_neighbors: int = spec(0, doc="neighbour slots per grain (half list); 0 = automatic", lo=0, hi=256)
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    series_interval: float = spec(1.0e-3, unit="s", doc="interval of the time series in run.h5", lo=0.0, lo_open=True)
+    particles_interval: float = spec(0.0, unit="s", doc="interval of particle snapshots in run.h5 (0: first and last only)", lo=0.0)
+    checkpoint_interval: float = spec(0.0, unit="s", doc="simulated-time interval of checkpoints (0: only at the end "
+                                      "and on interruption)", lo=0.0)
+    checkpoint_wall_interval: float = spec(300.0, unit="s", doc="wall-clock interval of checkpoints (0: off)", lo=0.0)
+    save_bed: bool = spec(True, doc="write bed.h5 (the final grains, reusable as particles.initial_state)")
+    log_interval: float = spec(5.0, unit="s", doc="wall-clock interval of log lines when not on a terminal", lo=0.1)
+
+
+@dataclass(frozen=True)
+class GuardConfig:
+    interval: float = spec(1.0e-3, unit="s", doc="how often the NaN / overlap / speed checks run", lo=0.0, lo_open=True)
+    max_overlap: float = spec(0.2, doc="stop when a grain overlaps by more than this fraction of its diameter", lo=0.0, lo_open=True)
+    max_speed: float = spec(100.0, unit="m/s", doc="stop when a grain moves faster than this", lo=0.0, lo_open=True)
+
+
+@dataclass(frozen=True)
+class Config:
+    run: RunConfig
+    domain: DomainConfig
+    particles: Optional[ParticlesConfig] = None
+    vessel: VesselConfig = field(default_factory=VesselConfig)
+    contact: ContactConfig = field(default_factory=ContactConfig)
+    dem: DemConfig = field(default_factory=DemConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
+    guard: GuardConfig = field(default_factory=GuardConfig)
+    # where the preset came from: relative paths inside it resolve against this folder
+    source: str = field(default="", compare=False, metadata=dict(internal=True))
+

@@ -1,0 +1,233 @@
+"""`fbed run`: build a scene, attach writers, progress, checkpoints and the guard, run it.
+
+Owns: the output folder (config.toml, run.h5, checkpoint.h5, bed.h5, summary.json), the
+resume logic, and signal handling (Ctrl-C / SIGTERM stop cleanly with a checkpoint).
+Exit codes: 0 finished, 2 bad input, 3 stopped by the guard, 130 interrupted.
+"""
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+import signal
+import sys
+import time as wallclock
+
+import numpy as np
+
+from . import config as cfgmod
+from .config import ConfigError
+from .io import store
+
+EXIT_OK, EXIT_INPUT, EXIT_UNSTABLE, EXIT_INTERRUPTED = 0, 2, 3, 130
+
+
+def log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def pick_out_dir(preset: pathlib.Path, out: str | None, overwrite: bool) -> pathlib.Path:
+    if out:
+        d = pathlib.Path(out)
+        if d.exists() and any(d.iterdir()) and (d / "run.h5").exists() and not overwrite:
+            raise ConfigError("already holds a run", str(d), "--out",
+                              hint="pass --overwrite to replace it, --resume to continue it, or another --out")
+        return d
+    base = pathlib.Path("runs") / preset.stem
+    d, k = base, 1
+    while d.exists() and any(d.iterdir()):
+        k += 1
+        d = base.with_name(f"{base.name}-{k}")
+    return d
+
+
+class Progress:
+    """A rich progress bar on a terminal, a log line every few seconds otherwise."""
+
+    def __init__(self, sim, name: str, log_interval: float):
+        self.sim = sim
+        self.tty = sys.stderr.isatty()
+        self.bar = None
+        self.t0 = wallclock.perf_counter()
+        self.step0 = sim.step_count
+        self.interval = log_interval
+        if self.tty:
+            from rich.progress import BarColumn, Progress as RichProgress, TextColumn, TimeRemainingColumn
+
+            self.bar = RichProgress(TextColumn(f"[bold]{name}"), BarColumn(),
+                                    TextColumn("{task.fields[simt]}"), TextColumn("{task.fields[rate]}"),
+                                    TimeRemainingColumn(), transient=False)
+            self.task = self.bar.add_task(name, total=sim.total_steps, completed=sim.step_count, simt="", rate="")
+            self.bar.start()
+
+    def text(self):
+        s = self.sim
+        dt = max(wallclock.perf_counter() - self.t0, 1e-9)
+        rate = (s.step_count - self.step0) / dt
+        eta = (s.total_steps - s.step_count) / rate if rate > 0 else float("inf")
+        return s, rate, eta
+
+    def __call__(self, sim):
+        s, rate, eta = self.text()
+        if self.bar:
+            self.bar.update(self.task, completed=s.step_count, simt=f"t = {s.time:.4g}/{s.duration:g} s",
+                            rate=f"{rate:.1f} steps/s")
+        else:
+            log(f"t = {s.time:.5g}/{s.duration:g} s  step {s.step_count}/{s.total_steps}  {rate:.2f} steps/s  "
+                f"ETA {eta:.0f} s")
+
+    def finish(self, sim, reason):
+        if self.bar:
+            self(sim)
+            self.bar.stop()
+
+
+def run(preset: str | None, overrides: list[str], out: str | None = None, arch: str = "auto",
+        resume: str | None = None, overwrite: bool = False) -> int:
+    # -- configuration (errors here lose nothing: no output written yet)
+    if resume:
+        out_dir = pathlib.Path(resume)
+        ckpt = out_dir / "checkpoint.h5"
+        if not ckpt.exists():
+            raise ConfigError("no checkpoint.h5 to resume from", str(out_dir), "--resume",
+                              hint="give the output folder of an earlier run that was stopped or finished")
+        base = pathlib.Path(preset) if preset else out_dir / "config.toml"
+        cfg = cfgmod.load(base, overrides)
+        preset_path = base
+    else:
+        if not preset:
+            raise ConfigError("no preset given", "", "PRESET", hint="fbed run presets/settle.toml")
+        preset_path = pathlib.Path(preset)
+        cfg = cfgmod.load(preset_path, overrides)
+        out_dir = pick_out_dir(preset_path, out, overwrite)
+    name = cfg.run.name or preset_path.stem
+    if resume and preset_path.name == "config.toml":
+        name = cfg.run.name or out_dir.name
+
+    from .sim import runtime
+
+    used_arch = runtime.init(arch, cfg.run.precision, cfg.run.threads or None)
+    from .scene import Scene
+    from .sim.dem import DemSolver, NeighborOverflow
+    from .sim.fields import bytes_per_grain
+    from .sim.simulation import Guard, Simulation, Unstable
+
+    arrays = meta = None
+    if resume:
+        arrays, meta = store.read_state(ckpt)
+    scene = Scene(cfg, str(preset_path), initial=arrays)
+    der = scene.derived
+    dem = DemSolver(scene.model)
+    sim = Simulation(dem, cfg.run.step, der.substeps, cfg.run.duration)
+    if resume:
+        if len(arrays["position"]) != scene.n:
+            raise ConfigError(f"the checkpoint holds {len(arrays['position'])} grains, the preset {scene.n}",
+                              str(ckpt), "--resume", hint="resume with the run's own config.toml")
+        dem.load_state_arrays(arrays)
+        sim.step_count = int(meta["step"])
+        if sim.step_count >= sim.total_steps:
+            log(f"{out_dir}: already at t = {sim.time:g} s >= run.duration; extend it with --set run.duration=...")
+    else:
+        init = scene.initial
+        dem.set_grains(init["position"], init.get("velocity"), init["radius"], init.get("omega"))
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    config_text = cfgmod.dump(cfg)
+    (out_dir / "config.toml").write_text(config_text)
+    runfile = store.RunFile(out_dir / "run.h5", name, resume_time=sim.time if resume else None)
+    o = cfg.output
+
+    def record(s):
+        d = s.diagnostics()
+        row = {"time": s.time}
+        row.update({k: d[k] for k in ("kinetic_energy", "kinetic_energy_rotational", "max_overlap", "max_speed",
+                                      "grains_alive", "grains_removed", "bed_height")})
+        row["wall_time"] = s.wall_elapsed
+        runfile.append(row)
+
+    def snapshot(s):
+        x = dem.state.x.to_numpy()
+        runfile.snapshot(s.time, x, dem.state.v.to_numpy(), dem.radii())
+
+    def checkpoint(s, path=out_dir / "checkpoint.h5"):
+        store.write_state(path, dem.state_arrays(), s.time, s.step_count, config_text)
+
+    guard = Guard(cfg.guard.max_overlap, cfg.guard.max_speed)
+    last_snapshot = {"step": -1}
+
+    def snapshot_once(s):
+        if last_snapshot["step"] != s.step_count:
+            snapshot(s)
+            last_snapshot["step"] = s.step_count
+
+    def finish_outputs(s, reason):
+        if reason in ("finished", "interrupted"):
+            if not s.hooks[0].every or s.step_count % s.hooks[0].every:
+                record(s)
+            snapshot_once(s)
+            checkpoint(s)
+            if reason == "finished" and o.save_bed:
+                store.write_state(out_dir / "bed.h5", dem.state_arrays(), s.time, s.step_count, config_text)
+        runfile.close()
+
+    sim.add(record, o.series_interval, at_start=True, finish=finish_outputs)
+    sim.add(guard, cfg.guard.interval, at_start=True)
+    sim.add(snapshot_once, o.particles_interval, at_start=True) if o.particles_interval else \
+        sim.add(snapshot_once, at_start=True)
+    if o.checkpoint_interval:
+        sim.add(checkpoint, o.checkpoint_interval)
+    if o.checkpoint_wall_interval:
+        sim.add(lambda s: checkpoint(s), wall=o.checkpoint_wall_interval)
+    progress = Progress(sim, name, o.log_interval)
+    sim.add(progress, wall=0.25 if progress.tty else o.log_interval, finish=progress.finish)
+
+    def on_signal(signum, frame):
+        if sim.stop_requested:  # second signal: stop hard
+            raise KeyboardInterrupt
+        sim.stop_requested = signal.Signals(signum).name
+
+    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    log(f"fbed: {name}: {scene.n} grains, DEM step {der.dt:.3g} s x {der.substeps} per {cfg.run.step:g} s step, "
+        f"{used_arch}, {cfg.run.precision}; output in {out_dir}")
+    t_start = wallclock.perf_counter()
+    status, message = "finished", ""
+    try:
+        reason = sim.run()
+        status = reason
+    except Unstable as err:
+        status, message = "unstable", str(err)
+    except NeighborOverflow as err:
+        status, message = "unstable", str(err)
+    finally:
+        for sig, h in old.items():
+            signal.signal(sig, h)
+    wall = wallclock.perf_counter() - t_start
+    d = sim.diagnostics() if status != "unstable" else {}
+    particle_substeps = scene.n * der.substeps * max(1, sim.step_count - int(meta["step"] if meta else 0))
+    summary = {
+        "preset": name, "status": status, "message": message, "arch": used_arch, "precision": cfg.run.precision,
+        "time": sim.time, "steps": sim.step_count, "duration": cfg.run.duration, "wall_time": wall,
+        "grains": scene.n, "dem_dt": der.dt, "substeps_per_step": der.substeps, "collision_time": der.collision_time,
+        "rayleigh_time": der.rayleigh_time, "neighbor_slots": scene.model.slots,
+        "bytes_per_grain": bytes_per_grain(scene.model, 8 if cfg.run.precision == "float64" else 4),
+        "particle_substeps_per_s": particle_substeps / max(sim.wall_elapsed, 1e-9),
+        "neighbor_rebuilds": dem.nlist.builds,
+    }
+    summary.update({k: d[k] for k in ("kinetic_energy", "max_overlap", "grains_alive", "grains_removed", "bed_height")
+                    if k in d})
+    if status == "unstable" and (out_dir / "checkpoint.h5").exists():
+        summary["last_good_checkpoint"] = str(out_dir / "checkpoint.h5")
+    store.write_json(out_dir / "summary.json", summary)
+    units = {"time": "s", "wall_time": "s", "dem_dt": "s", "collision_time": "s", "rayleigh_time": "s",
+             "bed_height": "m", "kinetic_energy": "J", "particle_substeps_per_s": "1/s", "bytes_per_grain": "B"}
+    store.write_json(out_dir / "summary_units.json", units)
+    if status == "unstable":
+        log(f"fbed: stopped at t = {sim.time:.6g} s: {message}")
+        log(f"fbed: outputs kept in {out_dir}" + (" (last good checkpoint: checkpoint.h5)"
+                                                  if (out_dir / 'checkpoint.h5').exists() else ""))
+        return EXIT_UNSTABLE
+    if status == "interrupted":
+        log(f"fbed: stopped by {sim.stop_requested} at t = {sim.time:.6g} s; checkpoint written.\n"
+            f"      resume with: fbed run --resume {out_dir}")
+        return EXIT_INTERRUPTED
+    log(f"fbed: done: t = {sim.time:g} s in {wall:.1f} s wall; outputs in {out_dir}")
+    return EXIT_OK

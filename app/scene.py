@@ -1,0 +1,190 @@
+"""From a Config to a ready Simulation: decide what this scene needs and allocate only that.
+
+Owns: building the vessel walls, the number and sizes of grains, the initial placement
+(lattice filler or an earlier run's bed), and the compile-time ``DemModel`` (friction or
+not, rolling model, mono- or polydisperse). The physics lives in ``app.sim``; this
+module only assembles it.
+"""
+from __future__ import annotations
+
+import math
+import pathlib
+
+import numpy as np
+
+from .config import ConfigError, resolve_path
+from .config.derived import Derived, derive
+from .config.schema import Config
+from .sim import geometry
+from .sim.fields import ROLL_CONSTANT, ROLL_EPSD, DemModel
+
+ROLLING = {"none": 0, "constant_torque": ROLL_CONSTANT, "epsd": ROLL_EPSD}
+
+
+def build_walls(cfg: Config) -> list:
+    """The vessel's walls (geometry dataclasses), from [vessel] and [domain]."""
+    v, d = cfg.vessel, cfg.domain
+    floor = d.lo[2] if v.floor is None else v.floor
+    walls: list = []
+    if v.shape == "none":
+        return walls
+    if v.shape == "cylinder":
+        walls.append(geometry.CylinderWall(tuple(v.center), v.radius, name="cylinder"))
+    elif v.shape == "box":
+        walls += geometry.box_walls(d.lo, d.hi, faces=("x-", "x+", "y-", "y+"))
+    elif v.shape == "sampled":
+        path = resolve_path(cfg, v.sdf_file)
+        try:
+            data = np.load(path)
+            walls.append(geometry.SampledWall(np.asarray(data["values"], float), tuple(map(float, data["origin"])),
+                                              float(data["spacing"]), name=path.stem))
+        except (OSError, KeyError, ValueError) as err:
+            raise ConfigError(f"cannot read the sampled SDF: {err}", str(path), "vessel.sdf_file",
+                              hint="an .npz with arrays 'values' (nx,ny,nz, m), 'origin' (3, m), 'spacing' (m)") from None
+        return walls  # a sampled vessel carries its own floor
+    walls.append(geometry.PlaneWall((0.0, 0.0, floor), (0.0, 0.0, 1.0), name="floor"))
+    if v.lid is not None:
+        walls.append(geometry.PlaneWall((0.0, 0.0, v.lid), (0.0, 0.0, -1.0), name="lid"))
+    return walls
+
+
+def open_area(cfg: Config, walls: list, z: float) -> float:
+    """Open cross-section of the vessel at height z [m^2] (sampled on a 256x256 grid)."""
+    d = cfg.domain
+    if cfg.vessel.shape == "cylinder":
+        return math.pi * cfg.vessel.radius ** 2
+    xs = np.linspace(d.lo[0], d.hi[0], 257)
+    ys = np.linspace(d.lo[1], d.hi[1], 257)
+    xc, yc = 0.5 * (xs[1:] + xs[:-1]), 0.5 * (ys[1:] + ys[:-1])
+    X, Y = np.meshgrid(xc, yc, indexing="ij")
+    pts = np.stack([X, Y, np.full_like(X, z)], -1)
+    frac = np.mean(geometry.vessel_clearance(walls, pts) > 0) if walls else 1.0
+    return float(frac * (d.hi[0] - d.lo[0]) * (d.hi[1] - d.lo[1]))
+
+
+def load_bed(path: pathlib.Path) -> dict:
+    """Grains of an earlier run (bed.h5 or checkpoint.h5): position, velocity, radius, omega, alive."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            g = f["grains"]
+            out = {k: g[k][...] for k in ("position", "velocity", "radius", "alive") if k in g}
+            if "omega" in g:
+                out["omega"] = g["omega"][...]
+    except (OSError, KeyError) as err:
+        raise ConfigError(f"cannot read grains from it: {err}", str(path), "particles.initial_state",
+                          hint="give the bed.h5 or checkpoint.h5 written by an earlier fbed run") from None
+    keep = out["alive"].astype(bool) if "alive" in out else np.ones(len(out["position"]), bool)
+    return {k: v[keep] for k, v in out.items() if k != "alive"}
+
+
+def grain_count(cfg: Config, walls: list, der: Derived) -> int:
+    p = cfg.particles
+    if p.count:
+        return p.count
+    floor = cfg.domain.lo[2] if cfg.vessel.floor is None else cfg.vessel.floor
+    d = np.asarray(der.diameters)
+    mean_volume = float(np.sum(np.asarray(der.number_fractions) * math.pi * d ** 3 / 6))
+    area = open_area(cfg, walls, floor + 0.5 * p.bed_height)
+    return max(1, int(round(p.fill_solid_fraction * area * p.bed_height / mean_volume)))
+
+
+def sample_radii(n: int, der: Derived, rng: np.random.Generator) -> np.ndarray:
+    """Radii of n grains with the number fractions of the size distribution (largest remainder)."""
+    frac = np.asarray(der.number_fractions)
+    counts = np.floor(frac * n).astype(int)
+    rest = n - counts.sum()
+    counts[np.argsort(-(frac * n - counts))[:rest]] += 1
+    r = np.repeat(np.asarray(der.diameters) / 2, counts)
+    rng.shuffle(r)
+    return r
+
+
+def lattice_fill(cfg: Config, walls: list, n: int, radius_max: float, rng: np.random.Generator,
+                 file: str = "<preset>") -> np.ndarray:
+    """n non-overlapping centres on a jittered cubic lattice, lowest first, inside the vessel."""
+    d = cfg.domain
+    s = cfg.particles.fill_spacing * 2 * radius_max
+    floor = d.lo[2] if cfg.vessel.floor is None else cfg.vessel.floor
+    top = d.hi[2] if cfg.vessel.lid is None else cfg.vessel.lid
+    gap = s - 2 * radius_max
+    margin = radius_max + 0.5 * gap + 1e-9
+    axes = [np.arange(d.lo[a] + margin, d.hi[a] - margin + 1e-12, s) for a in range(2)]
+    zs = np.arange(max(floor, d.lo[2]) + margin, min(top, d.hi[2]) - margin + 1e-12, s)
+    X, Y = np.meshgrid(axes[0], axes[1], indexing="ij")
+    layer = np.stack([X.ravel(), Y.ravel()], -1)
+    pts = []
+    have = 0
+    for z in zs:
+        q = np.column_stack([layer, np.full(len(layer), z)])
+        if walls:
+            q = q[geometry.vessel_clearance(walls, q) >= margin]
+        pts.append(q)
+        have += len(q)
+        if have >= n:
+            break
+    if have < n:
+        raise ConfigError(f"only {have} grains fit in the vessel at a spacing of {s:g} m, {n} asked for",
+                          file, "particles.count",
+                          hint="raise domain.hi (z), lower particles.count / bed_height, or lower particles.fill_spacing")
+    pos = np.concatenate(pts)[:n]
+    # jitter within the lattice gap so the pour is not a perfect crystal; never overlaps
+    pos = pos + rng.uniform(-1, 1, pos.shape) * 0.45 * gap / math.sqrt(3)
+    return pos
+
+
+def dem_model(cfg: Config, der: Derived, n: int, walls: list, external_force: bool = False) -> DemModel:
+    d = cfg.domain
+    cut = 2 * der.radius_max + der.skin
+    lo, hi = tuple(d.lo), tuple(d.hi)
+    cells = tuple(max(1, int((hi[a] - lo[a]) // cut)) for a in range(3))
+    cell = tuple((hi[a] - lo[a]) / cells[a] for a in range(3))
+    slots = cfg.dem.max_neighbors
+    if not slots:
+        q = (2 * der.radius_max + der.skin) / (2 * der.radius_min)
+        slots = int(min(256, math.ceil(12 * q ** 2)))
+    r = der.diameters[0] / 2
+    pc, wc = der.pair, der.wall
+    return DemModel(
+        n=n, slots=slots, polydisperse=der.polydisperse, radius=r, mass=der.density * 4 / 3 * math.pi * r ** 3,
+        density=der.density, hertz=pc.model == "hertz_mindlin", friction=der.friction, rolling=ROLLING[der.rolling],
+        e_star=pc.e_star, g_star=pc.g_star, kn=pc.kn, kt=pc.kt, damping=pc.damping, mu=pc.friction,
+        mu_roll=pc.rolling_friction, w_e_star=wc.e_star, w_g_star=wc.g_star, w_damping=wc.damping, w_mu=wc.friction,
+        w_mu_roll=wc.rolling_friction, walls=tuple(walls), gravity=tuple(d.gravity), dt=der.dt, skin=der.skin,
+        lo=lo, hi=hi, cell=cell, cells=cells, external_force=external_force)
+
+
+class Scene:
+    """What a run needs, decided from the Config (no Taichi memory yet)."""
+
+    def __init__(self, cfg: Config, file: str = "<preset>", initial: dict | None = None):
+        self.cfg = cfg
+        self.file = file
+        if cfg.particles is None:
+            raise ConfigError("this preset has no [particles] section and no gas: nothing to simulate", file,
+                              "particles", hint="add a [particles] section")
+        self.derived = derive(cfg, file)
+        self.walls = build_walls(cfg)
+        rng = np.random.default_rng(cfg.run.seed)
+        if initial is not None:  # resuming: the checkpoint supplies the grains
+            self.initial = initial
+            n = len(initial["position"])
+        elif cfg.particles.initial_state:
+            path = resolve_path(cfg, cfg.particles.initial_state)
+            if not path.exists():
+                raise ConfigError("file not found", str(path), "particles.initial_state",
+                                  hint="run the preset that writes it first (e.g. fbed run presets/settle.toml)")
+            self.initial = load_bed(path)
+            n = len(self.initial["position"])
+            rmax = float(self.initial["radius"].max()) if n else 0.0
+            if n and rmax > self.derived.radius_max * (1 + 1e-6):
+                raise ConfigError(f"the bed holds grains of radius {rmax:g} m, larger than the preset's sizes",
+                                  str(path), "particles.initial_state", hint="use the same particles.diameter(s)")
+        else:
+            n = grain_count(cfg, self.walls, self.derived)
+            radius = sample_radii(n, self.derived, rng)
+            pos = lattice_fill(cfg, self.walls, n, self.derived.radius_max, rng, file)
+            self.initial = {"position": pos, "velocity": np.zeros_like(pos), "radius": radius}
+        self.n = n
+        self.model = dem_model(cfg, self.derived, n, self.walls)

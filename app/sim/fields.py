@@ -1,0 +1,154 @@
+"""Field bundles: the Taichi memory a scene allocates, grouped by how often it changes.
+
+Owns: allocation only. Each bundle is a ``@ti.data_oriented`` holder of fields that
+kernels receive as ``ti.template()`` arguments; nothing here computes physics.
+
+- ``GrainModel``  fixed per grain: radius, mass (allocated only for polydisperse grains;
+  monodisperse kernels use compile-time constants instead).
+- ``GrainState``  changes every substep: position, velocity, angular velocity (only with
+  friction), force and torque accumulators, alive flag.
+- ``ContactHistory``  tangential spring per neighbour slot and per wall (only with
+  friction), rolling spring (only for the elastic-plastic rolling model).
+- ``NeighborList``  Verlet half list (partner j > i) in (slot, grain) layout, so threads
+  of consecutive grains read consecutive memory on a GPU; plus the cell list used to
+  build it (counting sort).
+
+Memory per grain, float32, K neighbour slots, W walls (see ``bytes_per_grain``):
+state 12*3 (x, v, x_ref) + 12*2 (force, and torque/omega with friction: +24) + 1 (alive),
+neighbour list 8*K + 8, history 12*K + 12*W with friction, rolling +12*K (epsd),
+plus 8 bytes per cell of the cell list.
+"""
+
+import dataclasses
+
+import taichi as ti
+
+from .geometry import SampledWallField
+
+
+@dataclasses.dataclass(frozen=True)
+class DemModel:
+    """Compile-time description of a DEM scene (kernels specialise on it with ti.static)."""
+
+    n: int                      # grain slots
+    slots: int                  # neighbour slots per grain (half list)
+    polydisperse: bool
+    radius: float               # [m] (monodisperse)
+    mass: float                 # [kg] (monodisperse)
+    density: float              # [kg/m^3]
+    hertz: bool                 # hertz_mindlin (else linear spring-dashpot)
+    friction: bool              # tangential forces and history
+    rolling: int                # 0 none, 1 constant torque, 2 elastic-plastic spring-dashpot
+    # grain-grain constants
+    e_star: float
+    g_star: float
+    kn: float
+    kt: float
+    damping: float
+    mu: float
+    mu_roll: float
+    # grain-wall constants
+    w_e_star: float
+    w_g_star: float
+    w_damping: float
+    w_mu: float
+    w_mu_roll: float
+    walls: tuple                # geometry wall dataclasses
+    gravity: tuple
+    dt: float                   # [s]
+    skin: float                 # [m]
+    lo: tuple                   # domain [m]
+    hi: tuple
+    cell: tuple                 # [m] cell-list cell size per axis (>= largest cut-off)
+    cells: tuple                # cell counts per axis
+    external_force: bool = False  # a per-grain external force field (gas drag) is added
+
+    @property
+    def n_cells(self) -> int:
+        return self.cells[0] * self.cells[1] * self.cells[2]
+
+
+ROLL_NONE, ROLL_CONSTANT, ROLL_EPSD = 0, 1, 2
+SCAN_BLOCK = 1024
+
+
+@ti.data_oriented
+class GrainModel:
+    def __init__(self, m: DemModel):
+        if m.polydisperse:
+            self.radius = ti.field(float, m.n)
+            self.mass = ti.field(float, m.n)
+
+
+@ti.data_oriented
+class GrainState:
+    def __init__(self, m: DemModel):
+        vec = ti.types.vector(3, float)
+        self.x = vec.field(shape=m.n)
+        self.v = vec.field(shape=m.n)
+        self.force = vec.field(shape=m.n)
+        self.alive = ti.field(ti.u8, m.n)
+        if m.friction:
+            self.omega = vec.field(shape=m.n)
+            self.torque = vec.field(shape=m.n)
+        if m.external_force:
+            self.external_force = vec.field(shape=m.n)
+
+
+@ti.data_oriented
+class ContactHistory:
+    def __init__(self, m: DemModel):
+        vec = ti.types.vector(3, float)
+        if m.friction:
+            self.tangential = vec.field(shape=(m.slots, m.n))
+            self.wall_tangential = vec.field(shape=(max(1, len(m.walls)), m.n))
+        if m.rolling == ROLL_EPSD:
+            self.rolling = vec.field(shape=(m.slots, m.n))
+            self.wall_rolling = vec.field(shape=(max(1, len(m.walls)), m.n))
+
+
+@ti.data_oriented
+class NeighborList:
+    def __init__(self, m: DemModel):
+        self.partner = ti.field(ti.i32, (m.slots, m.n))
+        self.count = ti.field(ti.i32, m.n)
+        self.new_partner = ti.field(ti.i32, (m.slots, m.n))
+        self.new_count = ti.field(ti.i32, m.n)
+        self.x_ref = ti.types.vector(3, float).field(shape=m.n)
+        nc = m.n_cells
+        self.cell_count = ti.field(ti.i32, nc)
+        self.cell_start = ti.field(ti.i32, nc + 1)
+        self.sorted = ti.field(ti.i32, m.n)
+        self.block_sum = ti.field(ti.i32, (nc + SCAN_BLOCK - 1) // SCAN_BLOCK + 1)
+        self.overflow = ti.field(ti.i32, ())
+        self.max_disp2 = ti.field(float, ())
+        self.removed = ti.field(ti.i32, ())
+        self.builds = 0  # host-side counter of rebuilds
+
+
+class WallData:
+    """Device data of walls that need it (sampled SDFs), indexed like ``DemModel.walls``."""
+
+    def __init__(self, m: DemModel):
+        self.sampled = tuple(SampledWallField(w) if w.kind == 2 else _NoData() for w in m.walls)
+
+
+class _NoData:
+    """Placeholder for walls whose shape is analytic (kernels never read it)."""
+
+
+def bytes_per_grain(m: DemModel, precision_bytes: int = 4) -> float:
+    """Device memory per grain slot [bytes], cell list included."""
+    f = precision_bytes
+    b = 3 * 3 * f + 3 * f + 1  # x, v, x_ref, force, alive
+    if m.polydisperse:
+        b += 2 * f
+    if m.friction:
+        b += 2 * 3 * f + 3 * f * (m.slots + max(1, len(m.walls)))
+    if m.rolling == ROLL_EPSD:
+        b += 3 * f * (m.slots + max(1, len(m.walls)))
+    if m.external_force:
+        b += 3 * f
+    b += 4 * 2 * m.slots + 4 * 2 + 4  # partner, new_partner, counts, sorted
+    b += (8 * m.n_cells) / max(1, m.n)
+    return b

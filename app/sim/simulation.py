@@ -1,0 +1,142 @@
+"""The Simulation: owns the clock and the step loop; everything else attaches as a callback.
+
+Owns: simulated time, the step counter, the schedules on which callbacks fire, the stop
+request (from a signal handler), and the guard that stops an unstable run. One step is
+``run.step`` seconds: the DEM substeps it holds (and, once the gas exists, the fluid
+step and coupling before them).
+
+Schedules count steps, not floating-point seconds, so a run resumed from a checkpoint
+fires its callbacks on exactly the same steps as an uninterrupted run.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time as wallclock
+from typing import Callable
+
+
+class Unstable(RuntimeError):
+    """Raised by the guard: the message says what went wrong and which setting to change."""
+
+
+@dataclasses.dataclass
+class Hook:
+    """A callback and when it fires: every ``every`` steps and/or every ``wall`` seconds of wall time."""
+
+    fn: Callable
+    every: int = 0
+    wall: float = 0.0
+    at_start: bool = False
+    finish: Callable | None = None  # called once with (sim, reason) when the run ends
+    _last_wall: float = dataclasses.field(default=0.0, repr=False)
+
+
+class Simulation:
+    def __init__(self, dem, step: float, substeps: int, duration: float):
+        self.dem = dem
+        self.step_dt = step
+        self.substeps = substeps
+        self.duration = duration
+        self.step_count = 0
+        self.hooks: list[Hook] = []
+        self.stop_requested: str | None = None
+        self.wall_elapsed = 0.0  # wall seconds spent stepping, this process
+        self._diag_cache: tuple[int, dict] | None = None
+
+    @property
+    def time(self) -> float:
+        return self.step_count * self.step_dt
+
+    @property
+    def total_steps(self) -> int:
+        return int(math.ceil(self.duration / self.step_dt - 1e-9))
+
+    def every(self, interval: float) -> int:
+        """Steps between firings for an interval of simulated time [s] (at least 1)."""
+        return max(1, int(round(interval / self.step_dt)))
+
+    def add(self, fn, interval: float = 0.0, wall: float = 0.0, at_start: bool = False, finish=None) -> Hook:
+        h = Hook(fn, self.every(interval) if interval > 0 else 0, wall, at_start, finish)
+        h._last_wall = wallclock.perf_counter()
+        self.hooks.append(h)
+        return h
+
+    def diagnostics(self) -> dict:
+        """DEM diagnostics of the current step (computed once per step, shared by callbacks)."""
+        if self._diag_cache is None or self._diag_cache[0] != self.step_count:
+            d = self.dem.diagnostics()
+            d["time"] = self.time
+            self._diag_cache = (self.step_count, d)
+        return self._diag_cache[1]
+
+    def step(self) -> None:
+        self.dem.advance(self.substeps)
+        self.step_count += 1
+
+    def _fire(self, start: bool = False) -> None:
+        now = wallclock.perf_counter()
+        for h in self.hooks:
+            due = (start and h.at_start) or (not start and h.every and self.step_count % h.every == 0)
+            if not due and h.wall and not start and now - h._last_wall >= h.wall:
+                due = True
+            if due:
+                h._last_wall = now
+                h.fn(self)
+
+    def run(self) -> str:
+        """Step until the duration is reached, a stop is requested, or the guard trips.
+
+        Returns 'finished' or 'interrupted'; raises Unstable after the finish hooks ran."""
+        reason = "finished"
+        try:
+            if self.step_count == 0:
+                self._fire(start=True)
+            while self.step_count < self.total_steps:
+                if self.stop_requested:
+                    reason = "interrupted"
+                    break
+                t0 = wallclock.perf_counter()
+                self.step()
+                self.wall_elapsed += wallclock.perf_counter() - t0
+                self._fire()
+        except Unstable:
+            self._finish("unstable")
+            raise
+        except BaseException:
+            self._finish("error")
+            raise
+        self._finish(reason)
+        return reason
+
+    def _finish(self, reason: str) -> None:
+        for h in self.hooks:
+            if h.finish:
+                h.finish(self, reason)
+
+
+class Guard:
+    """Stops a run that went wrong (NaN/inf, runaway overlap or speed) before it writes garbage."""
+
+    def __init__(self, max_overlap: float, max_speed: float):
+        self.max_overlap = max_overlap
+        self.max_speed = max_speed
+        self.last_good_step = 0
+
+    def __call__(self, sim: Simulation) -> None:
+        d = sim.diagnostics()
+        t = sim.time
+        dt = sim.dem.m.dt
+        if d["non_finite"] or not math.isfinite(d["kinetic_energy"]):
+            raise Unstable(f"non-finite grain positions or velocities at t = {t:.6g} s (DEM step {dt:.3g} s): "
+                           "lower dem.dt or dem.dt_fraction, or soften contact.youngs_modulus")
+        if d["max_overlap"] > self.max_overlap:
+            raise Unstable(f"grains overlap by {100 * d['max_overlap']:.1f}% of a diameter at t = {t:.6g} s "
+                           f"(limit guard.max_overlap = {100 * self.max_overlap:g}%): contacts are too soft for the "
+                           "impact speeds or the step too long; raise contact.youngs_modulus, raise dem.impact_speed, "
+                           "or lower dem.dt_fraction")
+        if d["max_speed"] > self.max_speed:
+            raise Unstable(f"a grain moves at {d['max_speed']:.3g} m/s at t = {t:.6g} s (limit guard.max_speed = "
+                           f"{self.max_speed:g} m/s): the DEM step ({dt:.3g} s) is likely unstable; lower dem.dt or "
+                           "dem.dt_fraction (or raise guard.max_speed if such speeds are real)")
+        self.last_good_step = sim.step_count

@@ -1,0 +1,139 @@
+"""CLI tier: bad presets fail clearly; runs stop, checkpoint and resume exactly; presets run.
+
+Runs go through `python -m app` in fresh processes, as a user would run them.
+"""
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+PRESETS = sorted((ROOT / "presets").glob("*.toml"))
+
+
+def fbed(*args, cwd=None, timeout=600):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.run([sys.executable, "-m", "app", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd or ROOT, env=env, timeout=timeout)
+
+
+GOOD = (ROOT / "presets" / "settle.toml").read_text()
+
+BAD = {
+    "unknown_key": (GOOD.replace("density = 2500.0", "densty = 2500.0"), ["particles.densty", "did you mean 'density'"]),
+    "wrong_type": (GOOD.replace("count = 2500", 'count = "many"'), ["particles.count", "integer"]),
+    "out_of_range": (GOOD.replace("restitution = 0.9", "restitution = 1.5"), ["contact.restitution", "<= 1"]),
+    "unphysical_geometry": (GOOD.replace("radius = 0.015", "radius = 0.5"), ["vessel.radius", "does not fit"]),
+    "malformed_toml": (GOOD.replace("[vessel]", "[vessel"), ["not valid TOML"]),
+    "unknown_section": (GOOD + "\n[partcles]\ncount = 3\n", ["[partcles]", "did you mean [particles]"]),
+    "unstable_step": (GOOD + "\n[dem]\ndt = 1e-4\n", ["dem.dt", "stable limit"]),
+    "too_many_grains": (GOOD.replace("count = 2500", "count = 900000"), ["particles.count", "fit in the vessel"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_preset_clear_message_exit_2(case, tmp_path):
+    text, needles = BAD[case]
+    preset = tmp_path / "bad.toml"
+    preset.write_text(text)
+    r = fbed("run", preset, "--out", tmp_path / "out", "--arch", "cpu")
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr
+    for needle in needles:
+        assert needle in r.stderr, r.stderr
+    assert str(preset) in r.stderr or "bad.toml" in r.stderr
+    assert not (tmp_path / "out" / "run.h5").exists()
+
+
+def test_missing_preset_and_bad_override(tmp_path):
+    r = fbed("run", ROOT / "presets" / "setle.toml")
+    assert r.returncode == 2 and "no such preset" in r.stderr and "settle.toml" in r.stderr
+    r = fbed("run", ROOT / "presets" / "settle.toml", "--set", "run.duraton=0.1", "--out", tmp_path / "o")
+    assert r.returncode == 2 and "run.duraton" in r.stderr and "did you mean 'duration'" in r.stderr
+    r = fbed("run", ROOT / "presets" / "settle.toml", "--set", "run.duration=-3", "--out", tmp_path / "o")
+    assert r.returncode == 2 and "run.duration" in r.stderr and "Traceback" not in r.stderr
+
+
+SMALL = ["--set", "particles.count=300", "--set", "run.threads=1", "--set", "run.precision=float64",
+         "--set", "run.step=1e-3", "--set", "output.series_interval=1e-3", "--arch", "cpu"]
+
+
+def test_stop_and_resume_matches_a_straight_run(tmp_path):
+    """Run 2N steps straight; run N, then resume to 2N in a fresh process: same grains (1e-6 relative)."""
+    preset = ROOT / "presets" / "settle.toml"
+    straight, split = tmp_path / "straight", tmp_path / "split"
+    r = fbed("run", preset, *SMALL, "--set", "run.duration=0.04", "--out", straight)
+    assert r.returncode == 0, r.stderr
+    r = fbed("run", preset, *SMALL, "--set", "run.duration=0.02", "--out", split)
+    assert r.returncode == 0, r.stderr
+    # the checkpoint restored in a fresh process equals what was saved, every array included
+    probe = (
+        "import sys, numpy as np\n"
+        "from app.sim import runtime; runtime.init('cpu', 'float64', 1)\n"
+        "from app import config; from app.scene import Scene; from app.sim.dem import DemSolver\n"
+        "from app.io import store\n"
+        f"a, meta = store.read_state(r'{split}/checkpoint.h5')\n"
+        f"cfg = config.load(r'{split}/config.toml')\n"
+        "dem = DemSolver(Scene(cfg, initial=a).model); dem.load_state_arrays(a)\n"
+        "b = dem.state_arrays()\n"
+        "assert set(a) == set(b), set(a) ^ set(b)\n"
+        "bad = [k for k in a if not np.array_equal(a[k], b[k])]\n"
+        "assert not bad, bad\n"
+        "assert 'tangential' in a and np.abs(a['tangential']).max() > 0\n"
+        "print('restored', len(a))\n")
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, cwd=ROOT,
+                       env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert r.returncode == 0 and "restored" in r.stdout, r.stderr
+    r = fbed("run", "--resume", split, "--set", "run.duration=0.04")
+    assert r.returncode == 0, r.stderr
+    with h5py.File(straight / "checkpoint.h5") as a, h5py.File(split / "checkpoint.h5") as b:
+        assert a.attrs["step"] == b.attrs["step"] == 40
+        xa, xb = a["grains/position"][...], b["grains/position"][...]
+    scale = np.abs(xa).max()
+    assert np.abs(xa - xb).max() <= 1e-6 * scale
+    sa = json.loads((straight / "summary.json").read_text())
+    assert sa["status"] == "finished" and sa["grains_removed"] == 0
+    with h5py.File(split / "run.h5") as f:  # series continue without duplicates after resume
+        t = f["series/time"][...]
+    assert np.all(np.diff(t) > 0) and t[-1] == pytest.approx(0.04)
+
+
+def test_sigterm_stops_cleanly_with_checkpoint(tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    out = tmp_path / "run"
+    p = subprocess.Popen([sys.executable, "-m", "app", "run", ROOT / "presets" / "settle.toml", *SMALL,
+                          "--set", "run.duration=100", "--out", out], stderr=subprocess.PIPE, text=True, env=env,
+                         cwd=ROOT)
+    import time
+
+    deadline = time.time() + 120
+    while time.time() < deadline and not (out / "run.h5").exists():
+        time.sleep(0.5)
+    time.sleep(3)
+    p.terminate()
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert "resume with: fbed run --resume" in err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "interrupted" and 0 < s["time"] < 100
+    with h5py.File(out / "checkpoint.h5") as f:
+        assert f.attrs["time"] == pytest.approx(s["time"])
+
+
+@pytest.mark.parametrize("preset", PRESETS, ids=[p.stem for p in PRESETS])
+def test_every_preset_runs_briefly(preset, tmp_path):
+    """Smoke tier: each preset starts, steps and writes its outputs (float32, as on a GPU)."""
+    r = fbed("run", preset, "--set", "run.duration=0.004", "--arch", "cpu", "--out", tmp_path / "o")
+    assert r.returncode == 0, r.stderr
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert s["status"] == "finished" and s["grains_alive"] > 0
+    with h5py.File(tmp_path / "o" / "run.h5") as f:
+        for name in ("time", "kinetic_energy", "max_overlap", "grains_alive", "grains_removed", "bed_height"):
+            assert np.all(np.isfinite(f["series"][name][...])), name
+        assert "0" in f["particles"] and f["particles/0/position"].shape[1] == 3
+    assert (tmp_path / "o" / "config.toml").exists() and (tmp_path / "o" / "bed.h5").exists()

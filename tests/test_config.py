@@ -1,0 +1,111 @@
+"""Unit tier: derived values against independent hand formulas."""
+import math
+
+import numpy as np
+import pytest
+
+from app.config import ConfigError, load_text
+from app.config.derived import damping_from_restitution, derive, effective_moduli, hertz_duration
+
+from dem_helpers import merged, toml_text
+
+
+def cfg_of(**changes):
+    return load_text(toml_text(merged(**changes)), "t.toml")
+
+
+def test_effective_moduli_identical_materials():
+    e, nu = 5e6, 0.3
+    es, gs = effective_moduli(e, nu, e, nu)
+    assert es == pytest.approx(e / (2 * (1 - nu ** 2)), rel=1e-12)
+    assert gs == pytest.approx(e / (4 * (2 - nu) * (1 + nu)), rel=1e-12)
+
+
+def test_mass_collision_time_and_step():
+    cfg = cfg_of(particles={"diameter": 1e-3, "density": 2526.0}, contact={"youngs_modulus": 1e7, "poisson_ratio": 0.25})
+    d = derive(cfg)
+    m = 2526.0 * math.pi * 1e-9 / 6  # kg
+    es = 1e7 / (2 * (1 - 0.25 ** 2))
+    tc = 2.868 * ((m / 2) ** 2 / (0.25e-3 * es ** 2 * 1.0)) ** 0.2  # pair of equal grains at 1 m/s
+    assert d.mass(1e-3) == pytest.approx(m, rel=1e-12)
+    assert d.collision_time == pytest.approx(tc, rel=1e-12)
+    assert d.substeps * d.dt == pytest.approx(1e-3, rel=1e-12)
+    assert d.dt <= 0.02 * tc * (1 + 1e-12)
+
+
+def _rebound_rk4(model, c, h=2e-4):
+    """Independent integration of the dimensionless clamped contact (fixed-step RK4)."""
+    def acc(x, v):
+        xp = max(x, 0.0)
+        f = xp + 2 * c * v if model == "linear" else xp ** 1.5 + c * xp ** 0.25 * v
+        return -max(f, 0.0)
+
+    x, v = 0.0, 1.0
+    while True:
+        k1x, k1v = v, acc(x, v)
+        k2x, k2v = v + 0.5 * h * k1v, acc(x + 0.5 * h * k1x, v + 0.5 * h * k1v)
+        k3x, k3v = v + 0.5 * h * k2v, acc(x + 0.5 * h * k2x, v + 0.5 * h * k2v)
+        k4x, k4v = v + h * k3v, acc(x + h * k3x, v + h * k3v)
+        x += h / 6 * (k1x + 2 * k2x + 2 * k3x + k4x)
+        v += h / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
+        if x <= 0 and v < 0:
+            return -v
+
+
+@pytest.mark.parametrize("model", ["linear", "hertz_mindlin"])
+@pytest.mark.parametrize("e", [0.5, 0.7, 0.9])
+def test_damping_reproduces_restitution(model, e):
+    c = damping_from_restitution(model, e)
+    assert _rebound_rk4(model, c) == pytest.approx(e, abs=2e-3)  # RK4 step error dominates
+
+
+def test_linear_damping_close_to_unclamped_formula_for_weak_damping():
+    # with little damping the clamp hardly matters: zeta ~ -ln e / sqrt(pi^2 + ln^2 e)
+    e = 0.98
+    zeta = -math.log(e) / math.sqrt(math.pi ** 2 + math.log(e) ** 2)
+    assert damping_from_restitution("linear", e) == pytest.approx(zeta, rel=0.05)
+
+
+def test_dt_above_limit_is_refused_and_forcing_accepts_it():
+    with pytest.raises(ConfigError) as err:
+        derive(cfg_of(dem={"dt": 1e-4}))
+    assert "dem.dt" in str(err.value) and "stable limit" in str(err.value)
+    d = derive(cfg_of(dem={"dt": 1e-4, "force_dt": True}))
+    assert d.dt == pytest.approx(1e-4)
+
+
+def test_mass_fractions_convert_to_number_fractions():
+    cfg = cfg_of(particles={"diameter": 0.0, "diameters": [1e-3, 2e-3], "fractions": [0.5, 0.5], "fractions_by": "mass"})
+    d = derive(cfg)
+    # equal mass in both classes -> 8x as many small grains
+    assert d.number_fractions[0] / d.number_fractions[1] == pytest.approx(8.0)
+    assert d.polydisperse
+
+
+@pytest.mark.parametrize("change,key", [
+    ({"particles": {"cuont": 3}}, "particles.cuont"),
+    ({"particles": {"density": "heavy"}}, "particles.density"),
+    ({"particles": {"density": -5.0}}, "particles.density"),
+    ({"vessel": {"shape": "cylindre"}}, "vessel.shape"),
+    ({"domain": {"hi": [0.05, 0.05, -0.06]}}, "domain.hi"),
+    ({"contact": {"rolling_friction": 0.1}}, "contact.rolling_model"),
+])
+def test_bad_values_name_their_key(change, key):
+    with pytest.raises(ConfigError) as err:
+        cfg_of(**change)
+    assert key in str(err.value)
+
+
+def test_unknown_key_suggests_the_right_one():
+    with pytest.raises(ConfigError) as err:
+        cfg_of(particles={"desnity": 2500.0})
+    assert "did you mean 'density'" in str(err.value)
+
+
+def test_override_is_validated_like_the_file():
+    text = toml_text(merged())
+    cfg = load_text(text, "t.toml", ["run.duration=0.5"])
+    assert cfg.run.duration == 0.5
+    with pytest.raises(ConfigError) as err:
+        load_text(text, "t.toml", ["run.duration=-1"])
+    assert "run.duration" in str(err.value)
