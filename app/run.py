@@ -114,7 +114,7 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
     arrays = meta = None
     if resume:
         arrays, meta = store.read_state(ckpt)
-    scene = Scene(cfg, str(preset_path), initial=arrays)
+    scene = Scene(cfg, str(preset_path), initial=arrays, serial=used_arch == "cpu" and cfg.run.threads == 1)
     der = scene.derived
     dem = DemSolver(scene.model)
     sim = Simulation(dem, cfg.run.step, der.substeps, cfg.run.duration)

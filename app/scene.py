@@ -134,7 +134,8 @@ def lattice_fill(cfg: Config, walls: list, n: int, radius_max: float, rng: np.ra
     return pos
 
 
-def dem_model(cfg: Config, der: Derived, n: int, walls: list, external_force: bool = False) -> DemModel:
+def dem_model(cfg: Config, der: Derived, n: int, walls: list, external_force: bool = False,
+              serial: bool = False) -> DemModel:
     d = cfg.domain
     cut = 2 * der.radius_max + der.skin
     lo, hi = tuple(d.lo), tuple(d.hi)
@@ -152,13 +153,14 @@ def dem_model(cfg: Config, der: Derived, n: int, walls: list, external_force: bo
         e_star=pc.e_star, g_star=pc.g_star, kn=pc.kn, kt=pc.kt, damping=pc.damping, mu=pc.friction,
         mu_roll=pc.rolling_friction, w_e_star=wc.e_star, w_g_star=wc.g_star, w_damping=wc.damping, w_mu=wc.friction,
         w_mu_roll=wc.rolling_friction, walls=tuple(walls), gravity=tuple(d.gravity), dt=der.dt, skin=der.skin,
-        lo=lo, hi=hi, cell=cell, cells=cells, external_force=external_force)
+        lo=lo, hi=hi, cell=cell, cells=cells, external_force=external_force, serial=serial)
 
 
 class Scene:
     """What a run needs, decided from the Config (no Taichi memory yet)."""
 
-    def __init__(self, cfg: Config, file: str = "<preset>", initial: dict | None = None):
+    def __init__(self, cfg: Config, file: str = "<preset>", initial: dict | None = None, serial: bool = False):
+        """``serial``: kernels run on one CPU thread (plain adds instead of atomics)."""
         self.cfg = cfg
         self.file = file
         if cfg.particles is None:
@@ -187,4 +189,4 @@ class Scene:
             pos = lattice_fill(cfg, self.walls, n, self.derived.radius_max, rng, file)
             self.initial = {"position": pos, "velocity": np.zeros_like(pos), "radius": radius}
         self.n = n
-        self.model = dem_model(cfg, self.derived, n, self.walls)
+        self.model = dem_model(cfg, self.derived, n, self.walls, serial=serial)

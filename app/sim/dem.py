@@ -55,6 +55,16 @@ def grain_mass(m: ti.template(), g: ti.template(), i):
 
 
 @ti.func
+def scatter_add(m: ti.template(), f: ti.template(), j, value):
+    """f[j] += value from inside the grain loop: atomic when threads run it, a plain
+    read-modify-write when the loop is serial (float atomics are compare-and-swap loops on a CPU)."""
+    if ti.static(m.serial):
+        f[j] = f[j] + value
+    else:
+        ti.atomic_add(f[j], value)
+
+
+@ti.func
 def cell_of(m: ti.template(), p):
     c = ti.Vector([0, 0, 0])
     for a in ti.static(range(3)):
@@ -145,6 +155,8 @@ def rolling_torque(m: ti.template(), wall: ti.template(), mr, w_rel, fn, stiff, 
 @ti.kernel
 def compute_forces(m: ti.template(), g: ti.template(), s: ti.template(), h: ti.template(),
                    nl: ti.template(), wd: ti.template()):
+    # one CPU thread: a serial loop lets Taichi demote the partner atomics to plain adds
+    ti.loop_config(serialize=m.serial)
     for i in range(m.n):
         if s.alive[i]:
             xi = s.x[i]
@@ -196,9 +208,9 @@ def compute_forces(m: ti.template(), g: ti.template(), s: ti.template(), h: ti.t
                             t_i += tr
                             t_j -= tr
                         ti_ += t_i
-                        ti.atomic_add(s.torque[j], t_j)
+                        scatter_add(m, s.torque, j, t_j)
                     fi += f
-                    ti.atomic_add(s.force[j], -f)
+                    scatter_add(m, s.force, j, -f)
                 else:
                     if ti.static(m.friction):
                         h.tangential[k, i] = ti.Vector([0.0, 0.0, 0.0])
@@ -236,9 +248,9 @@ def compute_forces(m: ti.template(), g: ti.template(), s: ti.template(), h: ti.t
                         h.wall_tangential[w, i] = ti.Vector([0.0, 0.0, 0.0])
                     if ti.static(m.rolling == ROLL_EPSD):
                         h.wall_rolling[w, i] = ti.Vector([0.0, 0.0, 0.0])
-            ti.atomic_add(s.force[i], fi)
+            scatter_add(m, s.force, i, fi)
             if ti.static(m.friction):
-                ti.atomic_add(s.torque[i], ti_)
+                scatter_add(m, s.torque, i, ti_)
 
 
 @ti.kernel
@@ -331,10 +343,15 @@ def scatter_cells(m: ti.template(), s: ti.template(), nl: ti.template()):
 
 
 @ti.kernel
-def build_pairs(m: ti.template(), g: ti.template(), s: ti.template(), nl: ti.template()):
+def build_pairs(m: ti.template(), g: ti.template(), s: ti.template(), h: ti.template(), nl: ti.template()):
+    """Rebuild each grain's half list in place, carrying every surviving pair's history to its new slot.
+
+    A grain's new row is gathered in registers first; each thread writes only its own row, so
+    no second list buffer is needed (this keeps the list at 4 bytes per slot)."""
     nl.overflow[None] = 0
     for i in range(m.n):
         cnt = 0
+        new = ti.Vector([-1] * m.slots, ti.i32)
         if s.alive[i]:
             xi = s.x[i]
             ri = grain_radius(m, g, i)
@@ -350,27 +367,18 @@ def build_pairs(m: ti.template(), g: ti.template(), s: ti.template(), nl: ti.tem
                             d = s.x[j] - xi
                             if d.dot(d) < cut * cut:
                                 if cnt < m.slots:
-                                    nl.new_partner[cnt, i] = j
+                                    new[cnt] = j
                                     cnt += 1
                                 else:
                                     ti.atomic_max(nl.overflow[None], cnt + 1)
             nl.x_ref[i] = xi
-        nl.new_count[i] = cnt
-
-
-@ti.kernel
-def commit_pairs(m: ti.template(), h: ti.template(), nl: ti.template()):
-    """Swap in the new list, carrying each surviving pair's history to its new slot."""
-    for i in range(m.n):
-        n_new = nl.new_count[i]
         if ti.static(m.friction or m.rolling == ROLL_EPSD):
             n_old = nl.count[i]
             keep_t = ti.Matrix.zero(float, m.slots, 3)
             keep_r = ti.Matrix.zero(float, m.slots, 3)
-            for k in range(n_new):
-                j = nl.new_partner[k, i]
+            for k in range(cnt):
                 for q in range(n_old):
-                    if nl.partner[q, i] == j:
+                    if nl.partner[q, i] == new[k]:
                         for a in ti.static(range(3)):
                             if ti.static(m.friction):
                                 keep_t[k, a] = h.tangential[q, i][a]
@@ -381,9 +389,9 @@ def commit_pairs(m: ti.template(), h: ti.template(), nl: ti.template()):
                     h.tangential[k, i] = ti.Vector([keep_t[k, 0], keep_t[k, 1], keep_t[k, 2]])
                 if ti.static(m.rolling == ROLL_EPSD):
                     h.rolling[k, i] = ti.Vector([keep_r[k, 0], keep_r[k, 1], keep_r[k, 2]])
-        for k in range(n_new):
-            nl.partner[k, i] = nl.new_partner[k, i]
-        nl.count[i] = n_new
+        for k in range(cnt):
+            nl.partner[k, i] = new[k]
+        nl.count[i] = cnt
 
 
 # ---------------------------------------------------------------------------- diagnostics
@@ -540,12 +548,11 @@ class DemSolver:
         scan_block_sums(m, nl)
         scan_fill(m, nl)
         scatter_cells(m, s, nl)
-        build_pairs(m, self.fixed, s, nl)
+        build_pairs(m, self.fixed, s, self.history, nl)
         over = nl.overflow[None]
         if over:
             raise NeighborOverflow(f"a grain has at least {over} neighbours within the skin but the list holds "
                                    f"{m.slots}: raise dem.max_neighbors (now {m.slots}) or lower dem.skin")
-        commit_pairs(m, self.history, nl)
         nl.builds += 1
         self._need_build = False
 

@@ -14,9 +14,9 @@ kernels receive as ``ti.template()`` arguments; nothing here computes physics.
   build it (counting sort).
 
 Memory per grain, float32, K neighbour slots, W walls (see ``bytes_per_grain``):
-state 12*3 (x, v, x_ref) + 12*2 (force, and torque/omega with friction: +24) + 1 (alive),
-neighbour list 8*K + 8, history 12*K + 12*W with friction, rolling +12*K (epsd),
-plus 8 bytes per cell of the cell list.
+state 12*4 + 1 (x, v, x_ref, force, alive), with friction +24 (omega, torque),
+neighbour list 4*K + 8 (partners, count, cell-sorted id), history 12*(K + W) with friction,
+rolling +12*(K + W) (epsd only), plus 8 bytes per cell of the cell list.
 """
 
 import dataclasses
@@ -62,6 +62,7 @@ class DemModel:
     cell: tuple                 # [m] cell-list cell size per axis (>= largest cut-off)
     cells: tuple                # cell counts per axis
     external_force: bool = False  # a per-grain external force field (gas drag) is added
+    serial: bool = False        # one CPU thread: serial loops, atomics demoted to plain adds
 
     @property
     def n_cells(self) -> int:
@@ -112,8 +113,6 @@ class NeighborList:
     def __init__(self, m: DemModel):
         self.partner = ti.field(ti.i32, (m.slots, m.n))
         self.count = ti.field(ti.i32, m.n)
-        self.new_partner = ti.field(ti.i32, (m.slots, m.n))
-        self.new_count = ti.field(ti.i32, m.n)
         self.x_ref = ti.types.vector(3, float).field(shape=m.n)
         nc = m.n_cells
         self.cell_count = ti.field(ti.i32, nc)
@@ -149,6 +148,6 @@ def bytes_per_grain(m: DemModel, precision_bytes: int = 4) -> float:
         b += 3 * f * (m.slots + max(1, len(m.walls)))
     if m.external_force:
         b += 3 * f
-    b += 4 * 2 * m.slots + 4 * 2 + 4  # partner, new_partner, counts, sorted
+    b += 4 * m.slots + 4 + 4  # partner slots, count, cell-sorted id
     b += (8 * m.n_cells) / max(1, m.n)
     return b
