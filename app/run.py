@@ -151,7 +151,7 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
     def checkpoint(s, path=out_dir / "checkpoint.h5"):
         store.write_state(path, dem.state_arrays(), s.time, s.step_count, config_text)
 
-    guard = Guard(cfg.guard.max_overlap, cfg.guard.max_speed)
+    guard = Guard(cfg.guard.max_overlap, cfg.guard.max_speed, der.dt, der.dt_limit)
     last_snapshot = {"step": -1}
 
     def snapshot_once(s):
@@ -159,9 +159,22 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
             snapshot(s)
             last_snapshot["step"] = s.step_count
 
+    def guarded(fn):
+        """Writers check the guard first, so nothing non-finite ever reaches a file."""
+        def write(s):
+            guard(s)
+            fn(s)
+        return write
+
     def finish_outputs(s, reason):
         if reason in ("finished", "interrupted"):
-            if not s.hooks[0].every or s.step_count % s.hooks[0].every:
+            try:
+                guard(s)
+            except Unstable as err:  # the last steps went bad: keep the last good files
+                reason = "unstable"
+                log(f"fbed: final state not written: {err}")
+        if reason in ("finished", "interrupted"):
+            if s.step_count % s.every(o.series_interval):
                 record(s)
             snapshot_once(s)
             checkpoint(s)
@@ -169,14 +182,14 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
                 store.write_state(out_dir / "bed.h5", dem.state_arrays(), s.time, s.step_count, config_text)
         runfile.close()
 
-    sim.add(record, o.series_interval, at_start=True, finish=finish_outputs)
     sim.add(guard, cfg.guard.interval, at_start=True)
-    sim.add(snapshot_once, o.particles_interval, at_start=True) if o.particles_interval else \
-        sim.add(snapshot_once, at_start=True)
+    sim.add(guarded(record), o.series_interval, at_start=True, finish=finish_outputs)
+    sim.add(guarded(snapshot_once), o.particles_interval, at_start=True) if o.particles_interval else \
+        sim.add(guarded(snapshot_once), at_start=True)
     if o.checkpoint_interval:
-        sim.add(checkpoint, o.checkpoint_interval)
+        sim.add(guarded(checkpoint), o.checkpoint_interval)
     if o.checkpoint_wall_interval:
-        sim.add(lambda s: checkpoint(s), wall=o.checkpoint_wall_interval)
+        sim.add(guarded(checkpoint), wall=o.checkpoint_wall_interval)
     progress = Progress(sim, name, o.log_interval)
     sim.add(progress, wall=0.25 if progress.tty else o.log_interval, finish=progress.finish)
 

@@ -137,3 +137,20 @@ def test_every_preset_runs_briefly(preset, tmp_path):
             assert np.all(np.isfinite(f["series"][name][...])), name
         assert "0" in f["particles"] and f["particles/0/position"].shape[1] == 3
     assert (tmp_path / "o" / "config.toml").exists() and (tmp_path / "o" / "bed.h5").exists()
+
+
+def test_guard_stops_an_unstable_run_and_keeps_readable_outputs(tmp_path):
+    """A DEM step forced to ~0.75 collision times blows up; the guard stops it within its interval."""
+    out = tmp_path / "boom"
+    r = fbed("run", ROOT / "presets" / "settle.toml", "--set", "dem.dt=8e-5", "--set", "dem.force_dt=true",
+             "--set", "output.checkpoint_interval=0.01", "--set", "run.duration=1.0", "--arch", "cpu", "--out", out)
+    assert r.returncode == 3, r.stderr
+    assert "dem.dt" in r.stderr and "stable limit" in r.stderr and "Traceback" not in r.stderr
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "unstable" and s["time"] < 0.2  # stopped early, not after the full second
+    with h5py.File(out / "run.h5") as f:
+        for name in f["series"]:
+            assert np.all(np.isfinite(f["series"][name][...])), name
+    with h5py.File(out / "checkpoint.h5") as f:  # the last good checkpoint is finite and earlier
+        assert f.attrs["time"] < s["time"]
+        assert np.all(np.isfinite(f["grains/position"][...]))

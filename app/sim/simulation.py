@@ -116,27 +116,35 @@ class Simulation:
 
 
 class Guard:
-    """Stops a run that went wrong (NaN/inf, runaway overlap or speed) before it writes garbage."""
+    """Stops a run that went wrong (NaN/inf, runaway overlap or speed) before it writes garbage.
 
-    def __init__(self, max_overlap: float, max_speed: float):
+    Its message names the setting to change: a DEM step above the stable limit (forced with
+    dem.force_dt) is the first suspect; otherwise contacts too soft for the impacts."""
+
+    def __init__(self, max_overlap: float, max_speed: float, dt: float = 0.0, dt_limit: float = float("inf")):
         self.max_overlap = max_overlap
         self.max_speed = max_speed
+        self.dt = dt
+        self.dt_limit = dt_limit
         self.last_good_step = 0
+
+    def _advice(self) -> str:
+        if self.dt > self.dt_limit:
+            return (f"the DEM step {self.dt:.3g} s is above the stable limit {self.dt_limit:.3g} s (forced with "
+                    "dem.force_dt): lower dem.dt or set it to 0 (automatic)")
+        return ("contacts are too soft or the step too long for these impacts: raise dem.impact_speed (the step "
+                "is then set for faster impacts) or lower dem.dt_fraction; raising contact.youngs_modulus cuts "
+                "overlaps (at a smaller step)")
 
     def __call__(self, sim: Simulation) -> None:
         d = sim.diagnostics()
         t = sim.time
-        dt = sim.dem.m.dt
         if d["non_finite"] or not math.isfinite(d["kinetic_energy"]):
-            raise Unstable(f"non-finite grain positions or velocities at t = {t:.6g} s (DEM step {dt:.3g} s): "
-                           "lower dem.dt or dem.dt_fraction, or soften contact.youngs_modulus")
+            raise Unstable(f"non-finite grain positions or velocities at t = {t:.6g} s: {self._advice()}")
         if d["max_overlap"] > self.max_overlap:
             raise Unstable(f"grains overlap by {100 * d['max_overlap']:.1f}% of a diameter at t = {t:.6g} s "
-                           f"(limit guard.max_overlap = {100 * self.max_overlap:g}%): contacts are too soft for the "
-                           "impact speeds or the step too long; raise contact.youngs_modulus, raise dem.impact_speed, "
-                           "or lower dem.dt_fraction")
+                           f"(guard.max_overlap = {100 * self.max_overlap:g}%): {self._advice()}")
         if d["max_speed"] > self.max_speed:
-            raise Unstable(f"a grain moves at {d['max_speed']:.3g} m/s at t = {t:.6g} s (limit guard.max_speed = "
-                           f"{self.max_speed:g} m/s): the DEM step ({dt:.3g} s) is likely unstable; lower dem.dt or "
-                           "dem.dt_fraction (or raise guard.max_speed if such speeds are real)")
+            raise Unstable(f"a grain moves at {d['max_speed']:.3g} m/s at t = {t:.6g} s (guard.max_speed = "
+                           f"{self.max_speed:g} m/s; raise it if such speeds are real): {self._advice()}")
         self.last_good_step = sim.step_count
