@@ -111,22 +111,36 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
     from .sim.fields import bytes_per_grain
     from .sim.simulation import Guard, Simulation, Unstable
 
-    arrays = meta = None
+    arrays = gas_arrays = meta = None
     if resume:
-        arrays, meta = store.read_state(ckpt)
+        arrays, gas_arrays, meta = store.read_checkpoint(ckpt)
     scene = Scene(cfg, str(preset_path), initial=arrays, serial=used_arch == "cpu" and cfg.run.threads == 1)
     der = scene.derived
-    dem = DemSolver(scene.model)
-    sim = Simulation(dem, cfg.run.step, der.substeps, cfg.run.duration)
+    dem = DemSolver(scene.model) if scene.model is not None else None
+    flow = None
+    if scene.flow is not None:
+        from .sim.flow import FlowSolver
+
+        try:
+            flow = FlowSolver(scene.flow)
+        except ValueError as err:
+            raise ConfigError(str(err), str(preset_path), "gas", hint="check [gas] and [boundary]") from None
+    sim = Simulation(dem, cfg.run.step, der.substeps if der else 0, cfg.run.duration, flow=flow)
     if resume:
-        if len(arrays["position"]) != scene.n:
-            raise ConfigError(f"the checkpoint holds {len(arrays['position'])} grains, the preset {scene.n}",
-                              str(ckpt), "--resume", hint="resume with the run's own config.toml")
-        dem.load_state_arrays(arrays)
+        if dem is not None and (arrays is None or len(arrays["position"]) != scene.n):
+            raise ConfigError("the checkpoint does not hold this preset's grains", str(ckpt), "--resume",
+                              hint="resume with the run's own config.toml")
+        if dem is not None:
+            dem.load_state_arrays(arrays)
+        if flow is not None:
+            if gas_arrays is None:
+                raise ConfigError("the checkpoint holds no gas state", str(ckpt), "--resume",
+                                  hint="resume with the run's own config.toml")
+            flow.load_state_arrays(gas_arrays)
         sim.step_count = int(meta["step"])
         if sim.step_count >= sim.total_steps:
             log(f"{out_dir}: already at t = {sim.time:g} s >= run.duration; extend it with --set run.duration=...")
-    else:
+    elif dem is not None:
         init = scene.initial
         dem.set_grains(init["position"], init.get("velocity"), init["radius"], init.get("omega"))
 
@@ -135,29 +149,39 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
     (out_dir / "config.toml").write_text(config_text)
     runfile = store.RunFile(out_dir / "run.h5", name, resume_time=sim.time if resume else None)
     o = cfg.output
+    dem_series = ("kinetic_energy", "kinetic_energy_rotational", "max_overlap", "max_speed", "grains_alive",
+                  "grains_removed", "bed_height")
+    gas_series = ("gas_max_speed", "gas_cfl", "pressure_iterations", "pressure_residual", "divergence_residual")
 
     def record(s):
         d = s.diagnostics()
         row = {"time": s.time}
-        row.update({k: d[k] for k in ("kinetic_energy", "kinetic_energy_rotational", "max_overlap", "max_speed",
-                                      "grains_alive", "grains_removed", "bed_height")})
+        row.update({k: d[k] for k in dem_series + gas_series if k in d})
         row["wall_time"] = s.wall_elapsed
         runfile.append(row)
 
+    last_snapshot = {"grains": -1, "gas": -1}
+
     def snapshot(s):
-        x = dem.state.x.to_numpy()
-        runfile.snapshot(s.time, x, dem.state.v.to_numpy(), dem.radii())
+        if dem is not None and last_snapshot["grains"] != s.step_count:
+            runfile.snapshot(s.time, dem.state.x.to_numpy(), dem.state.v.to_numpy(), dem.radii())
+            last_snapshot["grains"] = s.step_count
+
+    def gas_fields(s):
+        if flow is not None and last_snapshot["gas"] != s.step_count:
+            runfile.gas_fields(s.time, flow.cell_velocity(), flow.pressure(), flow.fields.eps.to_numpy())
+            last_snapshot["gas"] = s.step_count
+
+    def state_of(s):
+        return (dem.state_arrays() if dem is not None else None,
+                flow.state_arrays() if flow is not None else None)
 
     def checkpoint(s, path=out_dir / "checkpoint.h5"):
-        store.write_state(path, dem.state_arrays(), s.time, s.step_count, config_text)
+        grains, gas = state_of(s)
+        store.write_checkpoint(path, grains, gas, s.time, s.step_count, config_text)
 
-    guard = Guard(cfg.guard.max_overlap, cfg.guard.max_speed, der.dt, der.dt_limit)
-    last_snapshot = {"step": -1}
-
-    def snapshot_once(s):
-        if last_snapshot["step"] != s.step_count:
-            snapshot(s)
-            last_snapshot["step"] = s.step_count
+    guard = Guard(cfg.guard.max_overlap, cfg.guard.max_speed, der.dt if der else 0.0,
+                  der.dt_limit if der else float("inf"))
 
     def guarded(fn):
         """Writers check the guard first, so nothing non-finite ever reaches a file."""
@@ -176,16 +200,22 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
         if reason in ("finished", "interrupted"):
             if s.step_count % s.every(o.series_interval):
                 record(s)
-            snapshot_once(s)
+            snapshot(s)
+            gas_fields(s)
             checkpoint(s)
-            if reason == "finished" and o.save_bed:
-                store.write_state(out_dir / "bed.h5", dem.state_arrays(), s.time, s.step_count, config_text)
+            if reason == "finished" and o.save_bed and dem is not None:
+                store.write_checkpoint(out_dir / "bed.h5", dem.state_arrays(), None, s.time, s.step_count,
+                                       config_text)
         runfile.close()
 
     sim.add(guard, cfg.guard.interval, at_start=True)
     sim.add(guarded(record), o.series_interval, at_start=True, finish=finish_outputs)
-    sim.add(guarded(snapshot_once), o.particles_interval, at_start=True) if o.particles_interval else \
-        sim.add(guarded(snapshot_once), at_start=True)
+    if dem is not None:
+        sim.add(guarded(snapshot), o.particles_interval, at_start=True) if o.particles_interval else \
+            sim.add(guarded(snapshot), at_start=True)
+    if flow is not None:
+        sim.add(guarded(gas_fields), cfg.gas.fields_interval, at_start=True) if cfg.gas.fields_interval else \
+            sim.add(guarded(gas_fields), at_start=True)
     if o.checkpoint_interval:
         sim.add(guarded(checkpoint), o.checkpoint_interval)
     if o.checkpoint_wall_interval:
@@ -199,8 +229,13 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
         sim.stop_requested = signal.Signals(signum).name
 
     old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-    log(f"fbed: {name}: {scene.n} grains, DEM step {der.dt:.3g} s x {der.substeps} per {cfg.run.step:g} s step, "
-        f"{used_arch}, {cfg.run.precision}; output in {out_dir}")
+    what = []
+    if dem is not None:
+        what.append(f"{scene.n} grains, DEM step {der.dt:.3g} s x {der.substeps} per {cfg.run.step:g} s step")
+    if flow is not None:
+        what.append(f"gas on {'x'.join(map(str, scene.flow.shape))} cells of {cfg.gas.cell_size:g} m, "
+                    f"fluid step {cfg.run.step:g} s")
+    log(f"fbed: {name}: {'; '.join(what)}; {used_arch}, {cfg.run.precision}; output in {out_dir}")
     t_start = wallclock.perf_counter()
     status, message = "finished", ""
     try:
@@ -215,23 +250,29 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
             signal.signal(sig, h)
     wall = wallclock.perf_counter() - t_start
     d = sim.diagnostics() if status != "unstable" else {}
-    particle_substeps = scene.n * der.substeps * max(1, sim.step_count - int(meta["step"] if meta else 0))
+    steps_here = max(1, sim.step_count - int(meta["step"] if meta else 0))
     summary = {
         "preset": name, "status": status, "message": message, "arch": used_arch, "precision": cfg.run.precision,
         "time": sim.time, "steps": sim.step_count, "duration": cfg.run.duration, "wall_time": wall,
-        "grains": scene.n, "dem_dt": der.dt, "substeps_per_step": der.substeps, "collision_time": der.collision_time,
-        "rayleigh_time": der.rayleigh_time, "neighbor_slots": scene.model.slots,
-        "bytes_per_grain": bytes_per_grain(scene.model, 8 if cfg.run.precision == "float64" else 4),
-        "particle_substeps_per_s": particle_substeps / max(sim.wall_elapsed, 1e-9),
-        "neighbor_rebuilds": dem.nlist.builds,
+        "steps_per_s": steps_here / max(sim.wall_elapsed, 1e-9),
     }
-    summary.update({k: d[k] for k in ("kinetic_energy", "max_overlap", "grains_alive", "grains_removed", "bed_height")
-                    if k in d})
+    if dem is not None:
+        summary.update({
+            "grains": scene.n, "dem_dt": der.dt, "substeps_per_step": der.substeps,
+            "collision_time": der.collision_time, "rayleigh_time": der.rayleigh_time,
+            "neighbor_slots": scene.model.slots,
+            "bytes_per_grain": bytes_per_grain(scene.model, 8 if cfg.run.precision == "float64" else 4),
+            "particle_substeps_per_s": scene.n * der.substeps * steps_here / max(sim.wall_elapsed, 1e-9),
+            "neighbor_rebuilds": dem.nlist.builds})
+    if flow is not None:
+        summary.update({"gas_cells": list(scene.flow.shape), "gas_cell_size": cfg.gas.cell_size})
+    summary.update({k: d[k] for k in dem_series + gas_series if k in d})
     if status == "unstable" and (out_dir / "checkpoint.h5").exists():
         summary["last_good_checkpoint"] = str(out_dir / "checkpoint.h5")
     store.write_json(out_dir / "summary.json", summary)
     units = {"time": "s", "wall_time": "s", "dem_dt": "s", "collision_time": "s", "rayleigh_time": "s",
-             "bed_height": "m", "kinetic_energy": "J", "particle_substeps_per_s": "1/s", "bytes_per_grain": "B"}
+             "bed_height": "m", "kinetic_energy": "J", "particle_substeps_per_s": "1/s", "bytes_per_grain": "B",
+             "gas_cell_size": "m", "gas_max_speed": "m/s", "steps_per_s": "1/s"}
     store.write_json(out_dir / "summary_units.json", units)
     if status == "unstable":
         log(f"fbed: stopped at t = {sim.time:.6g} s: {message}")

@@ -156,18 +156,35 @@ def dem_model(cfg: Config, der: Derived, n: int, walls: list, external_force: bo
         lo=lo, hi=hi, cell=cell, cells=cells, external_force=external_force, serial=serial)
 
 
+def flow_config(cfg: Config, walls: list):
+    """The gas solver's set-up from [gas], [boundary], [domain] and the vessel walls."""
+    from .sim import flow
+
+    g, d = cfg.gas, cfg.domain
+    shape = tuple(int(round((d.hi[a] - d.lo[a]) / g.cell_size)) for a in range(3))
+    bcs = {face: flow.BC(b.kind, tuple(b.velocity), b.pressure) for face, b in cfg.boundary}
+    return flow.FlowConfig(shape=shape, h=g.cell_size, origin=tuple(d.lo), rho=g.density, mu=g.viscosity,
+                           gravity=tuple(d.gravity), bcs=bcs, walls=tuple(walls), pressure_form=g.pressure_form,
+                           convection=g.convection, tol=g.tolerance, max_iter=g.max_iterations,
+                           aperture_samples=g.aperture_samples, max_viscous_sweeps=g.max_viscous_sweeps)
+
+
 class Scene:
-    """What a run needs, decided from the Config (no Taichi memory yet)."""
+    """What a run needs, decided from the Config (no Taichi memory yet).
+
+    ``model`` (the DEM's compile-time description) is None for a gas-only scene and
+    ``flow`` (the gas solver's set-up) is None for a grains-only scene."""
 
     def __init__(self, cfg: Config, file: str = "<preset>", initial: dict | None = None, serial: bool = False):
         """``serial``: kernels run on one CPU thread (plain adds instead of atomics)."""
         self.cfg = cfg
         self.file = file
-        if cfg.particles is None:
-            raise ConfigError("this preset has no [particles] section and no gas: nothing to simulate", file,
-                              "particles", hint="add a [particles] section")
-        self.derived = derive(cfg, file)
         self.walls = build_walls(cfg)
+        self.flow = flow_config(cfg, self.walls) if cfg.gas is not None else None
+        self.derived, self.model, self.n, self.initial = None, None, 0, None
+        if cfg.particles is None:
+            return
+        self.derived = derive(cfg, file)
         rng = np.random.default_rng(cfg.run.seed)
         if initial is not None:  # resuming: the checkpoint supplies the grains
             self.initial = initial

@@ -14,6 +14,11 @@ def reference() -> str:
     for name, cls in SECTION_TYPES.items():
         doc = "" if name not in ("run", "domain") else " (required)"
         out.append(f"#### `[{name}]`{doc}\n")
+        if name == "boundary":
+            out.append("One entry per domain face (`x-`, `x+`, `y-`, `y+`, `z-`, `z+`, or `bottom`, `top`), each an "
+                       "inline table of the keys below, e.g. `bottom = { kind = \"velocity_inlet\", velocity = "
+                       "[0.0, 0.0, 0.5] }`. Faces not listed are no-slip walls. Override one key with "
+                       "`--set boundary.bottom.velocity=[0,0,0.8]`.\n")
         out.append("| key | unit | default | meaning |\n|---|---|---|---|")
         for f in dataclasses.fields(cls):
             if f.default is not dataclasses.MISSING:

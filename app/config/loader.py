@@ -28,7 +28,11 @@ SECTION_TYPES = {
     "dem": schema.DemConfig,
     "output": schema.OutputConfig,
     "guard": schema.GuardConfig,
+    "gas": schema.GasConfig,
+    "boundary": schema.BoundarySpec,  # one inline table per face: see _build_boundary
 }
+FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
+FACE_ALIASES = {"bottom": "z-", "top": "z+"}
 REQUIRED_SECTIONS = ("run", "domain")
 
 
@@ -181,19 +185,44 @@ def _build_section(name: str, cls, table: Any, file: str, text: str):
     return cls(**kwargs)
 
 
+def _build_boundary(table: Any, file: str, text: str) -> tuple:
+    """[boundary] face = { kind = ..., velocity = [...], pressure = ... } -> ((face, BoundarySpec), ...)."""
+    if not isinstance(table, dict):
+        raise ConfigError("[boundary] must be a table of faces", file, "boundary", _find_line(text, "boundary", None))
+    out = {}
+    for face, spec_table in table.items():
+        canon = FACE_ALIASES.get(face, face)
+        if canon not in FACES:
+            close = difflib.get_close_matches(face, list(FACES) + list(FACE_ALIASES), n=1)
+            raise ConfigError(f"unknown face '{face}'", file, f"boundary.{face}", _find_line(text, "boundary", face),
+                              f"did you mean '{close[0]}'?" if close else f"faces: {', '.join(FACES)}, bottom, top")
+        if canon in out:
+            raise ConfigError(f"face {canon} given twice (through an alias)", file, f"boundary.{face}",
+                              _find_line(text, "boundary", face))
+        if isinstance(spec_table, str):
+            spec_table = {"kind": spec_table}
+        out[canon] = _build_section(f"boundary.{face}", schema.BoundarySpec, spec_table, file, text)
+    return tuple(sorted(out.items()))
+
+
 def parse_override(item: str) -> tuple[list[str], Any]:
     """``section.key=value`` -> (["section", "key"], value); the value is read as TOML, else as a string."""
     if "=" not in item:
         raise ConfigError(f"override {item!r} is not of the form section.key=value", "--set", item)
     path, raw = item.split("=", 1)
     parts = path.strip().split(".")
+    if len(parts) == 3 and parts[0] == "boundary":  # boundary.bottom.velocity=[0,0,1]
+        return parts, _override_value(raw)
     if len(parts) != 2 or not all(parts):
         raise ConfigError(f"override {item!r}: the key must be section.key (e.g. run.duration=0.05)", "--set", path)
+    return parts, _override_value(raw)
+
+
+def _override_value(raw: str) -> Any:
     try:
-        value = tomllib.loads(f"v = {raw.strip()}")["v"]
+        return tomllib.loads(f"v = {raw.strip()}")["v"]
     except tomllib.TOMLDecodeError:
-        value = raw.strip()
-    return parts, value
+        return raw.strip()
 
 
 def load_text(text: str, file: str = "<preset>", overrides: list[str] | tuple = ()) -> schema.Config:
@@ -205,7 +234,14 @@ def load_text(text: str, file: str = "<preset>", overrides: list[str] | tuple = 
         raise ConfigError(f"not valid TOML: {err}", file, "", int(m.group(1)) if m else None,
                           "check quotes, brackets and `key = value` syntax on that line") from None
     for item in overrides:
-        (section, key), value = parse_override(item)
+        parts, value = parse_override(item)
+        section, key = parts[0], parts[1]
+        if len(parts) == 3:  # boundary.<face>.<key>
+            face = data.setdefault("boundary", {}).setdefault(key, {})
+            if isinstance(face, str):
+                face = data["boundary"][key] = {"kind": face}
+            face[parts[2]] = value
+            continue
         if section not in SECTION_TYPES:
             close = difflib.get_close_matches(section, list(SECTION_TYPES), n=1)
             raise ConfigError(f"unknown section '{section}'", "--set", item,
@@ -221,7 +257,10 @@ def build(data: dict, file: str = "<preset>", text: str = "") -> schema.Config:
             close = difflib.get_close_matches(name, list(SECTION_TYPES), n=1)
             raise ConfigError(f"unknown section [{name}]", file, name, _find_line(text, name, None),
                               f"did you mean [{close[0]}]?" if close else f"sections: {', '.join(SECTION_TYPES)}")
-        sections[name] = _build_section(name, SECTION_TYPES[name], table, file, text)
+        if name == "boundary":
+            sections[name] = _build_boundary(table, file, text)
+        else:
+            sections[name] = _build_section(name, SECTION_TYPES[name], table, file, text)
     for name in REQUIRED_SECTIONS:
         if name not in sections:
             raise ConfigError(f"missing section [{name}]", file, name, None,
@@ -282,6 +321,14 @@ def dump(cfg: schema.Config) -> str:
     lines = ["# fbed resolved configuration: every key with the value used, its unit and meaning", ""]
     for name, section in sections_of(cfg).items():
         if section is None:
+            continue
+        if name == "boundary":
+            if section:
+                lines.append("[boundary]  # per domain face; faces not listed are no-slip walls")
+                for face, b in section:
+                    lines.append(f'"{face}" = {{ kind = {_toml_value(b.kind)}, velocity = {_toml_value(b.velocity)}, '
+                                 f'pressure = {_toml_value(b.pressure)} }}  # velocity [m/s], pressure [Pa]')
+                lines.append("")
             continue
         lines.append(f"[{name}]")
         for f in dataclasses.fields(section):

@@ -32,6 +32,28 @@ def check(cfg: Config, file: str, text: str) -> None:
     if v.floor is not None and v.lid is not None and v.lid <= v.floor:
         fail("vessel", "lid", f"the lid ({v.lid:g} m) must be above the floor ({v.floor:g} m)")
 
+    if cfg.particles is None and cfg.gas is None:
+        raise ConfigError("nothing to simulate: the preset has neither [particles] nor [gas]", file, "particles",
+                          None, "add a [particles] section (grains) and/or a [gas] section (gas flow)")
+    g = cfg.gas
+    if g is not None:
+        for a in range(3):
+            n = (d.hi[a] - d.lo[a]) / g.cell_size
+            if abs(n - round(n)) > 1e-6 * max(1.0, n) or round(n) < 1:
+                fail("gas", "cell_size", f"the domain's {'xyz'[a]} extent {d.hi[a] - d.lo[a]:g} m is not a whole "
+                     f"number of {g.cell_size:g} m cells ({n:.4g})", "adjust gas.cell_size or domain.lo / domain.hi")
+        faces = dict(cfg.boundary)
+        for ax in "xyz":
+            lo_p = faces.get(ax + "-") is not None and faces[ax + "-"].kind == "periodic"
+            hi_p = faces.get(ax + "+") is not None and faces[ax + "+"].kind == "periodic"
+            if lo_p != hi_p:
+                fail("boundary", ax + "-", f"periodic boundaries come in pairs: set both {ax}- and {ax}+ periodic")
+        for face, b in faces.items():
+            axis = "xyz".index(face[0])
+            if b.kind == "moving_wall" and b.velocity[axis] != 0:
+                fail("boundary", face, f"a moving wall slides along itself: its {face[0]} velocity must be 0")
+    elif cfg.boundary:
+        fail("boundary", cfg.boundary[0][0], "boundary conditions need a [gas] section")
     p = cfg.particles
     if p is not None:
         if p.diameters:

@@ -124,6 +124,33 @@ class GuardConfig:
 
 
 @dataclass(frozen=True)
+class GasConfig:
+    cell_size: float = spec(unit="m", doc="gas cell size h (the domain must be a whole number of cells)",
+                            lo=0.0, lo_open=True)
+    density: float = spec(1.2, unit="kg/m^3", doc="gas density", lo=0.0, lo_open=True, hi=1.0e4)
+    viscosity: float = spec(1.8e-5, unit="Pa s", doc="gas dynamic viscosity", lo=0.0)
+    pressure_form: str = spec("gas", doc="who carries the pressure gradient: 'gas' (Model B) or 'shared' "
+                              "(Model A: grains feel -V grad p too)", choices=("gas", "shared"))
+    convection: str = spec("maccormack", doc="convection scheme (semi-Lagrangian, with the MacCormack "
+                           "correction by default; 'none' for Stokes flow)", choices=("maccormack", "semi_lagrangian", "none"))
+    tolerance: float = spec(1.0e-6, doc="pressure solve: relative divergence tolerance", lo=0.0, lo_open=True, hi=0.1)
+    max_iterations: int = spec(200, doc="pressure solve: most conjugate-gradient iterations per step", lo=1)
+    aperture_samples: int = spec(4, doc="sub-samples per face edge when cutting cells with the vessel walls", lo=1, hi=64)
+    max_viscous_sweeps: int = spec(40, doc="most Jacobi sweeps of the implicit viscous predictor", lo=1)
+    fields_interval: float = spec(0.0, unit="s", doc="interval of gas-field snapshots in run.h5 "
+                                  "(0: first and last only)", lo=0.0)
+
+
+@dataclass(frozen=True)
+class BoundarySpec:
+    kind: str = spec("wall", doc="boundary condition of a domain face",
+                     choices=("wall", "moving_wall", "free_slip", "velocity_inlet", "pressure_outlet", "periodic"))
+    velocity: tuple[float, float, float] = spec((0.0, 0.0, 0.0), unit="m/s", doc="inlet superficial velocity, or "
+                                                "the tangential velocity of a moving wall", length=3)
+    pressure: float = spec(0.0, unit="Pa", doc="pressure of a pressure outlet (gauge)")
+
+
+@dataclass(frozen=True)
 class Config:
     run: RunConfig
     domain: DomainConfig
@@ -133,6 +160,9 @@ class Config:
     dem: DemConfig = field(default_factory=DemConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     guard: GuardConfig = field(default_factory=GuardConfig)
+    gas: Optional[GasConfig] = None
+    # [boundary]: face name (x-, x+, y-, y+, z-, z+, bottom, top) -> BoundarySpec; faces not given are walls
+    boundary: tuple = ()
     # where the preset came from: relative paths inside it resolve against this folder
     source: str = field(default="", compare=False, metadata=dict(internal=True))
 

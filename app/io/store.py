@@ -6,8 +6,11 @@ run.h5
   /series/<name>                1-D, one entry per series sample (``time`` in s first)
   /particles/<k>/{time,position,velocity,radius}   snapshot k (k = 0, 1, ...)
   attrs: fbed_version, preset, units (JSON: name -> unit)
+  /fields/<k>/{time,gas_velocity,pressure,void_fraction}  gas snapshot k: cell-centred
+                                interstitial velocity (nx,ny,nz,3) [m/s], pressure [Pa], gas fraction [-]
 checkpoint.h5 / bed.h5
   /grains/<array>               every changing DEM array (see DemSolver.state_arrays)
+  /gas/<array>                  the gas solver's whole state (see FlowSolver.state_arrays)
   attrs: time [s], step, config (the resolved TOML), fbed_version
 Every write goes to a temporary file first and is renamed into place, so a crash
 mid-write leaves the previous checkpoint intact.
@@ -37,25 +40,35 @@ def _atomic_write(path: pathlib.Path, fill) -> None:
     os.replace(tmp, path)
 
 
-def write_state(path: pathlib.Path, arrays: dict, time: float, step: int, config_text: str, extra: dict | None = None) -> None:
-    """A checkpoint (or bed.h5): every array, plus time [s], step and the resolved config."""
+def write_checkpoint(path: pathlib.Path, grains: dict | None, gas: dict | None, time: float, step: int,
+                     config_text: str) -> None:
+    """A checkpoint (or bed.h5): every array of the grains and/or the gas, time [s], step, resolved config."""
 
     def fill(f):
-        g = f.create_group("grains")
-        for k, v in arrays.items():
-            g.create_dataset(k, data=np.asarray(v))
+        for group, arrays in (("grains", grains), ("gas", gas)):
+            if arrays is None:
+                continue
+            g = f.create_group(group)
+            for k, v in arrays.items():
+                g.create_dataset(k, data=np.asarray(v))
         f.attrs.update(time=time, step=step, config=config_text, fbed_version=VERSION)
-        for k, v in (extra or {}).items():
-            f.attrs[k] = v
 
     _atomic_write(pathlib.Path(path), fill)
 
 
-def read_state(path: pathlib.Path) -> tuple[dict, dict]:
+def read_checkpoint(path: pathlib.Path) -> tuple[dict | None, dict | None, dict]:
+    """(grain arrays or None, gas arrays or None, attributes) of a checkpoint."""
     with h5py.File(path, "r") as f:
-        arrays = {k: f["grains"][k][...] for k in f["grains"]}
+        grains = {k: f["grains"][k][...] for k in f["grains"]} if "grains" in f else None
+        gas = {k: f["gas"][k][...] for k in f["gas"]} if "gas" in f else None
         meta = dict(f.attrs)
-    return arrays, meta
+    return grains, gas, meta
+
+
+def read_state(path: pathlib.Path) -> tuple[dict, dict]:
+    """Grain arrays and attributes of a checkpoint or bed.h5."""
+    grains, _, meta = read_checkpoint(path)
+    return grains, meta
 
 
 class RunFile:
@@ -78,9 +91,12 @@ class RunFile:
             keep = int(np.searchsorted(times, t + 1e-12, side="right"))
             for name in self.series:
                 self.series[name].resize((keep,))
-        for k in list(self.particles):
-            if float(self.particles[k]["time"][()]) > t + 1e-12:
-                del self.particles[k]
+        for group in (self.particles, self.f.get("fields")):
+            if group is None:
+                continue
+            for k in list(group):
+                if float(group[k]["time"][()]) > t + 1e-12:
+                    del group[k]
 
     def append(self, row: dict) -> None:
         """One sample of every series in ``row``; a series first seen now is NaN for earlier samples."""
@@ -101,6 +117,16 @@ class RunFile:
         g.create_dataset("position", data=np.asarray(position, np.float32), compression="gzip", compression_opts=1)
         g.create_dataset("velocity", data=np.asarray(velocity, np.float32), compression="gzip", compression_opts=1)
         g.create_dataset("radius", data=np.asarray(radius, np.float32), compression="gzip", compression_opts=1)
+        self.f.flush()
+        return k
+
+    def gas_fields(self, time: float, gas_velocity, pressure, void_fraction) -> int:
+        fields = self.f.require_group("fields")
+        k = len(fields)
+        g = fields.create_group(str(k))
+        g["time"] = time
+        for name, arr in (("gas_velocity", gas_velocity), ("pressure", pressure), ("void_fraction", void_fraction)):
+            g.create_dataset(name, data=np.asarray(arr, np.float32), compression="gzip", compression_opts=1)
         self.f.flush()
         return k
 

@@ -2,8 +2,8 @@
 
 Owns: simulated time, the step counter, the schedules on which callbacks fire, the stop
 request (from a signal handler), and the guard that stops an unstable run. One step is
-``run.step`` seconds: the DEM substeps it holds (and, once the gas exists, the fluid
-step and coupling before them).
+``run.step`` seconds: the gas step (when the scene has gas), then the DEM substeps it
+holds (when it has grains). A scene without one of them allocates nothing for it.
 
 Schedules count steps, not floating-point seconds, so a run resumed from a checkpoint
 fires its callbacks on exactly the same steps as an uninterrupted run.
@@ -33,8 +33,10 @@ class Hook:
 
 
 class Simulation:
-    def __init__(self, dem, step: float, substeps: int, duration: float):
+    def __init__(self, dem, step: float, substeps: int, duration: float, flow=None):
         self.dem = dem
+        self.flow = flow
+        self.flow_info = None  # StepInfo of the last gas step
         self.step_dt = step
         self.substeps = substeps
         self.duration = duration
@@ -63,15 +65,34 @@ class Simulation:
         return h
 
     def diagnostics(self) -> dict:
-        """DEM diagnostics of the current step (computed once per step, shared by callbacks)."""
+        """Diagnostics of the current step (computed once per step, shared by callbacks)."""
         if self._diag_cache is None or self._diag_cache[0] != self.step_count:
-            d = self.dem.diagnostics()
+            d = self.dem.diagnostics() if self.dem is not None else {}
+            if self.flow is not None:
+                d.update(self._gas_diagnostics())
             d["time"] = self.time
             self._diag_cache = (self.step_count, d)
         return self._diag_cache[1]
 
+    def _gas_diagnostics(self) -> dict:
+        import numpy as np
+
+        u = self.flow.cell_velocity()
+        p = self.flow.pressure()
+        info = self.flow_info
+        return {"gas_max_speed": float(np.sqrt((u ** 2).sum(-1)).max()) if u.size else 0.0,
+                "gas_non_finite": int((~np.isfinite(u)).sum() + (~np.isfinite(p)).sum()),
+                "gas_cfl": info.cfl if info else 0.0,
+                "pressure_iterations": info.pressure_iterations if info else 0,
+                "pressure_residual": info.pressure_residual if info else 0.0,
+                "pressure_converged": bool(info.converged) if info else True,
+                "divergence_residual": info.divergence if info else 0.0}
+
     def step(self) -> None:
-        self.dem.advance(self.substeps)
+        if self.flow is not None:
+            self.flow_info = self.flow.step(self.step_dt)
+        if self.dem is not None:
+            self.dem.advance(self.substeps)
         self.step_count += 1
 
     def _fire(self, start: bool = False) -> None:
@@ -128,6 +149,13 @@ class Guard:
         self.dt_limit = dt_limit
         self.last_good_step = 0
 
+    def _gas_check(self, d: dict, t: float) -> None:
+        if "gas_non_finite" not in d:
+            return
+        if d["gas_non_finite"]:
+            raise Unstable(f"non-finite gas velocity or pressure at t = {t:.6g} s (gas CFL {d['gas_cfl']:.3g}): "
+                           "lower run.step (the fluid step), raise gas.max_iterations, or check [boundary]")
+
     def _advice(self) -> str:
         if self.dt > self.dt_limit:
             return (f"the DEM step {self.dt:.3g} s is above the stable limit {self.dt_limit:.3g} s (forced with "
@@ -139,6 +167,10 @@ class Guard:
     def __call__(self, sim: Simulation) -> None:
         d = sim.diagnostics()
         t = sim.time
+        self._gas_check(d, t)
+        if "non_finite" not in d:  # no grains in this scene
+            self.last_good_step = sim.step_count
+            return
         if d["non_finite"] or not math.isfinite(d["kinetic_energy"]):
             raise Unstable(f"non-finite grain positions or velocities at t = {t:.6g} s: {self._advice()}")
         if d["max_overlap"] > self.max_overlap:
