@@ -29,6 +29,7 @@ SECTION_TYPES = {
     "output": schema.OutputConfig,
     "guard": schema.GuardConfig,
     "gas": schema.GasConfig,
+    "coupling": schema.CouplingConfig,
     "boundary": schema.BoundarySpec,  # one inline table per face: see _build_boundary
 }
 FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
@@ -233,8 +234,10 @@ def load_text(text: str, file: str = "<preset>", overrides: list[str] | tuple = 
         m = re.search(r"line (\d+)", str(err))
         raise ConfigError(f"not valid TOML: {err}", file, "", int(m.group(1)) if m else None,
                           "check quotes, brackets and `key = value` syntax on that line") from None
+    overridden = {}
     for item in overrides:
         parts, value = parse_override(item)
+        overridden[".".join(parts[:2])] = item
         section, key = parts[0], parts[1]
         if len(parts) == 3:  # boundary.<face>.<key>
             face = data.setdefault("boundary", {}).setdefault(key, {})
@@ -247,7 +250,13 @@ def load_text(text: str, file: str = "<preset>", overrides: list[str] | tuple = 
             raise ConfigError(f"unknown section '{section}'", "--set", item,
                               hint=f"did you mean '{close[0]}'?" if close else f"sections: {', '.join(SECTION_TYPES)}")
         data.setdefault(section, {})[key] = value
-    return build(data, file, text)
+    try:
+        return build(data, file, text)
+    except ConfigError as err:
+        item = overridden.get(err.key) or next((v for k, v in overridden.items() if err.key.startswith(k)), None)
+        if item is None:
+            raise
+        raise ConfigError(err.message, f"--set {item}", err.key, None, err.hint) from None
 
 
 def build(data: dict, file: str = "<preset>", text: str = "") -> schema.Config:

@@ -114,6 +114,8 @@ class OutputConfig:
     checkpoint_wall_interval: float = spec(300.0, unit="s", doc="wall-clock interval of checkpoints (0: off)", lo=0.0)
     save_bed: bool = spec(True, doc="write bed.h5 (the final grains, reusable as particles.initial_state)")
     log_interval: float = spec(5.0, unit="s", doc="wall-clock interval of log lines when not on a terminal", lo=0.1)
+    average_from: float = spec(-1.0, unit="s", doc="start of the time means in summary.json (negative: the second "
+                               "half of the run)")
 
 
 @dataclass(frozen=True)
@@ -136,9 +138,20 @@ class GasConfig:
     tolerance: float = spec(1.0e-6, doc="pressure solve: relative divergence tolerance", lo=0.0, lo_open=True, hi=0.1)
     max_iterations: int = spec(200, doc="pressure solve: most conjugate-gradient iterations per step", lo=1)
     aperture_samples: int = spec(4, doc="sub-samples per face edge when cutting cells with the vessel walls", lo=1, hi=64)
-    max_viscous_sweeps: int = spec(40, doc="most Jacobi sweeps of the implicit viscous predictor", lo=1)
+    max_viscous_sweeps: int = spec(40, doc="most Gauss-Seidel sweeps of the implicit viscous predictor", lo=1)
     fields_interval: float = spec(0.0, unit="s", doc="interval of gas-field snapshots in run.h5 "
                                   "(0: first and last only)", lo=0.0)
+
+
+@dataclass(frozen=True)
+class CouplingConfig:
+    drag: str = spec("wen_yu", doc="drag law (Model-A coefficient; see app/sim/drag.py for each law's source)",
+                     choices=("stokes", "schiller_naumann", "wen_yu", "gidaspow", "di_felice", "beetstra", "tang",
+                              "koch_hill"))
+    eps_min: float = spec(0.4, doc="lowest gas fraction a cell may take (denser deposits are clipped and counted)",
+                          lo=0.05, hi=0.95)
+    smoothing_width: float = spec(0.0, unit="m", doc="standard deviation of the Gaussian-like smoothing of the "
+                                  "deposited grain volume (0: plain cloud-in-cell)", lo=0.0)
 
 
 @dataclass(frozen=True)
@@ -148,6 +161,8 @@ class BoundarySpec:
     velocity: tuple[float, float, float] = spec((0.0, 0.0, 0.0), unit="m/s", doc="inlet superficial velocity, or "
                                                 "the tangential velocity of a moving wall", length=3)
     pressure: float = spec(0.0, unit="Pa", doc="pressure of a pressure outlet (gauge)")
+    start: float = spec(0.0, unit="s", doc="an inlet blows nothing before this time", lo=0.0)
+    ramp: float = spec(0.0, unit="s", doc="an inlet then rises linearly to its velocity over this time", lo=0.0)
 
 
 @dataclass(frozen=True)
@@ -161,6 +176,7 @@ class Config:
     output: OutputConfig = field(default_factory=OutputConfig)
     guard: GuardConfig = field(default_factory=GuardConfig)
     gas: Optional[GasConfig] = None
+    coupling: CouplingConfig = field(default_factory=CouplingConfig)
     # [boundary]: face name (x-, x+, y-, y+, z-, z+, bottom, top) -> BoundarySpec; faces not given are walls
     boundary: tuple = ()
     # where the preset came from: relative paths inside it resolve against this folder

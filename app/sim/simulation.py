@@ -33,9 +33,11 @@ class Hook:
 
 
 class Simulation:
-    def __init__(self, dem, step: float, substeps: int, duration: float, flow=None):
+    def __init__(self, dem, step: float, substeps: int, duration: float, flow=None, coupler=None):
         self.dem = dem
         self.flow = flow
+        self.coupler = coupler
+        self.before_step: list[Callable] = []  # called with the simulation before each step (inlet schedules)
         self.flow_info = None  # StepInfo of the last gas step
         self.step_dt = step
         self.substeps = substeps
@@ -86,9 +88,15 @@ class Simulation:
                 "pressure_iterations": info.pressure_iterations if info else 0,
                 "pressure_residual": info.pressure_residual if info else 0.0,
                 "pressure_converged": bool(info.converged) if info else True,
-                "divergence_residual": info.divergence if info else 0.0}
+                "divergence_residual": info.divergence if info else 0.0,
+                **({"clipped_cells": self.coupler.clipped_cells} if self.coupler is not None else {})}
 
     def step(self) -> None:
+        for fn in self.before_step:
+            fn(self)
+        # one coupling order per fluid step: deposit eps -> drag -> gas step -> DEM substeps
+        if self.coupler is not None:
+            self.coupler.step(self.step_dt)
         if self.flow is not None:
             self.flow_info = self.flow.step(self.step_dt)
         if self.dem is not None:
