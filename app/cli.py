@@ -1,6 +1,7 @@
 """The `fbed` command line: argument parsing and error reporting only (no physics here).
 
     fbed run PRESET [--set section.key=value]... [--out DIR] [--arch auto|cpu|cuda] [--resume DIR]
+    fbed sweep PRESET --set key=v1,v2,... [--set ...] [--jobs N] [--out DIR] [--plot FIGURE]
 
 Bad input (preset, key, unit, range, file) prints one clear message and exits with 2.
 """
@@ -24,6 +25,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="where the kernels run (auto: CUDA when a GPU is present)")
     r.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its checkpoint")
     r.add_argument("--overwrite", action="store_true", help="replace an existing run in --out")
+    w = sub.add_parser("sweep", help="run a preset over lists of values",
+                       description="Run PRESET for every combination of the --set lists; write sweep.csv.")
+    w.add_argument("preset", help="preset file (.toml)")
+    w.add_argument("--set", dest="sets", action="append", default=[], metavar="SECTION.KEY=V1,V2,...",
+                   help="a key and its list of values (repeatable: the cases are the Cartesian product)")
+    w.add_argument("--jobs", type=int, default=1, help="cases run at once (each on one CPU thread when > 1)")
+    w.add_argument("--out", help="output folder (default: runs/<preset>-sweep)")
+    w.add_argument("--plot", dest="plot_figure", metavar="FIGURE",
+                   help="plot this summary figure against the first swept key")
+    w.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto")
     return p
 
 
@@ -37,6 +48,12 @@ def main(argv: list[str] | None = None) -> int:
             from .run import run
 
             return run(args.preset, args.overrides, args.out, args.arch, args.resume, args.overwrite)
+        if args.command == "sweep":
+            from .sweep import sweep
+
+            if not args.sets:
+                raise ConfigError("nothing to sweep", "--set", "", hint="e.g. --set boundary.bottom.velocity=[0,0,0.3],[0,0,0.6]")
+            return sweep(args.preset, args.sets, args.jobs, args.out, args.plot_figure, args.arch)
     except ConfigError as err:
         print(f"fbed: error: {err}", file=sys.stderr)
         return 2

@@ -21,6 +21,72 @@ from .io import store
 EXIT_OK, EXIT_INPUT, EXIT_UNSTABLE, EXIT_INTERRUPTED = 0, 2, 3, 130
 
 
+class BedMeasures:
+    """Bed-scale figures of a coupled run: pressure drop across the domain (gas hydrostatics removed),
+    bed weight per area, and their time means."""
+
+    def __init__(self, scene, flow):
+        import math
+
+        self.flow = flow
+        g = scene.cfg.gas
+        gz = abs(scene.cfg.domain.gravity[2])
+        vf = flow.fields.vol_frac.to_numpy()
+        self.bottom = vf[:, :, 0]
+        self.top = vf[:, :, -1]
+        height = (scene.flow.shape[2] - 1) * g.cell_size
+        self.hydro = g.density * gz * height
+        area = float(self.bottom.sum()) * g.cell_size ** 2
+        mass = float(np.sum(scene.cfg.particles.density * 4.0 / 3.0 * math.pi * scene.initial["radius"] ** 3))
+        buoyant = 1.0 - g.density / scene.cfg.particles.density
+        self.weight_per_area = mass * gz * buoyant / area if area > 0 else float("nan")
+
+    def pressure_drop(self) -> float:
+        """Open-area mean pressure of the bottom cell layer minus the top layer [Pa], gas weight removed."""
+        p = self.flow.pressure()
+        pb = float((p[:, :, 0] * self.bottom).sum() / self.bottom.sum())
+        pt = float((p[:, :, -1] * self.top).sum() / self.top.sum())
+        return pb - pt - self.hydro
+
+    def summary(self, runfile, cfg) -> dict:
+        series = store.read_series(runfile)
+        t = series["time"]
+        t0 = cfg.output.average_from if cfg.output.average_from >= 0 else 0.5 * t[-1]
+        sel = t >= t0 - 1e-12
+        out = {"bed_weight_per_area": self.weight_per_area, "average_from": float(t0)}
+        if sel.any():
+            dp = float(np.nanmean(series["pressure_drop"][sel]))
+            out.update(mean_pressure_drop=dp, mean_bed_height=float(np.nanmean(series["bed_height"][sel])),
+                       pressure_drop_over_weight=dp / self.weight_per_area)
+        return out
+
+
+def inlet_schedule(cfg, flow_config):
+    """A before-step hook switching velocity inlets on at `start` and ramping them over `ramp`, or None."""
+    faces = [(f, b) for f, b in cfg.boundary if b.kind == "velocity_inlet" and (b.start > 0 or b.ramp > 0)]
+    if not faces:
+        return None
+    last = {}
+
+    def apply(sim):
+        t = sim.time + sim.step_dt  # the velocity during the coming step
+        for face, b in faces:
+            frac = 0.0 if t < b.start else 1.0 if b.ramp <= 0 else min(1.0, (t - b.start) / b.ramp)
+            if last.get(face) == frac:
+                continue
+            last[face] = frac
+            a = "xyz".index(face[0])
+            n1, n2 = [flow_config.shape[k] for k in range(3) if k != a]
+            prof = np.empty((n1, n2, 3))
+            prof[...] = np.asarray(b.velocity) * frac
+            sim.flow.set_inlet_profile(face, prof)
+    return apply
+
+
+def bed_measures(scene, flow) -> BedMeasures:
+    return BedMeasures(scene, flow)
+
+
 def log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
@@ -125,7 +191,12 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
             flow = FlowSolver(scene.flow)
         except ValueError as err:
             raise ConfigError(str(err), str(preset_path), "gas", hint="check [gas] and [boundary]") from None
-    sim = Simulation(dem, cfg.run.step, der.substeps if der else 0, cfg.run.duration, flow=flow)
+    coupler = None
+    if dem is not None and flow is not None:
+        from .sim.coupling import Coupler
+
+        coupler = Coupler(scene.coupling, dem, flow)
+    sim = Simulation(dem, cfg.run.step, der.substeps if der else 0, cfg.run.duration, flow=flow, coupler=coupler)
     if resume:
         if dem is not None and (arrays is None or len(arrays["position"]) != scene.n):
             raise ConfigError("the checkpoint does not hold this preset's grains", str(ckpt), "--resume",
@@ -137,10 +208,17 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
                 raise ConfigError("the checkpoint holds no gas state", str(ckpt), "--resume",
                                   hint="resume with the run's own config.toml")
             flow.load_state_arrays(gas_arrays)
+            if coupler is not None:
+                coupler.load_state_arrays({k[len("coupling_"):]: v for k, v in gas_arrays.items()
+                                           if k.startswith("coupling_")})
         sim.step_count = int(meta["step"])
         if sim.step_count >= sim.total_steps:
             log(f"{out_dir}: already at t = {sim.time:g} s >= run.duration; extend it with --set run.duration=...")
-    elif dem is not None:
+    if flow is not None:
+        schedule = inlet_schedule(cfg, scene.flow)
+        if schedule:
+            sim.before_step.append(schedule)
+    if not resume and dem is not None:
         init = scene.initial
         dem.set_grains(init["position"], init.get("velocity"), init["radius"], init.get("omega"))
 
@@ -151,10 +229,14 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
     o = cfg.output
     dem_series = ("kinetic_energy", "kinetic_energy_rotational", "max_overlap", "max_speed", "grains_alive",
                   "grains_removed", "bed_height")
-    gas_series = ("gas_max_speed", "gas_cfl", "pressure_iterations", "pressure_residual", "divergence_residual")
+    gas_series = ("gas_max_speed", "gas_cfl", "pressure_iterations", "pressure_residual", "divergence_residual",
+                  "clipped_cells", "pressure_drop")
+    bed = bed_measures(scene, flow) if coupler is not None else None
 
     def record(s):
         d = s.diagnostics()
+        if bed is not None:
+            d["pressure_drop"] = bed.pressure_drop()
         row = {"time": s.time}
         row.update({k: d[k] for k in dem_series + gas_series if k in d})
         row["wall_time"] = s.wall_elapsed
@@ -173,8 +255,12 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
             last_snapshot["gas"] = s.step_count
 
     def state_of(s):
-        return (dem.state_arrays() if dem is not None else None,
-                flow.state_arrays() if flow is not None else None)
+        gas = None
+        if flow is not None:
+            gas = flow.state_arrays()
+            if coupler is not None:
+                gas.update({"coupling_" + k: v for k, v in coupler.state_arrays().items()})
+        return (dem.state_arrays() if dem is not None else None, gas)
 
     def checkpoint(s, path=out_dir / "checkpoint.h5"):
         grains, gas = state_of(s)
@@ -266,13 +352,16 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
             "neighbor_rebuilds": dem.nlist.builds})
     if flow is not None:
         summary.update({"gas_cells": list(scene.flow.shape), "gas_cell_size": cfg.gas.cell_size})
+    if bed is not None and status != "unstable":
+        summary.update(bed.summary(out_dir / "run.h5", cfg))
     summary.update({k: d[k] for k in dem_series + gas_series if k in d})
     if status == "unstable" and (out_dir / "checkpoint.h5").exists():
         summary["last_good_checkpoint"] = str(out_dir / "checkpoint.h5")
     store.write_json(out_dir / "summary.json", summary)
     units = {"time": "s", "wall_time": "s", "dem_dt": "s", "collision_time": "s", "rayleigh_time": "s",
              "bed_height": "m", "kinetic_energy": "J", "particle_substeps_per_s": "1/s", "bytes_per_grain": "B",
-             "gas_cell_size": "m", "gas_max_speed": "m/s", "steps_per_s": "1/s"}
+             "gas_cell_size": "m", "gas_max_speed": "m/s", "steps_per_s": "1/s", "bed_weight_per_area": "Pa",
+             "mean_pressure_drop": "Pa", "mean_bed_height": "m", "pressure_drop_over_weight": "1", "average_from": "s"}
     store.write_json(out_dir / "summary_units.json", units)
     if status == "unstable":
         log(f"fbed: stopped at t = {sim.time:.6g} s: {message}")

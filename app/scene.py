@@ -19,6 +19,7 @@ from .sim import geometry
 from .sim.fields import ROLL_CONSTANT, ROLL_EPSD, DemModel
 
 ROLLING = {"none": 0, "constant_torque": ROLL_CONSTANT, "epsd": ROLL_EPSD}
+CELLS_PER_GRAIN = 4  # cap on the cell list's size (8 bytes per cell)
 
 
 def build_walls(cfg: Config) -> list:
@@ -134,11 +135,14 @@ def lattice_fill(cfg: Config, walls: list, n: int, radius_max: float, rng: np.ra
     return pos
 
 
-def dem_model(cfg: Config, der: Derived, n: int, walls: list, external_force: bool = False,
+def dem_model(cfg: Config, der: Derived, n: int, walls: list, coupled: bool = False,
               serial: bool = False) -> DemModel:
     d = cfg.domain
-    cut = 2 * der.radius_max + der.skin
+    # cells at least one cut-off wide, and no more than CELLS_PER_GRAIN per grain: a sparse scene
+    # (few small grains in a tall column) gets larger cells instead of a huge, empty cell list
     lo, hi = tuple(d.lo), tuple(d.hi)
+    volume = float(np.prod([hi[a] - lo[a] for a in range(3)]))
+    cut = max(2 * der.radius_max + der.skin, (volume / (CELLS_PER_GRAIN * max(n, 1024))) ** (1 / 3))
     cells = tuple(max(1, int((hi[a] - lo[a]) // cut)) for a in range(3))
     cell = tuple((hi[a] - lo[a]) / cells[a] for a in range(3))
     slots = cfg.dem.max_neighbors
@@ -153,7 +157,7 @@ def dem_model(cfg: Config, der: Derived, n: int, walls: list, external_force: bo
         e_star=pc.e_star, g_star=pc.g_star, kn=pc.kn, kt=pc.kt, damping=pc.damping, mu=pc.friction,
         mu_roll=pc.rolling_friction, w_e_star=wc.e_star, w_g_star=wc.g_star, w_damping=wc.damping, w_mu=wc.friction,
         w_mu_roll=wc.rolling_friction, walls=tuple(walls), gravity=tuple(d.gravity), dt=der.dt, skin=der.skin,
-        lo=lo, hi=hi, cell=cell, cells=cells, external_force=external_force, serial=serial)
+        lo=lo, hi=hi, cell=cell, cells=cells, coupled=coupled, serial=serial)
 
 
 def flow_config(cfg: Config, walls: list):
@@ -169,6 +173,16 @@ def flow_config(cfg: Config, walls: list):
                            aperture_samples=g.aperture_samples, max_viscous_sweeps=g.max_viscous_sweeps)
 
 
+def coupling_model(cfg: Config):
+    from .sim import coupling, drag
+
+    c = cfg.coupling
+    return coupling.CouplingModel(law=drag.law_of(c.drag), model_b=cfg.gas.pressure_form == "gas",
+                                  eps_min=c.eps_min, gas_density=cfg.gas.density, gas_viscosity=cfg.gas.viscosity,
+                                  gravity=tuple(cfg.domain.gravity),
+                                  smoothing_passes=coupling.smoothing_passes(c.smoothing_width, cfg.gas.cell_size))
+
+
 class Scene:
     """What a run needs, decided from the Config (no Taichi memory yet).
 
@@ -181,7 +195,7 @@ class Scene:
         self.file = file
         self.walls = build_walls(cfg)
         self.flow = flow_config(cfg, self.walls) if cfg.gas is not None else None
-        self.derived, self.model, self.n, self.initial = None, None, 0, None
+        self.derived, self.model, self.n, self.initial, self.coupling = None, None, 0, None, None
         if cfg.particles is None:
             return
         self.derived = derive(cfg, file)
@@ -206,4 +220,5 @@ class Scene:
             pos = lattice_fill(cfg, self.walls, n, self.derived.radius_max, rng, file)
             self.initial = {"position": pos, "velocity": np.zeros_like(pos), "radius": radius}
         self.n = n
-        self.model = dem_model(cfg, self.derived, n, self.walls, serial=serial)
+        self.model = dem_model(cfg, self.derived, n, self.walls, coupled=cfg.gas is not None, serial=serial)
+        self.coupling = coupling_model(cfg) if cfg.gas is not None else None

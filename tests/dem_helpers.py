@@ -24,10 +24,15 @@ def toml_text(sections: dict) -> str:
             return "[" + ", ".join(val(x) for x in v) + "]"
         return repr(v)
 
+    def inline(v):
+        if isinstance(v, dict):
+            return "{ " + ", ".join(f"{k} = {val(x)}" for k, x in v.items()) + " }"
+        return val(v)
+
     out = []
     for name, table in sections.items():
         out.append(f"[{name}]")
-        out += [f"{k} = {val(v)}" for k, v in table.items()]
+        out += [f'"{k}" = {inline(v)}' if name == "boundary" else f"{k} = {val(v)}" for k, v in table.items()]
     return "\n".join(out) + "\n"
 
 

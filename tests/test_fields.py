@@ -16,7 +16,7 @@ def test_frictionless_monodisperse_scene_allocates_no_history_radius_or_spin():
     assert not hasattr(dem.state, "omega") and not hasattr(dem.state, "torque")
     assert not hasattr(dem.history, "tangential") and not hasattr(dem.history, "rolling")
     assert not hasattr(dem.fixed, "radius") and not hasattr(dem.fixed, "mass")
-    assert not hasattr(dem.state, "external_force")  # DEM-only: nothing for a gas
+    assert not hasattr(dem.state, "external_force") and not hasattr(dem.state, "drag_coeff")  # DEM-only: no gas
     lean = bytes_per_grain(scene.model)
     scene2, dem2 = make(contact={"friction": 0.5})
     assert hasattr(dem2.history, "tangential") and not hasattr(dem2.history, "rolling")

@@ -261,9 +261,14 @@ def integrate(m: ti.template(), g: ti.template(), s: ti.template(), nl: ti.templ
         if s.alive[i]:
             mass = grain_mass(m, g, i)
             f = s.force[i]
-            if ti.static(m.external_force):
+            v = s.v[i]
+            if ti.static(m.coupled):
+                # drag K (u_gas - v) taken implicitly: stable even when m/K is shorter than dt
                 f += s.external_force[i]
-            v = s.v[i] + (f / mass + ti.Vector(m.gravity)) * m.dt
+                kdt = s.drag_coeff[i] * m.dt / mass
+                v = (v + (f / mass + ti.Vector(m.gravity)) * m.dt + kdt * s.gas_velocity[i]) / (1.0 + kdt)
+            else:
+                v = v + (f / mass + ti.Vector(m.gravity)) * m.dt
             x = s.x[i] + v * m.dt
             s.v[i] = v
             s.x[i] = x
@@ -486,8 +491,10 @@ class DemSolver:
         if self.m.rolling == ROLL_EPSD:
             self.history.rolling.fill(0)
             self.history.wall_rolling.fill(0)
-        if self.m.external_force:
+        if self.m.coupled:
             self.state.external_force.fill(0)
+            self.state.drag_coeff.fill(0)
+            self.state.gas_velocity.fill(0)
         self.nlist.count.fill(0)
         self.nlist.removed[None] = 0
         self._need_build = True
@@ -515,8 +522,9 @@ class DemSolver:
         if self.m.rolling == ROLL_EPSD:
             out.update(rolling=h.rolling.to_numpy(), wall_rolling=h.wall_rolling.to_numpy())
         out["force"] = s.force.to_numpy()
-        if self.m.external_force:
-            out["external_force"] = s.external_force.to_numpy()
+        if self.m.coupled:
+            out.update(external_force=s.external_force.to_numpy(), drag_coeff=s.drag_coeff.to_numpy(),
+                       gas_velocity=s.gas_velocity.to_numpy())
         return out
 
     def load_state_arrays(self, a: dict) -> None:
@@ -537,8 +545,10 @@ class DemSolver:
         if self.m.rolling == ROLL_EPSD:
             h.rolling.from_numpy(self._f(a["rolling"]))
             h.wall_rolling.from_numpy(self._f(a["wall_rolling"]))
-        if self.m.external_force and "external_force" in a:
+        if self.m.coupled and "drag_coeff" in a:
             s.external_force.from_numpy(self._f(a["external_force"]))
+            s.drag_coeff.from_numpy(self._f(a["drag_coeff"]))
+            s.gas_velocity.from_numpy(self._f(a["gas_velocity"]))
 
     # -- stepping ---------------------------------------------------------------------
     def rebuild(self) -> None:

@@ -61,7 +61,7 @@ class DemModel:
     hi: tuple
     cell: tuple                 # [m] cell-list cell size per axis (>= largest cut-off)
     cells: tuple                # cell counts per axis
-    external_force: bool = False  # a per-grain external force field (gas drag) is added
+    coupled: bool = False       # gas drag: per-grain drag coefficient, gas velocity and explicit force
     serial: bool = False        # one CPU thread: serial loops, atomics demoted to plain adds
 
     @property
@@ -92,7 +92,12 @@ class GrainState:
         if m.friction:
             self.omega = vec.field(shape=m.n)
             self.torque = vec.field(shape=m.n)
-        if m.external_force:
+        if m.coupled:
+            # set once per fluid step by the coupling: drag coefficient K [kg/s] (the grain feels
+            # K (gas_velocity - v), integrated implicitly), gas velocity at the grain [m/s], and the
+            # explicit gas force [N] (-V grad p in Model A, buoyancy in Model B)
+            self.drag_coeff = ti.field(float, m.n)
+            self.gas_velocity = vec.field(shape=m.n)
             self.external_force = vec.field(shape=m.n)
 
 
@@ -146,8 +151,8 @@ def bytes_per_grain(m: DemModel, precision_bytes: int = 4) -> float:
         b += 2 * 3 * f + 3 * f * (m.slots + max(1, len(m.walls)))
     if m.rolling == ROLL_EPSD:
         b += 3 * f * (m.slots + max(1, len(m.walls)))
-    if m.external_force:
-        b += 3 * f
+    if m.coupled:
+        b += 7 * f
     b += 4 * m.slots + 4 + 4  # partner slots, count, cell-sorted id
     b += (8 * m.n_cells) / max(1, m.n)
     return b

@@ -1,0 +1,153 @@
+"""`fbed sweep`: run a preset over the Cartesian product of lists of values.
+
+    fbed sweep PRESET --set key=v1,v2,... [--set key2=...] [--jobs N] [--out DIR] [--plot FIGURE]
+
+Each case is an ordinary `fbed run` in its own folder (DIR/case-000, ...), in its own
+process, so a failed case is recorded in sweep.csv and does not stop the others.
+sweep.csv has one row per case: its swept values, its status and exit code, and every
+number of its summary.json. With --plot, FIGURE (a summary key, e.g. mean_pressure_drop)
+is plotted against the first swept key into DIR/FIGURE.png.
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import csv
+import itertools
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+from .config import ConfigError, load
+
+
+def split_values(raw: str) -> list[str]:
+    """Split 'a,b,[1,2],"x,y"' on the commas that are not inside brackets, braces or quotes."""
+    out, depth, quote, cur = [], 0, None, ""
+    for ch in raw:
+        if quote:
+            cur += ch
+            if ch == quote:
+                quote = None
+            continue
+        if ch in "\"'":
+            quote = ch
+        elif ch in "[{":
+            depth += 1
+        elif ch in "]}":
+            depth -= 1
+        elif ch == "," and depth == 0:
+            out.append(cur.strip())
+            cur = ""
+            continue
+        cur += ch
+    if cur.strip():
+        out.append(cur.strip())
+    return out
+
+
+def cases(sets: list[str]) -> tuple[list[str], list[tuple[str, ...]]]:
+    keys, lists = [], []
+    for item in sets:
+        if "=" not in item:
+            raise ConfigError(f"{item!r} is not of the form key=v1,v2,...", "--set", item)
+        key, raw = item.split("=", 1)
+        values = split_values(raw)
+        if not values:
+            raise ConfigError("no values given", "--set", key)
+        keys.append(key.strip())
+        lists.append(values)
+    return keys, list(itertools.product(*lists))
+
+
+def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: int) -> dict:
+    args = [sys.executable, "-m", "app", "run", preset, "--out", str(out), "--overwrite", "--arch", arch]
+    for k, v in zip(keys, values):
+        args += ["--set", f"{k}={v}"]
+    if threads:
+        args += ["--set", f"run.threads={threads}"]
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(pathlib.Path(__file__).resolve().parents[1]) + os.pathsep + env.get("PYTHONPATH", "")
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "log.txt", "w") as logf:
+        rc = subprocess.run(args, stdout=logf, stderr=subprocess.STDOUT, env=env).returncode
+    row = {k: v for k, v in zip(keys, values)}
+    row.update(case=out.name, exit_code=rc)
+    summary = out / "summary.json"
+    if summary.exists():
+        s = json.loads(summary.read_text())
+        row["status"] = s.get("status", "")
+        row.update({k: v for k, v in s.items() if isinstance(v, (int, float)) and not isinstance(v, bool)})
+    else:
+        tail = (out / "log.txt").read_text().strip().splitlines()[-1:] or [""]
+        row["status"] = f"failed: {tail[0]}"
+    return row
+
+
+def plot(rows: list[dict], key: str, figure: str, path: pathlib.Path, group: str | None = None) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    def num(v):
+        """A number, or the magnitude of a vector value such as [0,0,0.6]."""
+        try:
+            return float(v)
+        except (TypeError, ValueError):
+            pass
+        try:
+            import tomllib
+
+            vec = tomllib.loads(f"v = {v}")["v"]
+            return float(sum(float(x) ** 2 for x in vec) ** 0.5)
+        except Exception:
+            return float("nan")
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    groups = sorted({r.get(group) for r in rows}) if group else [None]
+    for gval in groups:
+        sel = [r for r in rows if (group is None or r.get(group) == gval) and figure in r]
+        sel.sort(key=lambda r: num(r[key]))
+        ax.plot([num(r[key]) for r in sel], [num(r[figure]) for r in sel], "o-", label=f"{group} = {gval}" if group else None)
+    ax.set_xlabel(key)
+    ax.set_ylabel(figure)
+    if group:
+        ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, plot_figure: str | None = None,
+          arch: str = "auto") -> int:
+    load(preset)  # the preset itself must be valid before anything runs
+    keys, combos = cases(sets)
+    for values in combos:  # every case's overrides are validated up front: no half-run sweep on a typo
+        load(preset, [f"{k}={v}" for k, v in zip(keys, values)])
+    out_dir = pathlib.Path(out) if out else pathlib.Path("runs") / (pathlib.Path(preset).stem + "-sweep")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    threads = 1 if jobs > 1 else 0
+    print(f"fbed sweep: {len(combos)} cases of {preset} over {', '.join(keys)}; {jobs} at a time; output in {out_dir}",
+          file=sys.stderr, flush=True)
+    rows = [None] * len(combos)
+    with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+        futs = {pool.submit(run_case, preset, keys, v, out_dir / f"case-{i:03d}", arch, threads): i
+                for i, v in enumerate(combos)}
+        for fut in concurrent.futures.as_completed(futs):
+            i = futs[fut]
+            rows[i] = fut.result()
+            print(f"  case-{i:03d} {dict(zip(keys, combos[i]))}: {rows[i]['status']}", file=sys.stderr, flush=True)
+    columns = list(dict.fromkeys(["case", *keys, "status", "exit_code"] + [k for r in rows for k in r]))
+    with open(out_dir / "sweep.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=columns)
+        w.writeheader()
+        w.writerows(rows)
+    if plot_figure:
+        plot(rows, keys[0], plot_figure, out_dir / f"{plot_figure}.png", group=keys[1] if len(keys) > 1 else None)
+    failed = sum(1 for r in rows if r["exit_code"] != 0)
+    print(f"fbed sweep: {len(rows) - failed} of {len(rows)} cases finished; table in {out_dir / 'sweep.csv'}",
+          file=sys.stderr)
+    return 0 if failed == 0 else 1
