@@ -25,27 +25,40 @@ class BedMeasures:
     """Bed-scale figures of a coupled run: pressure drop across the domain (gas hydrostatics removed),
     bed weight per area, and their time means."""
 
-    def __init__(self, scene, flow):
-        import math
-
+    def __init__(self, scene, flow, dem=None):
         self.flow = flow
+        self.dem = dem
         g = scene.cfg.gas
         gz = abs(scene.cfg.domain.gravity[2])
         vf = flow.fields.vol_frac.to_numpy()
         self.bottom = vf[:, :, 0]
         self.top = vf[:, :, -1]
-        height = (scene.flow.shape[2] - 1) * g.cell_size
+        height = scene.flow.shape[2] * g.cell_size
         self.hydro = g.density * gz * height
-        area = float(self.bottom.sum()) * g.cell_size ** 2
-        mass = float(np.sum(scene.cfg.particles.density * 4.0 / 3.0 * math.pi * scene.initial["radius"] ** 3))
-        buoyant = 1.0 - g.density / scene.cfg.particles.density
-        self.weight_per_area = mass * gz * buoyant / area if area > 0 else float("nan")
+        self.area = float(self.bottom.sum()) * g.cell_size ** 2
+        self.weight_factor = gz * (1.0 - g.density / scene.cfg.particles.density)  # buoyant weight per kg
+        radius = scene.initial["radius"]
+        self._initial_mass = float(np.sum(scene.cfg.particles.density * 4.0 / 3.0 * np.pi * radius ** 3))
+
+    @property
+    def weight_per_area(self) -> float:
+        """Buoyant weight of the grains still in the domain over the open cross-section [Pa]."""
+        mass = self._initial_mass
+        if self.dem is not None:
+            mass = float(np.sum(self.dem.masses() * self.dem.state.alive.to_numpy()))
+        return mass * self.weight_factor / self.area if self.area > 0 else float("nan")
 
     def pressure_drop(self) -> float:
-        """Open-area mean pressure of the bottom cell layer minus the top layer [Pa], gas weight removed."""
+        """Pressure at the bottom face of the domain minus the top face [Pa], gas weight removed: the
+        open-area means of the first two (last two) cell layers, extrapolated half a cell to the face,
+        so the grains in the lowest half cell count too."""
         p = self.flow.pressure()
-        pb = float((p[:, :, 0] * self.bottom).sum() / self.bottom.sum())
-        pt = float((p[:, :, -1] * self.top).sum() / self.top.sum())
+
+        def mean(layer, w):
+            return float((p[:, :, layer] * w).sum() / w.sum())
+
+        pb = 1.5 * mean(0, self.bottom) - 0.5 * mean(1, self.bottom)
+        pt = 1.5 * mean(-1, self.top) - 0.5 * mean(-2, self.top)
         return pb - pt - self.hydro
 
     def summary(self, runfile, cfg) -> dict:
@@ -53,11 +66,12 @@ class BedMeasures:
         t = series["time"]
         t0 = cfg.output.average_from if cfg.output.average_from >= 0 else 0.5 * t[-1]
         sel = t >= t0 - 1e-12
-        out = {"bed_weight_per_area": self.weight_per_area, "average_from": float(t0)}
+        wpa = self.weight_per_area
+        out = {"bed_weight_per_area": wpa, "average_from": float(t0)}
         if sel.any():
             dp = float(np.nanmean(series["pressure_drop"][sel]))
             out.update(mean_pressure_drop=dp, mean_bed_height=float(np.nanmean(series["bed_height"][sel])),
-                       pressure_drop_over_weight=dp / self.weight_per_area)
+                       pressure_drop_over_weight=dp / wpa)
         return out
 
 
@@ -83,8 +97,8 @@ def inlet_schedule(cfg, flow_config):
     return apply
 
 
-def bed_measures(scene, flow) -> BedMeasures:
-    return BedMeasures(scene, flow)
+def bed_measures(scene, flow, dem=None) -> BedMeasures:
+    return BedMeasures(scene, flow, dem)
 
 
 def log(msg: str) -> None:
@@ -180,7 +194,8 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
     arrays = gas_arrays = meta = None
     if resume:
         arrays, gas_arrays, meta = store.read_checkpoint(ckpt)
-    scene = Scene(cfg, str(preset_path), initial=arrays, serial=used_arch == "cpu" and cfg.run.threads == 1)
+    serial = used_arch == "cpu" and runtime.cpu_threads(cfg.run.threads or None) == 1
+    scene = Scene(cfg, str(preset_path), initial=arrays, serial=serial)
     der = scene.derived
     dem = DemSolver(scene.model) if scene.model is not None else None
     flow = None
@@ -231,7 +246,7 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
                   "grains_removed", "bed_height")
     gas_series = ("gas_max_speed", "gas_cfl", "pressure_iterations", "pressure_residual", "divergence_residual",
                   "clipped_cells", "pressure_drop")
-    bed = bed_measures(scene, flow) if coupler is not None else None
+    bed = bed_measures(scene, flow, dem) if coupler is not None else None
 
     def record(s):
         d = s.diagnostics()

@@ -167,3 +167,30 @@ def test_guard_stops_an_unstable_run_and_keeps_readable_outputs(tmp_path):
     with h5py.File(out / "checkpoint.h5") as f:  # the last good checkpoint is finite and earlier
         assert f.attrs["time"] < s["time"]
         assert np.all(np.isfinite(f["grains/position"][...]))
+
+
+def test_sweep_runs_every_case_and_records_a_failed_one(tmp_path):
+    """Two cases of the settle preset, one forced to an unstable DEM step: the sweep finishes the
+    other, writes both to sweep.csv (the failed one with its status and exit code) and the plot."""
+    import csv
+
+    out = tmp_path / "sw"
+    r = subprocess.run([sys.executable, "-m", "app", "sweep", ROOT / "presets" / "settle.toml",
+                        "--set", "dem.dt=0,8e-5", "--set", "dem.force_dt=true", "--set", "particles.count=300",
+                        "--set", "run.duration=0.06", "--out", out, "--jobs", "2", "--plot", "kinetic_energy",
+                        "--arch", "cpu"], capture_output=True, text=True, cwd=ROOT,
+                       env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=600)
+    assert r.returncode == 1, r.stderr  # one case failed
+    rows = list(csv.DictReader(open(out / "sweep.csv")))
+    assert [row["dem.dt"] for row in rows] == ["0", "8e-5"]
+    assert rows[0]["status"] == "finished" and rows[0]["exit_code"] == "0"
+    assert rows[1]["status"] == "unstable" and rows[1]["exit_code"] == "3"
+    assert float(rows[0]["grains"]) == 300 and (out / "kinetic_energy.png").stat().st_size > 1000
+
+
+def test_sweep_refuses_a_bad_value_before_running_anything(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "app", "sweep", ROOT / "presets" / "settle.toml",
+                        "--set", "contact.restitution=0.5,1.5", "--out", tmp_path / "sw"],
+                       capture_output=True, text=True, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert r.returncode == 2 and "contact.restitution" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "sw" / "case-000").exists()

@@ -30,7 +30,9 @@ class RunConfig:
     name: str = spec("", doc="run name stamped on outputs (default: the preset file's name)")
     seed: int = spec(0, doc="random seed for filling and size sampling", lo=0)
     precision: str = spec("float32", doc="floating-point precision of the kernels", choices=("float32", "float64"))
-    threads: int = spec(0, doc="CPU threads (0 = all cores); 1 makes CPU runs bit-reproducible", lo=0)
+    threads: int = spec(0, doc="CPU threads (0 = automatic: one thread on machines with 2 cores or fewer, where "
+                        "one thread without atomics is as fast as two with them, else all cores); 1 makes CPU runs "
+                        "bit-reproducible", lo=0)
 
 
 @dataclass(frozen=True)
