@@ -170,19 +170,20 @@ def test_guard_stops_an_unstable_run_and_keeps_readable_outputs(tmp_path):
 
 
 def test_sweep_runs_every_case_and_records_a_failed_one(tmp_path):
-    """Two cases of the settle preset, one forced to an unstable DEM step: the sweep finishes the
+    """Two cases of the settle preset, one forced to a DEM step of ~13 stable limits (it blows up on the
+    first contacts, t ~ 6 ms): the sweep finishes the
     other, writes both to sweep.csv (the failed one with its status and exit code) and the plot."""
     import csv
 
     out = tmp_path / "sw"
     r = subprocess.run([sys.executable, "-m", "app", "sweep", ROOT / "presets" / "settle.toml",
-                        "--set", "dem.dt=0,8e-5", "--set", "dem.force_dt=true", "--set", "particles.count=300",
+                        "--set", "dem.dt=0,2e-4", "--set", "dem.force_dt=true", "--set", "particles.count=300",
                         "--set", "run.duration=0.06", "--out", out, "--jobs", "2", "--plot", "kinetic_energy",
                         "--arch", "cpu"], capture_output=True, text=True, cwd=ROOT,
                        env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=600)
     assert r.returncode == 1, r.stderr  # one case failed
     rows = list(csv.DictReader(open(out / "sweep.csv")))
-    assert [row["dem.dt"] for row in rows] == ["0", "8e-5"]
+    assert [row["dem.dt"] for row in rows] == ["0", "2e-4"]
     assert rows[0]["status"] == "finished" and rows[0]["exit_code"] == "0"
     assert rows[1]["status"] == "unstable" and rows[1]["exit_code"] == "3"
     assert float(rows[0]["grains"]) == 300 and (out / "kinetic_energy.png").stat().st_size > 1000

@@ -57,6 +57,7 @@ def test_frozen_packed_bed_pressure_drop_is_ergun(form):
         dp = p[:, :, 0].mean() - p[:, :, -1].mean() - RHO_G * 9.81 * dz
         expected = ergun_gradient(U, eps, d) * layers * d
         results.append(dp / expected)
+    print(f"{form}: dp / Ergun = {np.round(results, 4)}")
     assert np.allclose(results, 1.0, atol=0.05), results
 
 
@@ -92,4 +93,5 @@ def test_single_grain_reaches_schiller_naumann_terminal_velocity():
         flow.step(dt)
         dem.advance(scene.derived.substeps)
     v = -dem.state.v.to_numpy()[0, 2]
+    print(f"terminal velocity {v:.4f} m/s, Schiller-Naumann {vt:.4f} m/s")
     assert v == pytest.approx(vt, rel=0.02)

@@ -113,12 +113,14 @@ def test_bed_below_umf_holds_still_and_umf_matches_the_drag_law(settled, umf_pre
     for frac in (0.4, 0.7):
         U = frac * umf
         h0, h1, dp, wpa, _, _ = run_case(settled, U, 0.12, 0.05)
+        print(f"U = {U:.3f} m/s: bed height {1e3 * h0:.2f} -> {1e3 * h1:.2f} mm")
         assert abs(h1 - h0) / h0 < 0.02, (U, h0, h1)
         points.append((U, dp))
     # fixed-bed curve dp = a U + b U^2 through the two points; U_mf where it reaches the weight
     (u1, p1), (u2, p2) = points
     a, b = np.linalg.solve([[u1, u1 * u1], [u2, u2 * u2]], [p1, p2])
     umf_sim = (-a + math.sqrt(a * a + 4 * b * wpa)) / (2 * b)
+    print(f"U_mf simulated {umf_sim:.3f} m/s, Wen-Yu at the bed's eps = {eps:.3f}: {umf:.3f} m/s")
     assert umf_sim == pytest.approx(umf, rel=0.15), (umf_sim, umf, eps)
 
 
