@@ -97,10 +97,6 @@ def inlet_schedule(cfg, flow_config):
     return apply
 
 
-def bed_measures(scene, flow, dem=None) -> BedMeasures:
-    return BedMeasures(scene, flow, dem)
-
-
 def log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
@@ -246,7 +242,7 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
                   "grains_removed", "bed_height")
     gas_series = ("gas_max_speed", "gas_cfl", "pressure_iterations", "pressure_residual", "divergence_residual",
                   "clipped_cells", "pressure_drop")
-    bed = bed_measures(scene, flow, dem) if coupler is not None else None
+    bed = BedMeasures(scene, flow, dem) if coupler is not None else None
 
     def record(s):
         d = s.diagnostics()

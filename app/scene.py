@@ -15,6 +15,7 @@ import numpy as np
 from .config import ConfigError, resolve_path
 from .config.derived import Derived, derive
 from .config.schema import Config
+from .io import store
 from .sim import geometry
 from .sim.fields import ROLL_CONSTANT, ROLL_EPSD, DemModel
 
@@ -64,20 +65,18 @@ def open_area(cfg: Config, walls: list, z: float) -> float:
 
 
 def load_bed(path: pathlib.Path) -> dict:
-    """Grains of an earlier run (bed.h5 or checkpoint.h5): position, velocity, radius, omega, alive."""
-    import h5py
-
+    """Grains of an earlier run (bed.h5 or checkpoint.h5) still in the domain: position, velocity,
+    radius and, with friction, omega."""
     try:
-        with h5py.File(path, "r") as f:
-            g = f["grains"]
-            out = {k: g[k][...] for k in ("position", "velocity", "radius", "alive") if k in g}
-            if "omega" in g:
-                out["omega"] = g["omega"][...]
+        grains, _, _ = store.read_checkpoint(path)
+        if grains is None:
+            raise KeyError("no /grains group")
+        out = {k: grains[k] for k in ("position", "velocity", "radius", "omega") if k in grains}
+        keep = grains["alive"].astype(bool) if "alive" in grains else np.ones(len(out["position"]), bool)
     except (OSError, KeyError) as err:
         raise ConfigError(f"cannot read grains from it: {err}", str(path), "particles.initial_state",
                           hint="give the bed.h5 or checkpoint.h5 written by an earlier fbed run") from None
-    keep = out["alive"].astype(bool) if "alive" in out else np.ones(len(out["position"]), bool)
-    return {k: v[keep] for k, v in out.items() if k != "alive"}
+    return {k: v[keep] for k, v in out.items()}
 
 
 def grain_count(cfg: Config, walls: list, der: Derived) -> int:

@@ -195,3 +195,19 @@ def test_sweep_refuses_a_bad_value_before_running_anything(tmp_path):
                        capture_output=True, text=True, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)))
     assert r.returncode == 2 and "contact.restitution" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "sw" / "case-000").exists()
+
+
+def test_a_saved_bed_is_reused_by_a_later_run(tmp_path):
+    """bed.h5 of one run is another run's particles.initial_state: same grains, same places."""
+    first, second = tmp_path / "first", tmp_path / "second"
+    r = fbed("run", ROOT / "presets" / "settle.toml", *SMALL, "--set", "run.duration=0.01", "--out", first)
+    assert r.returncode == 0, r.stderr
+    r = fbed("run", ROOT / "presets" / "settle.toml", *SMALL, "--set", "particles.count=0",
+             "--set", f'particles.initial_state="{first / "bed.h5"}"', "--set", "run.duration=0.002",
+             "--out", second)
+    assert r.returncode == 0, r.stderr
+    with h5py.File(first / "bed.h5") as a, h5py.File(second / "run.h5") as b:
+        np.testing.assert_array_equal(b["particles/0/position"][...], a["grains/position"][...].astype(np.float32))
+    r = fbed("run", ROOT / "presets" / "settle.toml", "--set", "particles.count=0",
+             "--set", f'particles.initial_state="{first / "summary.json"}"', "--out", tmp_path / "bad")
+    assert r.returncode == 2 and "particles.initial_state" in r.stderr and "Traceback" not in r.stderr
