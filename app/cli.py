@@ -1,6 +1,8 @@
 """The `fbed` command line: argument parsing and error reporting only (no physics here).
 
     fbed run PRESET [--set section.key=value]... [--out DIR] [--arch auto|cpu|cuda] [--resume DIR]
+    fbed run PRESET --video [FILE]    (also write an mp4 of the run; [video] in the preset sets its look)
+    fbed view PRESET [--set ...]      (the run in a window with live controls)
     fbed sweep PRESET --set key=v1,v2,... [--set ...] [--jobs N] [--out DIR] [--plot FIGURE]
 
 Bad input (preset, key, unit, range, file) prints one clear message and exits with 2.
@@ -25,6 +27,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="where the kernels run (auto: CUDA when a GPU is present)")
     r.add_argument("--resume", metavar="DIR", help="continue the run in DIR from its checkpoint")
     r.add_argument("--overwrite", action="store_true", help="replace an existing run in --out")
+    r.add_argument("--video", nargs="?", const="", default=None, metavar="FILE",
+                   help="write a video (default FILE: video.mp4 in the output folder); same as "
+                        "--set video.enabled=true")
+    v = sub.add_parser("view", help="run a preset in a window with live controls",
+                       description="Run PRESET in a window: space pause, n step, up/down gas velocity, j jet, "
+                                   "c colour, v view, arrows orbit, =/- zoom, p screenshot, esc quit.")
+    v.add_argument("preset", help="preset file (.toml)")
+    v.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    v.add_argument("--out", help="output folder (default: runs/<preset name>)")
+    v.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto")
     w = sub.add_parser("sweep", help="run a preset over lists of values",
                        description="Run PRESET for every combination of the --set lists; write sweep.csv.")
     w.add_argument("preset", help="preset file (.toml)")
@@ -47,7 +59,16 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "run":
             from .run import run
 
-            return run(args.preset, args.overrides, args.out, args.arch, args.resume, args.overwrite)
+            overrides = list(args.overrides)
+            if args.video is not None:
+                overrides.append("video.enabled=true")
+                if args.video:
+                    overrides.append(f"video.file={args.video!r}".replace("'", '"'))
+            return run(args.preset, overrides, args.out, args.arch, args.resume, args.overwrite)
+        if args.command == "view":
+            from .gui.viewer import view
+
+            return view(args.preset, args.overrides, args.arch, args.out)
         if args.command == "sweep":
             from .sweep import sweep
 

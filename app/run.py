@@ -17,6 +17,7 @@ import numpy as np
 from . import config as cfgmod
 from .config import ConfigError
 from .io import store
+from .schedule import InletSchedule
 
 EXIT_OK, EXIT_INPUT, EXIT_UNSTABLE, EXIT_INTERRUPTED = 0, 2, 3, 130
 
@@ -75,26 +76,37 @@ class BedMeasures:
         return out
 
 
-def inlet_schedule(cfg, flow_config):
-    """A before-step hook switching velocity inlets on at `start` and ramping them over `ramp`, or None."""
-    faces = [(f, b) for f, b in cfg.boundary if b.kind == "velocity_inlet" and (b.start > 0 or b.ramp > 0)]
-    if not faces:
-        return None
-    last = {}
+def prepared_state(cfg, preset_path: pathlib.Path, arch: str, chain: tuple = ()) -> pathlib.Path:
+    """The checkpoint of ``run.start_from``'s preparation preset: reused from the cache
+    (runs/prepared/<name>-<hash of its resolved config>/) when it holds a finished run,
+    else run there now. The hash covers the preparation's own chain, so editing any stage
+    reruns it and everything after it."""
+    import hashlib
 
-    def apply(sim):
-        t = sim.time + sim.step_dt  # the velocity during the coming step
-        for face, b in faces:
-            frac = 0.0 if t < b.start else 1.0 if b.ramp <= 0 else min(1.0, (t - b.start) / b.ramp)
-            if last.get(face) == frac:
-                continue
-            last[face] = frac
-            a = "xyz".index(face[0])
-            n1, n2 = [flow_config.shape[k] for k in range(3) if k != a]
-            prof = np.empty((n1, n2, 3))
-            prof[...] = np.asarray(b.velocity) * frac
-            sim.flow.set_inlet_profile(face, prof)
-    return apply
+    prep = cfgmod.resolve_path(cfg, cfg.run.start_from)
+    if not prep.exists():
+        raise ConfigError("preparation preset not found", str(prep), "run.start_from",
+                          hint=f"a path relative to {preset_path.name}'s folder")
+    if prep.resolve() in chain:
+        raise ConfigError("run.start_from chain loops back on itself", str(prep), "run.start_from")
+    prep_cfg = cfgmod.load(prep, [])
+    text = cfgmod.dump(prep_cfg)
+    if prep_cfg.run.start_from:  # its own preparation's identity is part of its identity
+        text += str(prepared_state(prep_cfg, prep, arch, chain + (prep.resolve(),)))
+    key = hashlib.sha1(text.encode()).hexdigest()[:10]
+    cache = pathlib.Path("runs") / "prepared" / f"{prep.stem}-{key}"
+    summary = cache / "summary.json"
+    if summary.exists() and (cache / "checkpoint.h5").exists():
+        import json
+
+        if json.loads(summary.read_text()).get("status") == "finished":
+            log(f"fbed: starting from the prepared state in {cache} ({prep.name}, reused)")
+            return cache / "checkpoint.h5"
+    log(f"fbed: preparing {prep.name} first (cached in {cache} for later runs)")
+    rc = run(str(prep), [], out=str(cache), arch=arch, overwrite=True)
+    if rc != EXIT_OK:
+        raise ConfigError(f"the preparation run did not finish (exit {rc}); see {cache}", str(prep), "run.start_from")
+    return cache / "checkpoint.h5"
 
 
 def log(msg: str) -> None:
@@ -157,8 +169,62 @@ class Progress:
             self.bar.stop()
 
 
+def load_prepared(cfg, sim, dem, flow, coupler, arrays, gas_arrays, meta) -> None:
+    """Start from a prepared state: its grains (full contact state when the models match),
+    its gas (when it has one) and its clock."""
+    t = float(meta["time"])
+    steps = t / cfg.run.step
+    if abs(steps - round(steps)) > 1e-6:
+        raise ConfigError(f"the prepared state's time {t:g} s is not a whole number of steps of {cfg.run.step:g} s",
+                          cfg.source or "", "run.step", hint="use the preparation preset's run.step")
+    if dem is not None and arrays is not None:
+        try:
+            dem.load_state_arrays(arrays)
+        except (KeyError, ValueError):  # other contact model: positions and velocities carry over, history restarts
+            dem.set_grains(arrays["position"], arrays["velocity"], arrays["radius"], None, arrays.get("alive"))
+    if flow is not None and gas_arrays is not None:
+        flow.load_state_arrays(gas_arrays)
+        if coupler is not None:
+            coupler.load_state_arrays({k[len("coupling_"):]: v for k, v in gas_arrays.items()
+                                       if k.startswith("coupling_")})
+    sim.step_count = int(round(steps))
+    if sim.step_count >= sim.total_steps:
+        raise ConfigError(f"the prepared state is at t = {t:g} s, past run.duration = {cfg.run.duration:g} s",
+                          cfg.source or "", "run.duration", hint="run.duration is the end time: raise it")
+
+
+def post_process(analysis: str, out_dir: pathlib.Path) -> dict:
+    """Run the preset's analysis on the finished run's files; its key figures go into summary.json."""
+    import importlib
+
+    try:
+        mod = importlib.import_module(f".analysis.{analysis}", __package__)
+        figures = mod.summarize(out_dir)
+        log(f"fbed: {analysis} analysis written to {out_dir / 'analysis'}")
+        return figures
+    except Exception as err:  # noqa: BLE001 - an analysis failure must not lose the run's outputs
+        log(f"fbed: the {analysis} analysis failed ({type(err).__name__}: {err}); rerun it with "
+            f"`fbed analyze {out_dir}`")
+        return {"analysis_error": f"{type(err).__name__}: {err}"}
+
+
+def make_renderer(cfg, scene, dem, flow, name: str, show_window: bool = False):
+    """The GGUI renderer for this scene, or a clear error when no Vulkan device is present."""
+    try:
+        from .gui.render import Renderer, ViewSettings
+
+        return Renderer(dem, flow, scene.walls, cfg.domain.lo, cfg.domain.hi, ViewSettings.from_config(cfg.video),
+                        title=name, show_window=show_window)
+    except RuntimeError as err:
+        raise ConfigError(f"the renderer could not start: {str(err).splitlines()[0] if str(err) else err}",
+                          "", "--video", hint="it needs a Vulkan driver (a GPU driver, or Debian's "
+                          "mesa-vulkan-drivers on the CPU); run without --video / video.enabled") from None
+
+
 def run(preset: str | None, overrides: list[str], out: str | None = None, arch: str = "auto",
-        resume: str | None = None, overwrite: bool = False) -> int:
+        resume: str | None = None, overwrite: bool = False, viewer=None) -> int:
+    """Run a preset (or resume DIR). ``viewer``: a callable ``viewer(renderer, schedule)``
+    returning a controller for ``Simulation.run`` (``fbed view``); None runs headless."""
     # -- configuration (errors here lose nothing: no output written yet)
     if resume:
         out_dir = pathlib.Path(resume)
@@ -188,8 +254,12 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
     from .sim.simulation import Guard, Simulation, Unstable
 
     arrays = gas_arrays = meta = None
+    prepared = False
     if resume:
         arrays, gas_arrays, meta = store.read_checkpoint(ckpt)
+    elif cfg.run.start_from:
+        arrays, gas_arrays, meta = store.read_checkpoint(prepared_state(cfg, preset_path, arch))
+        prepared = True
     serial = used_arch == "cpu" and runtime.cpu_threads(cfg.run.threads or None) == 1
     scene = Scene(cfg, str(preset_path), initial=arrays, serial=serial)
     der = scene.derived
@@ -208,6 +278,9 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
 
         coupler = Coupler(scene.coupling, dem, flow)
     sim = Simulation(dem, cfg.run.step, der.substeps if der else 0, cfg.run.duration, flow=flow, coupler=coupler)
+    if prepared:
+        load_prepared(cfg, sim, dem, flow, coupler, arrays, gas_arrays, meta)
+        sim.fresh = True
     if resume:
         if dem is not None and (arrays is None or len(arrays["position"]) != scene.n):
             raise ConfigError("the checkpoint does not hold this preset's grains", str(ckpt), "--resume",
@@ -225,11 +298,21 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
         sim.step_count = int(meta["step"])
         if sim.step_count >= sim.total_steps:
             log(f"{out_dir}: already at t = {sim.time:g} s >= run.duration; extend it with --set run.duration=...")
+    schedule = None
     if flow is not None:
-        schedule = inlet_schedule(cfg, scene.flow)
-        if schedule:
+        try:
+            schedule = InletSchedule(cfg.boundary, scene.flow.shape, scene.flow.h, scene.flow.origin)
+        except ValueError as err:
+            raise ConfigError(str(err), str(preset_path), "boundary") from None
+        if schedule.faces:
             sim.before_step.append(schedule)
-    if not resume and dem is not None:
+    renderer = None
+    if viewer is not None and dem is None:
+        raise ConfigError("the viewer draws grains: this scene has none", str(preset_path), "particles")
+    if dem is not None and (cfg.video.enabled or viewer is not None):
+        renderer = make_renderer(cfg, scene, dem, flow, name,
+                                 show_window=viewer is not None and getattr(viewer, "show_window", True))
+    if not resume and not prepared and dem is not None:
         init = scene.initial
         dem.set_grains(init["position"], init.get("velocity"), init["radius"], init.get("omega"))
 
@@ -313,10 +396,31 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
     if flow is not None:
         sim.add(guarded(gas_fields), cfg.gas.fields_interval, at_start=True) if cfg.gas.fields_interval else \
             sim.add(guarded(gas_fields), at_start=True)
+    pr = cfg.probes
+    if flow is not None and (pr.slab_interval or pr.planes_interval or pr.volume_interval):
+        from .probes import Probes
+
+        Probes(cfg, flow, flow.fields.active.to_numpy()).attach(sim, runfile, guarded)
     if o.checkpoint_interval:
         sim.add(guarded(checkpoint), o.checkpoint_interval)
     if o.checkpoint_wall_interval:
         sim.add(guarded(checkpoint), wall=o.checkpoint_wall_interval)
+    writer = None
+    if renderer is not None and cfg.video.enabled:
+        from .gui.video import VideoWriter
+
+        writer = VideoWriter(out_dir / (cfg.video.file or "video.mp4"), cfg.video.fps, notify=log)
+
+        def video_frame(s):
+            writer.write(renderer.frame(s.time))
+
+        def video_close(s, reason):
+            writer.close()
+            if viewer is None:
+                renderer.close()
+
+        # with gas, the first frame waits for the first step: before it no void fraction is deposited
+        sim.add(guarded(video_frame), cfg.video.interval, at_start=flow is None, finish=video_close)
     progress = Progress(sim, name, o.log_interval)
     sim.add(progress, wall=0.25 if progress.tty else o.log_interval, finish=progress.finish)
 
@@ -336,7 +440,7 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
     t_start = wallclock.perf_counter()
     status, message = "finished", ""
     try:
-        reason = sim.run()
+        reason = sim.run(viewer(renderer, schedule, out_dir) if viewer is not None else None)
         status = reason
     except Unstable as err:
         status, message = "unstable", str(err)
@@ -363,16 +467,25 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
             "neighbor_rebuilds": dem.nlist.builds})
     if flow is not None:
         summary.update({"gas_cells": list(scene.flow.shape), "gas_cell_size": cfg.gas.cell_size})
+    if renderer is not None:
+        summary.update({"frames": renderer.frames, "render_time": renderer.render_seconds,
+                        "render_share": renderer.render_seconds / max(wall, 1e-9)})
+        if writer is not None:
+            summary.update({"video": str(writer.path), "video_encoder": writer.encoder})
     if bed is not None and status != "unstable":
         summary.update(bed.summary(out_dir / "run.h5", cfg))
     summary.update({k: d[k] for k in dem_series + gas_series if k in d})
     if status == "unstable" and (out_dir / "checkpoint.h5").exists():
         summary["last_good_checkpoint"] = str(out_dir / "checkpoint.h5")
     store.write_json(out_dir / "summary.json", summary)
+    if cfg.probes.analysis != "none" and status in ("finished", "interrupted"):
+        summary.update(post_process(cfg.probes.analysis, out_dir))  # it reads the summary written above
+        store.write_json(out_dir / "summary.json", summary)
     units = {"time": "s", "wall_time": "s", "dem_dt": "s", "collision_time": "s", "rayleigh_time": "s",
              "bed_height": "m", "kinetic_energy": "J", "particle_substeps_per_s": "1/s", "bytes_per_grain": "B",
              "gas_cell_size": "m", "gas_max_speed": "m/s", "steps_per_s": "1/s", "bed_weight_per_area": "Pa",
-             "mean_pressure_drop": "Pa", "mean_bed_height": "m", "pressure_drop_over_weight": "1", "average_from": "s"}
+             "mean_pressure_drop": "Pa", "mean_bed_height": "m", "pressure_drop_over_weight": "1", "average_from": "s",
+             "render_time": "s", "render_share": "1"}
     store.write_json(out_dir / "summary_units.json", units)
     if status == "unstable":
         log(f"fbed: stopped at t = {sim.time:.6g} s: {message}")

@@ -10,6 +10,10 @@ RESULTS = pathlib.Path(__file__).resolve().parent / "RESULTS.md"
 
 
 def commit() -> str:
+    import os
+
+    if os.environ.get("FBED_COMMIT"):  # set where the checkout has no .git (the GPU machine's copy)
+        return os.environ["FBED_COMMIT"]
     try:
         out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                              cwd=RESULTS.parent).stdout.strip()

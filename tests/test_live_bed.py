@@ -15,7 +15,8 @@ import pytest
 from scipy.optimize import brentq
 
 from app.config import load_text
-from app.run import BedMeasures, inlet_schedule
+from app.run import BedMeasures
+from app.schedule import InletSchedule
 from app.scene import Scene
 from app.sim import drag
 from app.sim.coupling import Coupler
@@ -52,8 +53,8 @@ def build(U, duration, initial=None):
     flow = FlowSolver(scene.flow)
     cp = Coupler(scene.coupling, dem, flow)
     sim = Simulation(dem, cfg.run.step, scene.derived.substeps, cfg.run.duration, flow=flow, coupler=cp)
-    sched = inlet_schedule(cfg, scene.flow)
-    if sched:
+    sched = InletSchedule(cfg.boundary, scene.flow.shape, scene.flow.h, scene.flow.origin)
+    if sched.faces:
         sim.before_step.append(sched)
     return scene, dem, flow, sim
 

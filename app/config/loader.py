@@ -28,6 +28,8 @@ SECTION_TYPES = {
     "dem": schema.DemConfig,
     "output": schema.OutputConfig,
     "guard": schema.GuardConfig,
+    "video": schema.VideoConfig,
+    "probes": schema.ProbesConfig,
     "gas": schema.GasConfig,
     "coupling": schema.CouplingConfig,
     "boundary": schema.BoundarySpec,  # one inline table per face: see _build_boundary
@@ -335,8 +337,11 @@ def dump(cfg: schema.Config) -> str:
             if section:
                 lines.append("[boundary]  # per domain face; faces not listed are no-slip walls")
                 for face, b in section:
-                    lines.append(f'"{face}" = {{ kind = {_toml_value(b.kind)}, velocity = {_toml_value(b.velocity)}, '
-                                 f'pressure = {_toml_value(b.pressure)} }}  # velocity [m/s], pressure [Pa]')
+                    keys = [f for f in dataclasses.fields(b) if f.name == "kind" or getattr(b, f.name) != f.default
+                            and not (f.default_factory is not dataclasses.MISSING and not getattr(b, f.name))]
+                    items = ", ".join(f"{f.name} = {_toml_value(getattr(b, f.name))}" for f in keys)
+                    units = ", ".join(f"{f.name} [{f.metadata.get('unit', '-')}]" for f in keys if f.name != "kind")
+                    lines.append(f'"{face}" = {{ {items} }}' + (f"  # {units}" if units else ""))
                 lines.append("")
             continue
         lines.append(f"[{name}]")
@@ -347,7 +352,7 @@ def dump(cfg: schema.Config) -> str:
             if v is None:
                 lines.append(f"# {f.name} = (default){comment}")
             else:
-                if f.name in ("initial_state", "sdf_file") and v:
+                if f.name in ("initial_state", "sdf_file", "start_from") and v:
                     v = str(resolve_path(cfg, v))
                 lines.append(f"{f.name} = {_toml_value(v)}{comment}")
         lines.append("")

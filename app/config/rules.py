@@ -50,6 +50,27 @@ def check(cfg: Config, file: str, text: str) -> None:
                 fail("boundary", ax + "-", f"periodic boundaries come in pairs: set both {ax}- and {ax}+ periodic")
         for face, b in faces.items():
             axis = "xyz".index(face[0])
+            inlet_only = [k for k in ("schedule", "jet_radius", "jet_duration", "jet_ramp", "jet_start")
+                          if getattr(b, k)] + (["jet_velocity"] if any(b.jet_velocity) else [])
+            if inlet_only and b.kind != "velocity_inlet":
+                fail("boundary", face, f"{inlet_only[0]} applies to a velocity_inlet, not to a {b.kind}")
+            if b.schedule:
+                rows = b.schedule
+                ok = all(isinstance(r, list) and len(r) == 2 and all(isinstance(v, (int, float)) and
+                                                                       not isinstance(v, bool) for v in r) for r in rows)
+                if not ok:
+                    fail("boundary", face, "schedule must be a list of [time (s), fraction] pairs",
+                         "e.g. schedule = [[0.0, 0.0], [0.3, 0.0], [0.35, 1.0]]")
+                times = [r[0] for r in rows]
+                if any(t1 <= t0 for t0, t1 in zip(times, times[1:])):
+                    fail("boundary", face, "schedule times must increase", "sort the [time, fraction] pairs by time")
+                if b.start or b.ramp:
+                    fail("boundary", face, "give either schedule or start/ramp, not both")
+            if any(b.jet_velocity) and b.jet_radius <= 0:
+                fail("boundary", face, "a jet needs jet_radius > 0 m (the face cells within it blow)")
+            if b.jet_duration and b.jet_duration < 2 * b.jet_ramp:
+                fail("boundary", face, f"jet_duration ({b.jet_duration:g} s) is shorter than its two ramps "
+                     f"(2 x {b.jet_ramp:g} s)")
             if b.kind == "moving_wall" and b.velocity[axis] != 0:
                 fail("boundary", face, f"a moving wall slides along itself: its {face[0]} velocity must be 0")
     elif cfg.boundary:
@@ -90,3 +111,27 @@ def check(cfg: Config, file: str, text: str) -> None:
             fail("contact", "friction", "rolling resistance needs friction > 0 (grains must be able to roll)")
     if cfg.output.particles_interval and cfg.output.particles_interval < cfg.run.step:
         fail("output", "particles_interval", f"shorter than run.step ({cfg.run.step:g} s)")
+    vid = cfg.video
+    if vid.enabled or vid.file:
+        if cfg.particles is None:
+            fail("video", "enabled", "the renderer draws grains: this scene has none", "remove --video / video.enabled")
+        if vid.color == "void_fraction" and cfg.gas is None:
+            fail("video", "color", "colouring by void fraction needs a [gas] section",
+                 "choose video.color = 'speed', 'height', 'size' or 'tracer'")
+        lo, hi = vid.color_range
+        if (lo, hi) != (0.0, 0.0) and hi <= lo:
+            fail("video", "color_range", f"the upper end ({hi:g}) must exceed the lower end ({lo:g})",
+                 "give [low, high], or [0, 0] for automatic")
+    pr = cfg.probes
+    if (pr.slab_interval or pr.planes_interval or pr.volume_interval) and cfg.gas is None:
+        fail("probes", "slab_interval" if pr.slab_interval else "planes_interval" if pr.planes_interval
+             else "volume_interval", "void-fraction probes need a [gas] section (the grid they sample)")
+    if pr.planes:
+        if any(not isinstance(z, float) for z in pr.planes) or not all(d.lo[2] < z < d.hi[2] for z in pr.planes):
+            fail("probes", "planes", f"plane heights must be numbers inside the domain ({d.lo[2]:g}..{d.hi[2]:g} m)")
+        if not pr.planes_interval:
+            fail("probes", "planes_interval", "planes are given but planes_interval = 0", "set it, e.g. 2e-3 s")
+    for key in ("slab_interval", "planes_interval", "volume_interval"):
+        v = getattr(pr, key)
+        if v and v < cfg.run.step * (1 - 1e-9):
+            fail("probes", key, f"shorter than run.step ({cfg.run.step:g} s)")

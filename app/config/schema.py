@@ -24,11 +24,15 @@ def spec(default=dataclasses.MISSING, *, unit: str = "-", doc: str, lo=None, hi=
 
 @dataclass(frozen=True)
 class RunConfig:
-    duration: float = spec(unit="s", doc="simulated time to run", lo=0.0, lo_open=True)
+    duration: float = spec(unit="s", doc="simulated time at which the run ends (counted from t = 0, so a resumed run "
+                       "or one that starts from a prepared state runs up to it)", lo=0.0, lo_open=True)
     step: float = spec(1.0e-3, unit="s", doc="coupling step: the fluid step when the scene has gas; in DEM-only "
                        "scenes the interval at which callbacks (output, guard, progress) are checked", lo=0.0, lo_open=True, hi=1.0)
     name: str = spec("", doc="run name stamped on outputs (default: the preset file's name)")
     seed: int = spec(0, doc="random seed for filling and size sampling", lo=0)
+    start_from: str = spec("", doc="a preparation preset (path relative to this one): it is run first, or its "
+                           "cached result reused, and this run starts from its final state (grains, gas and clock; "
+                           "run.duration is then the end time)")
     precision: str = spec("float32", doc="floating-point precision of the kernels", choices=("float32", "float64"))
     threads: int = spec(0, doc="CPU threads (0 = automatic: one thread on machines with 2 cores or fewer, where "
                         "one thread without atomics is as fast as two with them, else all cores); 1 makes CPU runs "
@@ -121,6 +125,51 @@ class OutputConfig:
 
 
 @dataclass(frozen=True)
+class VideoConfig:
+    enabled: bool = spec(False, doc="write a video of the run (also switched on by `fbed run --video`)")
+    file: str = spec("", doc="video file (default: video.mp4 in the output folder); relative to the output folder")
+    width: int = spec(1280, unit="px", doc="frame width of the 3-D view (the void-fraction panel is added beside it)",
+                      lo=64, hi=7680)
+    height: int = spec(720, unit="px", doc="frame height", lo=64, hi=4320)
+    interval: float = spec(0.01, unit="s", doc="simulated time between frames", lo=0.0, lo_open=True)
+    fps: float = spec(30.0, unit="1/s", doc="frames per second of the video file (playback rate)", lo=1.0, hi=240.0)
+    view: str = spec("perspective", doc="'perspective': the whole bed from the camera below; 'slab': the grains with "
+                     "|y - y_centre| < slab_width/2 seen from the side (orthographic), where bubbles show",
+                     choices=("perspective", "slab"))
+    color: str = spec("speed", doc="grain colouring: speed [m/s], height [m], local void fraction [-], radius [m], "
+                      "or tracer (bands of initial height)",
+                      choices=("speed", "height", "void_fraction", "size", "tracer"))
+    color_range: tuple[float, float] = spec((0.0, 0.0), unit="unit of the colouring", doc="values mapped to the "
+                                            "ends of the colour map; (0, 0): automatic", length=2)
+    slab_width: float = spec(0.0, unit="m", doc="thickness of the central slab (0: automatic, the larger of 3 grain "
+                             "diameters and 5% of the domain's y extent)", lo=0.0)
+    void_panel: bool = spec(True, doc="add the void fraction on the central vertical plane beside the view "
+                            "(scenes with gas)")
+    camera_azimuth: float = spec(-60.0, unit="deg", doc="perspective camera: angle about the vertical axis from -y")
+    camera_elevation: float = spec(20.0, unit="deg", doc="perspective camera: angle above the horizontal", lo=-89.0,
+                                   hi=89.0)
+    camera_distance: float = spec(0.0, unit="m", doc="perspective camera: distance from the domain centre (0: "
+                                  "automatic, the whole domain in view)", lo=0.0)
+
+
+@dataclass(frozen=True)
+class ProbesConfig:
+    slab_interval: float = spec(0.0, unit="s", doc="interval of the void fraction on the central vertical slab (x-z, "
+                                "averaged over the cells within slab_width of the mid-plane y) in run.h5 /slab (0: off)",
+                                lo=0.0)
+    slab_width: float = spec(0.01, unit="m", doc="thickness of the central slab (the MRI slice: 10 mm); at least the "
+                             "cells that straddle the mid-plane are used", lo=0.0)
+    planes: list = spec([], unit="m", doc="heights of horizontal planes whose void fraction (linear between cell "
+                        "layers) is recorded in run.h5 /planes; pairs of (lower, upper) planes give rise velocities")
+    planes_interval: float = spec(0.0, unit="s", doc="interval of the plane records (0: off)", lo=0.0)
+    volume_interval: float = spec(0.0, unit="s", doc="interval of the full 3-D void fraction in run.h5 /porosity3d "
+                                  "(0: off)", lo=0.0)
+    analysis: str = spec("none", doc="post-processing run when the run ends (and by `fbed analyze DIR`): 'boyce' "
+                         "(single bubble on the slab), 'verma' (bubble statistics on the planes)",
+                         choices=("none", "boyce", "verma"))
+
+
+@dataclass(frozen=True)
 class GuardConfig:
     interval: float = spec(1.0e-3, unit="s", doc="how often the NaN / overlap / speed checks run", lo=0.0, lo_open=True)
     max_overlap: float = spec(0.2, doc="stop when a grain overlaps by more than this fraction of its diameter", lo=0.0, lo_open=True)
@@ -165,6 +214,19 @@ class BoundarySpec:
     pressure: float = spec(0.0, unit="Pa", doc="pressure of a pressure outlet (gauge)")
     start: float = spec(0.0, unit="s", doc="an inlet blows nothing before this time", lo=0.0)
     ramp: float = spec(0.0, unit="s", doc="an inlet then rises linearly to its velocity over this time", lo=0.0)
+    schedule: list = spec([], unit="[s, -]", doc="inlet: [[time, fraction], ...]: the velocity is scaled by the "
+                          "fraction, interpolated linearly in time (constant beyond the ends); replaces start/ramp")
+    jet_velocity: tuple[float, float, float] = spec((0.0, 0.0, 0.0), unit="m/s", doc="inlet: velocity of a jet "
+                                                    "(nozzle) blowing through the cells near jet_center", length=3)
+    jet_center: tuple[float, float] = spec((0.0, 0.0), unit="m", doc="inlet: jet axis on the face (the two other "
+                                           "coordinates in x, y, z order: (x, y) on the bottom)", length=2)
+    jet_radius: float = spec(0.0, unit="m", doc="inlet: face cells whose centres lie within this distance of "
+                             "jet_center blow at jet_velocity instead of the inlet velocity", lo=0.0)
+    jet_start: float = spec(0.0, unit="s", doc="inlet: time the jet opens", lo=0.0)
+    jet_duration: float = spec(0.0, unit="s", doc="inlet: how long the jet blows (0: until the end), ramps included",
+                               lo=0.0)
+    jet_ramp: float = spec(0.0, unit="s", doc="inlet: the jet opens and closes linearly over this time (an abrupt "
+                           "50 m/s start is a pressure shock of one fluid step)", lo=0.0)
 
 
 @dataclass(frozen=True)
@@ -177,6 +239,8 @@ class Config:
     dem: DemConfig = field(default_factory=DemConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     guard: GuardConfig = field(default_factory=GuardConfig)
+    video: VideoConfig = field(default_factory=VideoConfig)
+    probes: ProbesConfig = field(default_factory=ProbesConfig)
     gas: Optional[GasConfig] = None
     coupling: CouplingConfig = field(default_factory=CouplingConfig)
     # [boundary]: face name (x-, x+, y-, y+, z-, z+, bottom, top) -> BoundarySpec; faces not given are walls

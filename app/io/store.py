@@ -71,6 +71,9 @@ def read_state(path: pathlib.Path) -> tuple[dict, dict]:
     return grains, meta
 
 
+FRAME_GROUPS = ("slab", "planes", "porosity3d")  # groups of appendable frames (probes)
+
+
 class RunFile:
     """Appends series rows and particle snapshots to run.h5, flushing after each write."""
 
@@ -91,6 +94,13 @@ class RunFile:
             keep = int(np.searchsorted(times, t + 1e-12, side="right"))
             for name in self.series:
                 self.series[name].resize((keep,))
+        for name in FRAME_GROUPS:  # appendable frame records (probes)
+            for g in self._frame_groups(name):
+                times = g["time"][...]
+                keep = int(np.searchsorted(times, t + 1e-12, side="right"))
+                for ds in g.values():
+                    if isinstance(ds, h5py.Dataset) and ds.maxshape and ds.maxshape[0] is None:
+                        ds.resize((keep,) + ds.shape[1:])
         for group in (self.particles, self.f.get("fields")):
             if group is None:
                 continue
@@ -129,6 +139,40 @@ class RunFile:
             g.create_dataset(name, data=np.asarray(arr, np.float32), compression="gzip", compression_opts=1)
         self.f.flush()
         return k
+
+    def _frame_groups(self, name: str):
+        g = self.f.get(name)
+        if g is None:
+            return []
+        if "time" in g:
+            return [g]
+        return [sub for sub in g.values() if isinstance(sub, h5py.Group) and "time" in sub]
+
+    def frame(self, group: str, time: float, data, attrs: dict | None = None, dtype="f4") -> None:
+        """Append one frame (an array) to ``group``'s ``time`` and ``porosity`` datasets (created on first use,
+        with ``attrs``)."""
+        data = np.asarray(data, dtype)
+        g = self.f.require_group(group)
+        if "time" not in g:
+            g.create_dataset("time", shape=(0,), maxshape=(None,), dtype="f8", chunks=(1024,))
+            g.create_dataset("porosity", shape=(0,) + data.shape, maxshape=(None,) + data.shape, dtype=dtype,
+                             chunks=(max(1, min(64, (1 << 20) // max(1, data.nbytes))),) + data.shape,
+                             compression="gzip" if data.size > 4096 else None,
+                             compression_opts=1 if data.size > 4096 else None)
+            for k, v in (attrs or {}).items():
+                g.attrs[k] = v
+        n = g["time"].shape[0]
+        g["time"].resize((n + 1,))
+        g["time"][n] = time
+        g["porosity"].resize((n + 1,) + data.shape)
+        g["porosity"][n] = data
+        self.f.flush()
+
+    def put(self, name: str, data) -> None:
+        """A fixed dataset (written once, e.g. a mask)."""
+        if name in self.f:
+            del self.f[name]
+        self.f.create_dataset(name, data=data)
 
     def close(self) -> None:
         if self.f:

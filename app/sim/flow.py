@@ -1118,7 +1118,7 @@ class GasFields:
         self.vol_frac = ti.field(float, shape=sh)
         self.active = ti.field(ti.i32, shape=sh)
         self.eps.fill(1.0)
-        self.vol_frac.from_numpy(cut.volume.astype(np.float64))
+        _load(self.vol_frac, cut.volume)
         self.active.from_numpy(cut.active.astype(np.int32))
 
     @ti.func
@@ -1145,6 +1145,11 @@ class GasFields:
                 c[a] = ti.min(ti.max(i0[a] + d[a], 0), self.shape[a] - 1)
             U += w * self.u_gas[c]
         return U
+
+
+def _load(field, values) -> None:
+    """field.from_numpy in the field's own float type (no implicit f64 -> f32 narrowing in Taichi)."""
+    field.from_numpy(np.ascontiguousarray(values, dtype=np.float32 if field.dtype == ti.f32 else np.float64))
 
 
 def _as_cell_array(values, shape, name, vector=False):
@@ -1285,26 +1290,26 @@ class FlowSolver:
         a = _as_cell_array(eps, self.shape, "eps")
         if np.any(a <= 0.0) or np.any(a > 1.0):
             raise ValueError("flow: eps must lie in (0, 1]")
-        self.fields.eps.from_numpy(a)
+        _load(self.fields.eps, a)
 
     def set_deps_dt(self, deps) -> None:
         """d(eps)/dt [1/s] (scalar or (nx, ny, nz))."""
-        self.fields.deps_dt.from_numpy(_as_cell_array(deps, self.shape, "deps_dt"))
+        _load(self.fields.deps_dt, _as_cell_array(deps, self.shape, "deps_dt"))
 
     def set_beta(self, beta) -> None:
         """Implicit drag coefficient [kg m^-3 s^-1] (scalar or (nx, ny, nz)), >= 0."""
         a = _as_cell_array(beta, self.shape, "beta")
         if np.any(a < 0.0):
             raise ValueError("flow: beta must be >= 0")
-        self.fields.beta.from_numpy(a)
+        _load(self.fields.beta, a)
 
     def set_solid_velocity(self, us) -> None:
         """Solid velocity [m/s] (3-vector or (nx, ny, nz, 3)) that beta pulls the gas toward."""
-        self.fields.us.from_numpy(_as_cell_array(us, self.shape, "solid velocity", vector=True))
+        _load(self.fields.us, _as_cell_array(us, self.shape, "solid velocity", vector=True))
 
     def set_explicit_source(self, f) -> None:
         """Explicit momentum source on the gas [N/m^3] (3-vector or (nx, ny, nz, 3))."""
-        self.fields.f_exp.from_numpy(_as_cell_array(f, self.shape, "explicit source", vector=True))
+        _load(self.fields.f_exp, _as_cell_array(f, self.shape, "explicit source", vector=True))
 
     def set_inlet_profile(self, face: str, profile) -> None:
         """Superficial inlet velocity of a velocity-inlet ``face`` per boundary cell.

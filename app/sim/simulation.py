@@ -47,6 +47,9 @@ class Simulation:
         self.stop_requested: str | None = None
         self.wall_elapsed = 0.0  # wall seconds spent stepping, this process
         self._diag_cache: tuple[int, dict] | None = None
+        # whether the at-start callbacks fire (None: when starting at step 0; a run started from a
+        # prepared state at a later step is fresh too, a resumed one is not)
+        self.fresh: bool | None = None
 
     @property
     def time(self) -> float:
@@ -113,22 +116,39 @@ class Simulation:
                 h._last_wall = now
                 h.fn(self)
 
-    def run(self) -> str:
+    def advance(self) -> None:
+        """One step, timed, then the callbacks that are due."""
+        t0 = wallclock.perf_counter()
+        self.step()
+        self.wall_elapsed += wallclock.perf_counter() - t0
+        self._fire()
+
+    def run(self, controller=None) -> str:
         """Step until the duration is reached, a stop is requested, or the guard trips.
 
+        ``controller`` (interactive runs): called before every step with the simulation;
+        returns 'step' (advance one step), 'wait' (do not step now: paused, or past the end)
+        or 'stop' (the window was closed). Without one, the run steps to the end.
         Returns 'finished' or 'interrupted'; raises Unstable after the finish hooks ran."""
         reason = "finished"
         try:
-            if self.step_count == 0:
+            if self.fresh if self.fresh is not None else self.step_count == 0:
                 self._fire(start=True)
-            while self.step_count < self.total_steps:
+            while True:
                 if self.stop_requested:
                     reason = "interrupted"
                     break
-                t0 = wallclock.perf_counter()
-                self.step()
-                self.wall_elapsed += wallclock.perf_counter() - t0
-                self._fire()
+                if controller is None:
+                    if self.step_count >= self.total_steps:
+                        break
+                    self.advance()
+                    continue
+                action = controller(self)
+                if action == "stop":
+                    reason = "interrupted" if self.step_count < self.total_steps else "finished"
+                    break
+                if action == "step" and self.step_count < self.total_steps:
+                    self.advance()
         except Unstable:
             self._finish("unstable")
             raise

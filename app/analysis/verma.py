@@ -1,0 +1,473 @@
+"""Verma et al. (2014) post-processing of a run folder: bubble size and rise velocity in
+horizontal plane pairs, porosity PDFs, bubble diameter against height, pressure drop.
+
+``analyze(run_dir)`` reads ``run_dir/run.h5`` and ``run_dir/summary.json`` and writes, into
+``run_dir/analysis`` by default, ``table.csv``, ``table.md`` and four figures
+(``diameter_vs_height.png``, ``porosity_pdf.png``, ``pressure_drop.png``, ``bubbles_3d.png``).
+
+Run file layout (names are the module constants below):
+
+- ``/planes/<name>/time`` (nt,) [s] and ``/planes/<name>/porosity`` (nt, nx, ny); group attrs
+  ``z`` [m] (plane height above the distributor), ``h`` [m] (cell size), ``origin`` (x0, y0) [m]
+  (corner of cell (0, 0)), ``pair`` (str, e.g. "5cm"), ``level`` ("lower" / "upper").
+- ``/planes/mask`` (nx, ny) uint8, optional: 1 inside the vessel.
+- ``/porosity3d/time`` (nt,), ``/porosity3d/porosity`` (nt, nx, ny, nz); attrs ``h``, ``origin``
+  (x0, y0, z0) (corner of cell (0, 0, 0)); optional ``/porosity3d/mask`` (nx, ny), else
+  ``/planes/mask`` when the shapes agree.
+- ``/series/time``, ``/series/pressure_drop`` [Pa].
+- ``summary.json``: ``bed_weight_per_area`` [Pa].
+
+The recipe (``postprocessing`` in the reference json): porosity > 0.7 after 4x linear sub-grid
+interpolation, regions below 2 h^2 dropped, number-average of sqrt(4 A / pi); rise velocity =
+pair spacing / lag of the peak of the area-weighted cross-correlation (parabolic sub-sample
+peak); PDF bins of 0.04. The first ``t_discard`` seconds are discarded (clipped to half the run).
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import pathlib
+
+import h5py
+import numpy as np
+
+from app.analysis import bubbles as bb
+
+# ---- run folder layout ------------------------------------------------------------------------
+RUN_FILE = "run.h5"
+SUMMARY_FILE = "summary.json"
+ANALYSIS_DIR = "analysis"
+
+PLANES = "planes"                  # group of plane groups
+PLANES_MASK = "mask"               # dataset /planes/mask (nx, ny) uint8, 1 = inside
+TIME = "time"                      # dataset name in every group [s]
+POROSITY = "porosity"              # dataset name in plane and 3-D groups
+ATTR_Z = "z"                       # plane height [m]
+ATTR_H = "h"                       # cell size [m]
+ATTR_ORIGIN = "origin"             # corner of cell 0 [m]
+ATTR_PAIR = "pair"                 # pair label, e.g. "5cm"
+ATTR_LEVEL = "level"               # "lower" or "upper"
+LOWER, UPPER = "lower", "upper"
+
+POROSITY3D = "porosity3d"          # group /porosity3d
+MASK3D = "mask"                    # optional /porosity3d/mask (nx, ny)
+
+SERIES = "series"                  # group /series
+PRESSURE_DROP = "pressure_drop"    # /series/pressure_drop [Pa]
+
+BED_WEIGHT_KEY = "bed_weight_per_area"   # summary.json [Pa]
+
+# ---- outputs ----------------------------------------------------------------------------------
+TABLE_CSV = "table.csv"
+TABLE_MD = "table.md"
+FIGURES = ("diameter_vs_height", "porosity_pdf", "pressure_drop", "bubbles_3d")
+
+REFERENCE_NAME = "verma2014.json"
+#: Table rows: (key as in the reference json's comparison_table, label, kind, height [m]).
+ROWS = (
+    ("De_at_H_0.05m_mm", "De at H = 0.05 m [mm]", "De", 0.05),
+    ("De_at_H_0.10m_mm", "De at H = 0.10 m [mm]", "De", 0.10),
+    ("rise_velocity_at_0.05m_m_s", "rise velocity at H = 0.05 m [m/s]", "ub", 0.05),
+    ("rise_velocity_at_0.10m_m_s", "rise velocity at H = 0.10 m [m/s]", "ub", 0.10),
+    ("mean_dP_over_bed_weight_per_area", "mean dP / (bed weight / area) [-]", "dp", None),
+)
+COLUMNS = ("fbed", "xray", "paper_TFM", "seed_000")
+#: A region larger than this fraction of the vessel cross-section is not a bubble but the
+#: freeboard (a layer above the bed surface is "bubble" everywhere): dropped.
+MAX_AREA_FRACTION = 0.5
+PDF_BIN = 0.04
+
+_DEFAULT = object()
+
+
+def default_reference() -> pathlib.Path | None:
+    """``$FBED_REFERENCE/verma2014.json`` or ``<repo>/../shared/reference/verma2014.json``, if present."""
+    env = os.environ.get("FBED_REFERENCE")
+    cands = [pathlib.Path(env) / REFERENCE_NAME] if env else []
+    repo = pathlib.Path(__file__).resolve().parents[2]
+    cands.append(repo.parent / "shared" / "reference" / REFERENCE_NAME)
+    for c in cands:
+        if c.is_file():
+            return c
+    return None
+
+
+def _str(v) -> str:
+    if isinstance(v, bytes):
+        return v.decode()
+    if isinstance(v, np.ndarray) and v.shape == ():
+        return _str(v[()])
+    return str(v)
+
+
+def _discard_time(times, t_discard: float) -> float:
+    """Start of the analysed window: first sample + min(t_discard, half the run)."""
+    ts = [np.asarray(t) for t in times if t is not None and len(t)]
+    if not ts:
+        return 0.0
+    t0 = min(float(t[0]) for t in ts)
+    t1 = max(float(t[-1]) for t in ts)
+    return t0 + min(float(t_discard), 0.5 * (t1 - t0))
+
+
+def _read_run(path: pathlib.Path, t_discard: float):
+    """Read the run file; porosity arrays are cut at the discard time."""
+    with h5py.File(path, "r") as f:
+        planes_raw, mask = {}, None
+        if PLANES in f:
+            g = f[PLANES]
+            if PLANES_MASK in g and isinstance(g[PLANES_MASK], h5py.Dataset):
+                mask = np.asarray(g[PLANES_MASK][()]).astype(bool)
+            for name, grp in g.items():
+                if isinstance(grp, h5py.Group) and POROSITY in grp and TIME in grp:
+                    planes_raw[name] = grp
+        p3 = f[POROSITY3D] if POROSITY3D in f and POROSITY in f[POROSITY3D] else None
+        series_t = np.asarray(f[SERIES][TIME][()], float) if SERIES in f and TIME in f[SERIES] else None
+        dp = (np.asarray(f[SERIES][PRESSURE_DROP][()], float)
+              if series_t is not None and PRESSURE_DROP in f[SERIES] else None)
+
+        times = [np.asarray(grp[TIME][()], float) for grp in planes_raw.values()]
+        if p3 is not None:
+            times.append(np.asarray(p3[TIME][()], float))
+        times.append(series_t)
+        t_cut = _discard_time(times, t_discard)
+
+        planes = {}
+        for name, grp in planes_raw.items():
+            t = np.asarray(grp[TIME][()], float)
+            keep = np.nonzero(t >= t_cut)[0]
+            i0 = int(keep[0]) if keep.size else len(t)
+            a = grp.attrs
+            planes[name] = {
+                "time": t[i0:],
+                "porosity": np.asarray(grp[POROSITY][i0:], dtype=np.float32),
+                "z": float(a[ATTR_Z]),
+                "h": float(a[ATTR_H]),
+                "origin": tuple(float(v) for v in np.atleast_1d(a.get(ATTR_ORIGIN, (0.0, 0.0)))),
+                "pair": _str(a.get(ATTR_PAIR, name)),
+                "level": _str(a.get(ATTR_LEVEL, "")),
+            }
+        vol = None
+        if p3 is not None:
+            t = np.asarray(p3[TIME][()], float)
+            keep = np.nonzero(t >= t_cut)[0]
+            i0 = int(keep[0]) if keep.size else len(t)
+            m3 = np.asarray(p3[MASK3D][()]).astype(bool) if MASK3D in p3 else None
+            vol = {"time": t[i0:], "porosity": np.asarray(p3[POROSITY][i0:], dtype=np.float32),
+                   "h": float(p3.attrs[ATTR_H]),
+                   "origin": tuple(float(v) for v in np.atleast_1d(p3.attrs.get(ATTR_ORIGIN, (0.0, 0.0, 0.0)))),
+                   "mask": m3}
+            # the last full frame, for the 3-D picture, even if the window is empty
+            vol["last"] = np.asarray(p3[POROSITY][-1], dtype=np.float32) if len(t) else None
+            vol["last_time"] = float(t[-1]) if len(t) else float("nan")
+    return {"planes": planes, "mask": mask, "vol": vol, "series_t": series_t, "dp": dp, "t_cut": t_cut}
+
+
+def _max_area(mask, shape, h):
+    inside = int(mask.sum()) if mask is not None else int(np.prod(shape))
+    return MAX_AREA_FRACTION * inside * h * h
+
+
+def _mask_for(mask, shape):
+    return mask if mask is not None and mask.shape == tuple(shape) else None
+
+
+def _reference_columns(ref: dict | None) -> dict:
+    """{row key: {column: value}} from the reference json's comparison table."""
+    out = {key: {} for key, *_ in ROWS}
+    if not ref:
+        return out
+    tab = ref.get("comparison_table", {})
+    cols = tab.get("columns", [])
+    for key, *_ in ROWS:
+        vals = tab.get(key)
+        if vals is None:
+            continue
+        for name, v in zip(cols, vals):
+            col = next((c for c in COLUMNS[1:] if name == c or name.startswith(c)), None)
+            if col is not None:
+                out[key][col] = float("nan") if v is None else float(v)
+    return out
+
+
+def _nearest(items, H, tol):
+    """Item whose 'z' is nearest H, within tol; None if none."""
+    best = min(items, key=lambda it: abs(it["z"] - H), default=None)
+    return best if best is not None and abs(best["z"] - H) <= tol else None
+
+
+def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
+            threshold: float = bb.THRESHOLD, factor: int = bb.FACTOR) -> dict:
+    """Verma et al. (2014) analysis of a run folder; see the module docstring.
+
+    Parameters
+    ----------
+    run_dir : folder with ``run.h5`` and ``summary.json``.
+    out_dir : where to write the table and figures; default ``run_dir/analysis``.
+    reference : path of ``verma2014.json``; default ``default_reference()``; None for no
+        reference (the table then has only the fbed column and the figures no measured data).
+    t_discard : start time discarded [s] (clipped to half the run when the run is shorter).
+
+    Returns
+    -------
+    dict with ``table`` ({row key: {column: value}}), ``figures`` ({name: path of the PNG}),
+    ``planes`` (per plane: z, De [m], count), ``pairs`` (per pair: z, spacing, velocity, lag),
+    ``profile`` (z, De, count arrays, or None), ``dp_over_weight``, ``t_cut``, ``out_dir``.
+    """
+    run_dir = pathlib.Path(run_dir)
+    out = pathlib.Path(out_dir) if out_dir is not None else run_dir / ANALYSIS_DIR
+    out.mkdir(parents=True, exist_ok=True)
+    if reference is _DEFAULT:
+        reference = default_reference()
+    ref = json.loads(pathlib.Path(reference).read_text()) if reference is not None else None
+
+    summary = json.loads((run_dir / SUMMARY_FILE).read_text())
+    weight = float(summary[BED_WEIGHT_KEY])
+    run = _read_run(run_dir / RUN_FILE, t_discard)
+    t_cut = run["t_cut"]
+
+    # ---- planes: bubble size and porosity values
+    planes = {}
+    for name, p in sorted(run["planes"].items(), key=lambda kv: kv[1]["z"]):
+        eps = p["porosity"]
+        m = _mask_for(run["mask"], eps.shape[1:])
+        De, n = bb.equivalent_diameter(eps, p["h"], threshold, factor, mask=m,
+                                       max_area=_max_area(m, eps.shape[1:], p["h"]))
+        vals = eps[:, m] if m is not None else eps.reshape(len(eps), -1)
+        planes[name] = {"z": p["z"], "h": p["h"], "pair": p["pair"], "level": p["level"],
+                        "De": De, "count": n, "values": vals.ravel()}
+
+    # ---- pairs: rise velocity
+    pairs = {}
+    by_pair = {}
+    for name, p in run["planes"].items():
+        by_pair.setdefault(p["pair"], {})[p["level"]] = p
+    for label, d in by_pair.items():
+        if LOWER not in d or UPPER not in d:
+            continue
+        lo, up = d[LOWER], d[UPPER]
+        nt = min(len(lo["time"]), len(up["time"]))
+        spacing = up["z"] - lo["z"]
+        v = lag = float("nan")
+        if nt >= 4:
+            dt = float(np.median(np.diff(lo["time"][:nt])))
+            m = _mask_for(run["mask"], lo["porosity"].shape[1:])
+            v, lag = bb.rise_velocity(lo["porosity"][:nt], up["porosity"][:nt], dt, spacing, mask=m)
+        pairs[label] = {"z": lo["z"], "spacing": spacing, "velocity": v, "lag": lag}
+
+    # ---- 3-D frames: diameter profile
+    profile = None
+    vol = run["vol"]
+    if vol is not None and len(vol["porosity"]):
+        eps = vol["porosity"]
+        h3 = vol["h"]
+        m3 = vol["mask"] if vol["mask"] is not None else _mask_for(run["mask"], eps.shape[1:3])
+        z0 = vol["origin"][2] if len(vol["origin"]) > 2 else 0.0
+        zc = z0 + (np.arange(eps.shape[3]) + 0.5) * h3
+        z, De, cnt = bb.diameter_profile(eps, h3, zc, threshold, factor, mask=m3,
+                                         max_area=_max_area(m3, eps.shape[1:3], h3))
+        profile = {"z": z, "De": De, "count": cnt}
+
+    # ---- pressure drop
+    dp_w = float("nan")
+    if run["dp"] is not None and run["series_t"] is not None:
+        sel = run["series_t"] >= t_cut
+        if sel.any():
+            dp_w = float(np.mean(run["dp"][sel]) / weight)
+
+    # ---- table
+    table = _reference_columns(ref)
+    plane_list = list(planes.values())
+    pair_list = list(pairs.values())
+    for key, _label, kind, H in ROWS:
+        val = float("nan")
+        if kind == "De":
+            lower_planes = [p for p in plane_list if p["level"] == LOWER] or plane_list
+            p = _nearest(lower_planes, H, tol=max((q["h"] for q in plane_list), default=0.0))
+            if p is not None:
+                val = 1e3 * p["De"]
+            elif profile is not None:
+                k = int(np.argmin(np.abs(profile["z"] - H)))
+                if abs(profile["z"][k] - H) <= vol["h"]:
+                    val = 1e3 * profile["De"][k]
+        elif kind == "ub":
+            p = _nearest(pair_list, H, tol=max((q["h"] for q in plane_list), default=0.0))
+            if p is not None:
+                val = p["velocity"]
+        else:
+            val = dp_w
+        table[key] = {"fbed": val, **table[key]}
+    columns = COLUMNS if ref is not None else COLUMNS[:1]
+    _write_tables(out, table, columns)
+
+    figures = {
+        "diameter_vs_height": _fig_diameter(out, planes, profile, ref),
+        "porosity_pdf": _fig_pdf(out, planes, ref),
+        "pressure_drop": _fig_pressure(out, run["series_t"], run["dp"], weight, t_cut, dp_w),
+        "bubbles_3d": _fig_3d(out, run, threshold),
+    }
+    for p in planes.values():
+        p.pop("values")
+    return {"table": table, "figures": figures, "planes": planes, "pairs": pairs, "profile": profile,
+            "dp_over_weight": dp_w, "t_cut": t_cut, "out_dir": out}
+
+
+# ---- output helpers ---------------------------------------------------------------------------
+def _fmt(v) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return ""
+    return f"{v:.4g}"
+
+
+def _write_tables(out: pathlib.Path, table: dict, columns) -> None:
+    with open(out / TABLE_CSV, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["quantity", *columns])
+        for key, *_ in ROWS:
+            w.writerow([key, *(_fmt(table[key].get(c)) for c in columns)])
+    lines = ["| quantity | " + " | ".join(columns) + " |",
+             "|---|" + "---|" * len(columns)]
+    for key, label, *_ in ROWS:
+        lines.append(f"| {label} | " + " | ".join(_fmt(table[key].get(c)) or "-" for c in columns) + " |")
+    (out / TABLE_MD).write_text("\n".join(lines) + "\n")
+
+
+def _new_figure(figsize=(6.0, 4.5), **kw):
+    from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global state
+
+    fig = Figure(figsize=figsize)
+    return fig, fig.add_subplot(**kw)
+
+
+def _save(fig, out: pathlib.Path, name: str) -> pathlib.Path:
+    path = out / f"{name}.png"
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    return path
+
+
+def _fig_diameter(out, planes, profile, ref):
+    fig, ax = _new_figure()
+    hmax = 0.2
+    if profile is not None:
+        ok = profile["count"] > 0
+        ax.plot(profile["z"][ok], 1e3 * profile["De"][ok], "-", color="C0", label="fbed (3-D layers)")
+        if ok.any():
+            hmax = max(hmax, float(profile["z"][ok].max()))
+    pz = [p["z"] for p in planes.values() if p["count"] > 0]
+    pd = [1e3 * p["De"] for p in planes.values() if p["count"] > 0]
+    if pz:
+        ax.plot(pz, pd, "o", color="C0", mfc="none", label="fbed (planes)")
+    if ref is not None:
+        x = ref.get("xray_bubble_diameter_vs_height")
+        if x:
+            ax.plot(x["H_m"], 1e3 * np.asarray(x["De_m"]), "s", color="k", label="X-ray (Verma 2014)")
+        t = ref.get("tfm_bubble_diameter_vs_height")
+        if t:
+            ax.plot(t["H_m"], 1e3 * np.asarray(t["De_m"]), "--", color="C2", label="TFM (Verma 2014)")
+    H = np.linspace(0.0, hmax, 200)
+    ax.plot(H, 1e3 * bb.darton(H), ":", color="C3", label="Darton")
+    ax.plot(H, 1e3 * bb.werther(H), "-.", color="C4", label="Werther")
+    ax.set_xlabel("height above distributor H [m]")
+    ax.set_ylabel("equivalent bubble diameter De [mm]")
+    ax.set_xlim(0.0, hmax)
+    ax.set_ylim(bottom=0.0)
+    ax.legend(fontsize=8)
+    return _save(fig, out, "diameter_vs_height")
+
+
+def _fig_pdf(out, planes, ref):
+    fig, ax = _new_figure()
+    for name, p in planes.items():
+        if p["values"].size:
+            c, d = bb.porosity_pdf(p["values"], PDF_BIN)
+            ax.plot(c, d, drawstyle="steps-mid", label=f"fbed z = {p['z']:.3f} m")
+    if ref is not None and "porosity_pdf_peaks" in ref:
+        pk = ref["porosity_pdf_peaks"]
+        for key, color, ls in (("xray_emulsion", "k", ":"), ("xray_bubble", "k", ":"),
+                               ("seed_000_emulsion", "C7", "--"), ("seed_000_bubble", "C7", "--")):
+            if key in pk:
+                ax.axvline(pk[key], color=color, ls=ls, lw=1)
+        ax.plot([], [], "k:", label="X-ray peaks")
+        ax.plot([], [], "--", color="C7", label="seed 000 peaks")
+    ax.set_xlabel("porosity [-]")
+    ax.set_ylabel(f"probability density (bin {PDF_BIN})")
+    ax.set_xlim(0.0, 1.0)
+    ax.legend(fontsize=8)
+    return _save(fig, out, "porosity_pdf")
+
+
+def _fig_pressure(out, t, dp, weight, t_cut, dp_w):
+    fig, ax = _new_figure(figsize=(7.0, 3.5))
+    if t is not None and dp is not None and len(t):
+        ax.plot(t, dp / weight, lw=0.8, color="C0", label="fbed")
+        ax.axvspan(float(t[0]), t_cut, color="0.9", label="discarded")
+        if math.isfinite(dp_w):
+            ax.axhline(dp_w, color="C1", label=f"mean {dp_w:.3f}")
+    ax.axhline(1.0, color="k", lw=0.8, ls=":", label="bed weight / area")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("dP / (bed weight / area) [-]")
+    ax.legend(fontsize=8)
+    return _save(fig, out, "pressure_drop")
+
+
+def _fig_3d(out, run, threshold):
+    vol = run["vol"]
+    if vol is None or vol.get("last") is None:
+        # no 3-D frames: the last frame of every plane, thresholded
+        fig, ax = _new_figure()
+        planes = sorted(run["planes"].values(), key=lambda p: p["z"])
+        if planes:
+            imgs = [np.asarray(p["porosity"][-1]) > threshold if len(p["porosity"]) else
+                    np.zeros(p["porosity"].shape[1:], bool) for p in planes]
+            ax.imshow(np.concatenate(imgs, axis=1).T, origin="lower", cmap="Greys")
+            ax.set_title("porosity > %.2f in the planes (last frame), bottom to top: left to right" % threshold,
+                         fontsize=8)
+        else:
+            ax.text(0.5, 0.5, "no porosity data", ha="center", va="center")
+        return _save(fig, out, "bubbles_3d")
+    eps = vol["last"]
+    h = vol["h"]
+    m = vol["mask"] if vol["mask"] is not None else _mask_for(run["mask"], eps.shape[:2])
+    inside = np.ones(eps.shape[:2], bool) if m is None else m
+    sel = (eps > threshold) & inside[:, :, None]
+    # layers where most of the cross-section is above threshold are the freeboard: not shown
+    frac = sel.sum(axis=(0, 1)) / max(int(inside.sum()), 1)
+    sel &= (frac <= MAX_AREA_FRACTION)[None, None, :]
+    i, j, k = np.nonzero(sel)
+    if i.size > 20000:
+        pick = np.random.default_rng(0).choice(i.size, 20000, replace=False)
+        i, j, k = i[pick], j[pick], k[pick]
+    o = list(vol["origin"]) + [0.0] * (3 - len(vol["origin"]))
+    x, y, z = (o[0] + (i + 0.5) * h, o[1] + (j + 0.5) * h, o[2] + (k + 0.5) * h)
+    fig, ax = _new_figure(figsize=(5.5, 6.0), projection="3d")
+    ax.scatter(x, y, z, c=z, s=4, cmap="viridis", depthshade=False)
+    nx, ny, nz = eps.shape
+    ax.set_xlim(o[0], o[0] + nx * h)
+    ax.set_ylim(o[1], o[1] + ny * h)
+    ax.set_zlim(o[2], o[2] + nz * h)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+    ax.set_title(f"cells with porosity > {threshold:.2f}, t = {vol['last_time']:.3f} s", fontsize=9)
+    return _save(fig, out, "bubbles_3d")
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    ap = argparse.ArgumentParser(description="Verma et al. (2014) analysis of an fbed run folder")
+    ap.add_argument("run_dir")
+    ap.add_argument("--out", default=None)
+    ap.add_argument("--t-discard", type=float, default=1.0)
+    ap.add_argument("--reference", default=None, help="path of verma2014.json (default: shared/reference)")
+    a = ap.parse_args(argv)
+    res = analyze(a.run_dir, a.out, reference=a.reference if a.reference else _DEFAULT, t_discard=a.t_discard)
+    print((res["out_dir"] / TABLE_MD).read_text())
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# One call on the lent GPU machine (see ../shared/device/README.md): benchmarks and runs too large
+# for the CPU, packed into $OUT/results.tgz. Usage on the device, from the project root:
+#   source .devkit/setup.sh && FBED_COMMIT=<hash> bash benchmarks/device_run.sh STAGE...
+# Stages: bench (DEM throughput, render cost), small (boyce_small with video), boyce (full rig),
+# sweep (the injection-time sweep from the cached bed).
+set -uo pipefail
+mkdir -p "$OUT/logs"
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$OUT/logs/gpu.txt" 2>&1
+for stage in "$@"; do
+  start=$(date +%s)
+  case "$stage" in
+    bench)
+      python3 benchmarks/dem_throughput.py --arch cuda --sizes 10000 100000 1000000 --substeps 500 ;;
+    render)
+      python3 benchmarks/render_cost.py --arch cuda --sizes 260000 1000000 ;;
+    small)
+      python3 -m app run presets/boyce_small.toml --arch cuda --out runs/boyce_small --overwrite --video ;;
+    boyce)
+      python3 -m app run presets/boyce.toml --arch cuda --out runs/boyce --overwrite ;;
+    sweep)
+      python3 -m app sweep presets/boyce.toml --arch cuda --out runs/boyce-sweep --plot bubble_peak_diameter \
+        --set boundary.bottom.jet_duration=0.1542,0.0667,0.0514,0.025 --set video.enabled=false ;;
+  esac > "$OUT/logs/$stage.log" 2>&1
+  echo "$stage: exit $? in $(( $(date +%s) - start )) s" | tee -a "$OUT/logs/stages.txt"
+done
+cp benchmarks/RESULTS.md "$OUT/logs/RESULTS.md"
+tar czf "$OUT/results.tgz" -C . --exclude='*.h5' runs 2>/dev/null
+for d in runs/*/; do [ -f "$d/summary.json" ] && cp "$d/summary.json" "$OUT/logs/$(basename "$d")-summary.json"; done
+ls -la runs/*/ > "$OUT/logs/ls.txt" 2>&1
