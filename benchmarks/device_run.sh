@@ -5,8 +5,8 @@
 # Stages: bench (DEM throughput, render cost), small (boyce_small with video), boyce (full rig),
 # sweep (the injection-time sweep from the cached bed).
 set -uo pipefail
-mkdir -p "$OUT/logs"
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$OUT/logs/gpu.txt" 2>&1
+L=devout; mkdir -p $L runs
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$L/gpu.txt" 2>&1
 for stage in "$@"; do
   start=$(date +%s)
   case "$stage" in
@@ -21,10 +21,10 @@ for stage in "$@"; do
     sweep)
       python3 -m app sweep presets/boyce.toml --arch cuda --out runs/boyce-sweep --plot bubble_peak_diameter \
         --set boundary.bottom.jet_duration=0.1542,0.0667,0.0514,0.025 --set video.enabled=false ;;
-  esac > "$OUT/logs/$stage.log" 2>&1
-  echo "$stage: exit $? in $(( $(date +%s) - start )) s" | tee -a "$OUT/logs/stages.txt"
+  esac > "$L/$stage.log" 2>&1
+  echo "$stage: exit $? in $(( $(date +%s) - start )) s" | tee -a "$L/stages.txt"
 done
-cp benchmarks/RESULTS.md "$OUT/logs/RESULTS.md"
+cp benchmarks/RESULTS.md $L/RESULTS.md
 tar czf "$OUT/results.tgz" -C . --exclude='*.h5' runs 2>/dev/null
-for d in runs/*/; do [ -f "$d/summary.json" ] && cp "$d/summary.json" "$OUT/logs/$(basename "$d")-summary.json"; done
-ls -la runs/*/ > "$OUT/logs/ls.txt" 2>&1
+for d in runs/*/; do [ -f "$d/summary.json" ] && cp "$d/summary.json" "$L/$(basename "$d")-summary.json"; done
+ls -la runs/*/ > "$L/ls.txt" 2>&1
