@@ -25,6 +25,6 @@ for stage in "$@"; do
   echo "$stage: exit $? in $(( $(date +%s) - start )) s" | tee -a "$L/stages.txt"
 done
 cp benchmarks/RESULTS.md $L/RESULTS.md
-tar czf "$OUT/results.tgz" -C . --exclude='*.h5' runs 2>/dev/null
 for d in runs/*/; do [ -f "$d/summary.json" ] && cp "$d/summary.json" "$L/$(basename "$d")-summary.json"; done
-ls -la runs/*/ > "$L/ls.txt" 2>&1
+ls -laR runs > "$L/ls.txt" 2>&1
+tar czf "$OUT/results.tgz" --exclude='*.h5' runs $L
