@@ -9,17 +9,19 @@ L=devout; mkdir -p $L runs
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$L/gpu.txt" 2>&1
 for stage in "$@"; do
   start=$(date +%s)
+  lim=$(eval echo "\${LIMIT_$stage:-590}")  # e.g. LIMIT_boyce=300: SIGTERM stops the run cleanly in time
+  T="timeout -s TERM $lim"
   case "$stage" in
     bench)
-      python3 benchmarks/dem_throughput.py --arch cuda --sizes 10000 100000 1000000 --substeps 500 ;;
+      $T python3 benchmarks/dem_throughput.py --arch cuda --sizes 10000 100000 1000000 --substeps 500 ;;
     render)
-      python3 benchmarks/render_cost.py --arch cuda --sizes 260000 1000000 ;;
+      $T python3 benchmarks/render_cost.py --arch cuda --sizes 260000 1000000 ;;
     small)
-      python3 -m app run presets/boyce_small.toml --arch cuda --out runs/boyce_small --overwrite --video ;;
+      $T python3 -m app run presets/boyce_small.toml --arch cuda --out runs/boyce_small --overwrite --video ;;
     boyce)
-      python3 -m app run presets/boyce.toml --arch cuda --out runs/boyce --overwrite ;;
+      $T python3 -m app run presets/boyce.toml --arch cuda --out runs/boyce --overwrite ;;
     sweep)
-      python3 -m app sweep presets/boyce.toml --arch cuda --out runs/boyce-sweep --plot bubble_peak_diameter \
+      $T python3 -m app sweep presets/boyce.toml --arch cuda --out runs/boyce-sweep --plot bubble_peak_diameter \
         --set boundary.bottom.jet_duration=0.1542,0.0667,0.0514,0.025 --set video.enabled=false ;;
   esac > "$L/$stage.log" 2>&1
   echo "$stage: exit $? in $(( $(date +%s) - start )) s" | tee -a "$L/stages.txt"
