@@ -5,7 +5,7 @@
 # Stages: bench (DEM throughput, render cost), small (boyce_small with video), boyce (full rig),
 # sweep (the injection-time sweep from the cached bed).
 set -uo pipefail
-L=devout; mkdir -p $L runs
+L=runs/devout; mkdir -p $L  # inside runs/ (git-ignored): the device keeps it between calls
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$L/gpu.txt" 2>&1
 for stage in "$@"; do
   start=$(date +%s)
@@ -29,4 +29,7 @@ done
 cp benchmarks/RESULTS.md $L/RESULTS.md
 for d in runs/*/; do [ -f "$d/summary.json" ] && cp "$d/summary.json" "$L/$(basename "$d")-summary.json"; done
 ls -laR runs > "$L/ls.txt" 2>&1
-tar czf "$OUT/results.tgz" --exclude='*.h5' runs $L
+# one small archive (logs, summaries, analyses; no h5, no videos) and the videos beside it
+tar czf "$OUT/results.tgz" --exclude='*.h5' --exclude='*.mp4' --exclude='runs/prepared' runs
+for v in runs/*/video.mp4; do [ -f "$v" ] && cp "$v" "$OUT/$(basename "$(dirname "$v")").mp4"; done
+ls -la "$OUT"
