@@ -3,6 +3,7 @@
     fbed run PRESET [--set section.key=value]... [--out DIR] [--arch auto|cpu|cuda] [--resume DIR]
     fbed run PRESET --video [FILE]    (also write an mp4 of the run; [video] in the preset sets its look)
     fbed view PRESET [--set ...]      (the run in a window with live controls)
+    fbed analyze RUN_DIR              (the preset's bubble analysis on a finished run)
     fbed sweep PRESET --set key=v1,v2,... [--set ...] [--jobs N] [--out DIR] [--plot FIGURE]
 
 Bad input (preset, key, unit, range, file) prints one clear message and exits with 2.
@@ -37,6 +38,12 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
     v.add_argument("--out", help="output folder (default: runs/<preset name>)")
     v.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto")
+    a = sub.add_parser("analyze", help="post-process a finished run (the preset's probes.analysis)",
+                       description="Run the analysis named by the run's probes.analysis (boyce: the bubble on "
+                                   "the central slab; verma: bubble statistics on the planes) on RUN_DIR's files; "
+                                   "writes RUN_DIR/analysis and updates summary.json.")
+    a.add_argument("run_dir", help="output folder of a run")
+    a.add_argument("--kind", choices=("boyce", "verma"), help="override the run's probes.analysis")
     w = sub.add_parser("sweep", help="run a preset over lists of values",
                        description="Run PRESET for every combination of the --set lists; write sweep.csv.")
     w.add_argument("preset", help="preset file (.toml)")
@@ -69,6 +76,10 @@ def main(argv: list[str] | None = None) -> int:
             from .gui.viewer import view
 
             return view(args.preset, args.overrides, args.arch, args.out)
+        if args.command == "analyze":
+            from .run import analyze
+
+            return analyze(args.run_dir, args.kind)
         if args.command == "sweep":
             from .sweep import sweep
 

@@ -208,6 +208,29 @@ def post_process(analysis: str, out_dir: pathlib.Path) -> dict:
         return {"analysis_error": f"{type(err).__name__}: {err}"}
 
 
+def analyze(run_dir: str, kind: str | None = None) -> int:
+    """`fbed analyze RUN_DIR`: the run's analysis (probes.analysis, or ``kind``) into RUN_DIR/analysis."""
+    import json
+
+    d = pathlib.Path(run_dir)
+    if not (d / "run.h5").exists() or not (d / "config.toml").exists():
+        raise ConfigError("not a run folder (no run.h5 / config.toml)", str(d), "RUN_DIR",
+                          hint="give the output folder of an fbed run")
+    cfg = cfgmod.load(d / "config.toml")
+    kind = kind or cfg.probes.analysis
+    if kind == "none":
+        raise ConfigError("the run names no analysis", str(d / "config.toml"), "probes.analysis",
+                          hint="pass --kind boyce or --kind verma")
+    figures = post_process(kind, d)
+    summary_path = d / "summary.json"
+    summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
+    summary.update(figures)
+    store.write_json(summary_path, summary)
+    for k, v in figures.items():
+        print(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}")
+    return EXIT_OK if "analysis_error" not in figures else EXIT_INPUT
+
+
 def make_renderer(cfg, scene, dem, flow, name: str, show_window: bool = False):
     """The GGUI renderer for this scene, or a clear error when no Vulkan device is present."""
     try:
@@ -278,6 +301,7 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
 
         coupler = Coupler(scene.coupling, dem, flow)
     sim = Simulation(dem, cfg.run.step, der.substeps if der else 0, cfg.run.duration, flow=flow, coupler=coupler)
+    sim.timing = True  # the split of the wall time per phase (one device sync per phase: microseconds)
     if prepared:
         load_prepared(cfg, sim, dem, flow, coupler, arrays, gas_arrays, meta)
         sim.fresh = True
@@ -467,6 +491,10 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
             "neighbor_rebuilds": dem.nlist.builds})
     if flow is not None:
         summary.update({"gas_cells": list(scene.flow.shape), "gas_cell_size": cfg.gas.cell_size})
+    if sim.phase_seconds:
+        total = sum(sim.phase_seconds.values())
+        summary["wall_split"] = {k: round(v, 3) for k, v in sim.phase_seconds.items()}
+        summary["wall_split_share"] = {k: round(v / total, 4) for k, v in sim.phase_seconds.items()}
     if renderer is not None:
         summary.update({"frames": renderer.frames, "render_time": renderer.render_seconds,
                         "render_share": renderer.render_seconds / max(wall, 1e-9)})

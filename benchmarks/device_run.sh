@@ -20,6 +20,10 @@ for stage in "$@"; do
       $T python3 -m app run presets/boyce_small.toml --arch cuda --out runs/boyce_small --overwrite --video ;;
     boyce)
       $T python3 -m app run presets/boyce.toml --arch cuda --out runs/boyce --overwrite ;;
+    verma)
+      $T python3 -m app run presets/verma.toml --arch cuda --out runs/verma --overwrite ;;
+    verma_resume)
+      $T python3 -m app run --resume runs/verma --arch cuda ;;
     sweep)
       $T python3 -m app sweep presets/boyce.toml --arch cuda --out runs/boyce-sweep --plot bubble_peak_diameter \
         --set boundary.bottom.jet_duration=0.1542,0.0667,0.0514,0.025 --set video.enabled=false ;;

@@ -469,5 +469,19 @@ def main(argv=None) -> int:
     return 0
 
 
+def summarize(run_dir) -> dict:
+    """Run ``analyze`` on a finished run (files in run_dir/analysis) and return the fbed column as
+    flat summary.json figures: verma_<row key> (SI; the diameters in m)."""
+    res = analyze(run_dir)
+    out = {}
+    for key, _, kind, _ in ROWS:
+        v = res["table"].get(key, {}).get("fbed")
+        if v is None or (isinstance(v, float) and not np.isfinite(v)):
+            continue
+        name = key.replace("_mm", "_m") if kind == "De" else key
+        out["verma_" + name] = float(v) * (1e-3 if kind == "De" else 1.0)
+    return out
+
+
 if __name__ == "__main__":
     raise SystemExit(main())
