@@ -169,7 +169,8 @@ def flow_config(cfg: Config, walls: list):
     return flow.FlowConfig(shape=shape, h=g.cell_size, origin=tuple(d.lo), rho=g.density, mu=g.viscosity,
                            gravity=tuple(d.gravity), bcs=bcs, walls=tuple(walls), pressure_form=g.pressure_form,
                            convection=g.convection, tol=g.tolerance, max_iter=g.max_iterations,
-                           aperture_samples=g.aperture_samples, max_viscous_sweeps=g.max_viscous_sweeps)
+                           aperture_samples=g.aperture_samples, max_viscous_sweeps=g.max_viscous_sweeps,
+                           min_open_fraction=g.min_open_fraction)
 
 
 def coupling_model(cfg: Config):

@@ -174,6 +174,8 @@ class GuardConfig:
     interval: float = spec(1.0e-3, unit="s", doc="how often the NaN / overlap / speed checks run", lo=0.0, lo_open=True)
     max_overlap: float = spec(0.2, doc="stop when a grain overlaps by more than this fraction of its diameter", lo=0.0, lo_open=True)
     max_speed: float = spec(100.0, unit="m/s", doc="stop when a grain moves faster than this", lo=0.0, lo_open=True)
+    max_gas_speed: float = spec(300.0, unit="m/s", doc="stop when the gas moves faster than this anywhere (a gas "
+                                "step going unstable; jets of 50-100 m/s stay below it)", lo=0.0, lo_open=True)
 
 
 @dataclass(frozen=True)
@@ -189,6 +191,9 @@ class GasConfig:
     tolerance: float = spec(1.0e-6, doc="pressure solve: relative divergence tolerance", lo=0.0, lo_open=True, hi=0.1)
     max_iterations: int = spec(200, doc="pressure solve: most conjugate-gradient iterations per step", lo=1)
     aperture_samples: int = spec(4, doc="sub-samples per face edge when cutting cells with the vessel walls", lo=1, hi=64)
+    min_open_fraction: float = spec(0.1, doc="cut cells whose open volume fraction is at most this are closed to the "
+                                    "gas (small-cell removal: a sliver between wall and grid has no resolved wall "
+                                    "shear and would be a frictionless bypass)", lo=0.0, hi=0.9)
     max_viscous_sweeps: int = spec(40, doc="most Gauss-Seidel sweeps of the implicit viscous predictor", lo=1)
     fields_interval: float = spec(0.0, unit="s", doc="interval of gas-field snapshots in run.h5 "
                                   "(0: first and last only)", lo=0.0)

@@ -179,7 +179,8 @@ class FlowConfig:
     walls: vessel walls (:mod:`app.sim.geometry`) for cut cells; pressure_form "gas" (Model
     B) or "shared" (Model A); convection "maccormack" | "semi_lagrangian" | "none"; tol:
     pressure-solve tolerance (relative divergence, see module doc); max_iter: outer PCG
-    iterations; aperture_samples: sub-samples per face edge for cut cells;
+    iterations; aperture_samples: sub-samples per face edge for cut cells; min_open_fraction:
+    cut cells with at most this open volume fraction are closed (small-cell removal);
     max_viscous_sweeps: cap on red-black Gauss-Seidel sweeps of the implicit viscous predictor.
     """
 
@@ -196,6 +197,7 @@ class FlowConfig:
     tol: float = 1e-6
     max_iter: int = 200
     aperture_samples: int = 4
+    min_open_fraction: float = 0.0
     max_viscous_sweeps: int = 40
 
     def __post_init__(self):
@@ -1180,7 +1182,7 @@ class FlowSolver:
         nx, ny, nz = self.shape = cfg.shape
         self.h = float(cfg.h)
         per = cfg.periodic
-        self.cut = cut = cut_cells(grid, cfg.walls, int(cfg.aperture_samples), per)
+        self.cut = cut = cut_cells(grid, cfg.walls, int(cfg.aperture_samples), per, float(cfg.min_open_fraction))
         self.fields = GasFields(grid, cut)
         self.mg = ls.MGPCG(cfg.shape, per)
         kinds = [KINDS[cfg.bc(f).kind] for f in FACES]

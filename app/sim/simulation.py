@@ -193,7 +193,9 @@ class Guard:
     Its message names the setting to change: a DEM step above the stable limit (forced with
     dem.force_dt) is the first suspect; otherwise contacts too soft for the impacts."""
 
-    def __init__(self, max_overlap: float, max_speed: float, dt: float = 0.0, dt_limit: float = float("inf")):
+    def __init__(self, max_overlap: float, max_speed: float, dt: float = 0.0, dt_limit: float = float("inf"),
+                 max_gas_speed: float = float("inf")):
+        self.max_gas_speed = max_gas_speed
         self.max_overlap = max_overlap
         self.max_speed = max_speed
         self.dt = dt
@@ -206,6 +208,11 @@ class Guard:
         if d["gas_non_finite"]:
             raise Unstable(f"non-finite gas velocity or pressure at t = {t:.6g} s (gas CFL {d['gas_cfl']:.3g}): "
                            "lower run.step (the fluid step), raise gas.max_iterations, or check [boundary]")
+        if d["gas_max_speed"] > self.max_gas_speed:
+            raise Unstable(f"the gas moves at {d['gas_max_speed']:.3g} m/s at t = {t:.6g} s (guard.max_gas_speed = "
+                           f"{self.max_gas_speed:g} m/s; gas CFL {d['gas_cfl']:.3g}): the gas step is going unstable: "
+                           "lower run.step (the fluid step) or raise coupling.smoothing_width; raise "
+                           "guard.max_gas_speed if such speeds are real")
 
     def _advice(self) -> str:
         if self.dt > self.dt_limit:
