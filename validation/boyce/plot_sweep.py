@@ -1,8 +1,9 @@
 """Peak bubble diameter against injection time: fbed beside Boyce et al.'s measured band and MFIX-Exa.
 
-Reads sweep.csv (`fbed sweep presets/boyce.toml --set boundary.bottom.jet_duration=...`) and
-summary_101.7ms.json (the `fbed run presets/boyce.toml` case) from this folder, or the files
-given; writes sweep.png and prints the table (markdown).
+Reads sweep_before_fix.csv (`fbed sweep presets/boyce.toml --set boundary.bottom.jet_duration=...`)
+and summary_101.7ms_before_fix.json (the `fbed run presets/boyce.toml` case), both at commit
+4fcda58, from this folder, or the files given; marks the 101.7 ms rerun after the coupling fix
+(summary_101.7ms.json); writes sweep.png and prints the table (markdown).
 
     python validation/boyce/plot_sweep.py [SWEEP_CSV] [SUMMARY_JSON]
 """
@@ -33,8 +34,8 @@ def num(r, k, scale=1.0):
 
 
 def main(argv):
-    sweep_csv = pathlib.Path(argv[0]) if argv else HERE / "sweep.csv"
-    summary = pathlib.Path(argv[1]) if len(argv) > 1 else HERE / "summary_101.7ms.json"
+    sweep_csv = pathlib.Path(argv[0]) if argv else HERE / "sweep_before_fix.csv"
+    summary = pathlib.Path(argv[1]) if len(argv) > 1 else HERE / "summary_101.7ms_before_fix.json"
     rs = rows(sweep_csv, summary)
     print("| injection [ms] | peak diameter [mm] | at [ms] | aspect at peak | detached [ms] | erupted [ms] | "
           "collapsed [ms] | rise [m/s] | wall [s] | MFIX-Exa (benchmark doc) |")
@@ -61,6 +62,10 @@ def main(argv):
     ax.plot([a for a, e in zip(x, erupted) if e], [b for b, e in zip(y, erupted) if e], "ko", label="fbed: erupts")
     ax.plot([a for a, e in zip(x, erupted) if not e], [b for b, e in zip(y, erupted) if not e], "ko", mfc="w",
             label="fbed: collapses in the bed")
+    after = HERE / "summary_101.7ms.json"  # the rerun after the coupling fix (commit 57c9ee1)
+    if after.exists() and not argv:
+        d = json.loads(after.read_text())
+        ax.plot([101.7], [1e3 * d["bubble_peak_diameter"]], "r*", ms=12, label="fbed after the coupling fix (57c9ee1)")
     ax.set(xlabel="injection time [ms]", ylabel="peak bubble diameter, central slab [mm]", ylim=(0, 120),
            title="Single-bubble injection, 260k grains (H100)")
     ax.legend(fontsize=8, loc="lower right")
