@@ -4,6 +4,7 @@
     fbed run PRESET --video [FILE]    (also write an mp4 of the run; [video] in the preset sets its look)
     fbed view PRESET [--set ...]      (the run in a window with live controls)
     fbed analyze RUN_DIR              (the preset's bubble analysis on a finished run)
+    fbed bench stress [--out DIR]     (hostile scenes: finish clean or stop with a clear message)
     fbed sweep PRESET --set key=v1,v2,... [--set ...] [--jobs N] [--out DIR] [--plot FIGURE]
 
 Bad input (preset, key, unit, range, file) prints one clear message and exits with 2.
@@ -44,6 +45,14 @@ def build_parser() -> argparse.ArgumentParser:
                                    "writes RUN_DIR/analysis and updates summary.json.")
     a.add_argument("run_dir", help="output folder of a run")
     a.add_argument("--kind", choices=("boyce", "verma"), help="override the run's probes.analysis")
+    b = sub.add_parser("bench", help="stress scenes (fbed bench stress)",
+                       description="fbed bench stress: hostile scenes that must finish clean or stop with a clear "
+                                   "message; writes STRESS.md and stress.json into --out.")
+    b.add_argument("kind", choices=("stress",))
+    b.add_argument("--out", help="output folder (default: runs/stress)")
+    b.add_argument("--scenes", nargs="+", help="only these scenes")
+    b.add_argument("--arch", choices=("cpu", "cuda"), default="cpu")
+    b.add_argument("--limit", type=float, default=600.0, help="wall-clock limit per scene [s] (a hang fails)")
     w = sub.add_parser("sweep", help="run a preset over lists of values",
                        description="Run PRESET for every combination of the --set lists; write sweep.csv.")
     w.add_argument("preset", help="preset file (.toml)")
@@ -76,6 +85,14 @@ def main(argv: list[str] | None = None) -> int:
             from .gui.viewer import view
 
             return view(args.preset, args.overrides, args.arch, args.out)
+        if args.command == "bench":
+            from .bench import SCENES, stress
+
+            unknown = sorted(set(args.scenes or []) - {sc.name for sc in SCENES})
+            if unknown:
+                raise ConfigError(f"unknown scene {unknown[0]!r}", "--scenes", unknown[0],
+                                  hint="scenes: " + ", ".join(sc.name for sc in SCENES))
+            return stress(args.out, args.scenes, args.arch, args.limit)
         if args.command == "analyze":
             from .run import analyze
 

@@ -385,7 +385,8 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
         store.write_checkpoint(path, grains, gas, s.time, s.step_count, config_text)
 
     guard = Guard(cfg.guard.max_overlap, cfg.guard.max_speed, der.dt if der else 0.0,
-                  der.dt_limit if der else float("inf"), cfg.guard.max_gas_speed)
+                  der.dt_limit if der else float("inf"), cfg.guard.max_gas_speed,
+                  cfg.guard.max_divergence)
 
     def guarded(fn):
         """Writers check the guard first, so nothing non-finite ever reaches a file."""

@@ -174,6 +174,9 @@ class GuardConfig:
     interval: float = spec(1.0e-3, unit="s", doc="how often the NaN / overlap / speed checks run", lo=0.0, lo_open=True)
     max_overlap: float = spec(0.2, doc="stop when a grain overlaps by more than this fraction of its diameter", lo=0.0, lo_open=True)
     max_speed: float = spec(100.0, unit="m/s", doc="stop when a grain moves faster than this", lo=0.0, lo_open=True)
+    max_divergence: float = spec(1.0e-3, doc="stop when the gas's relative divergence residual after the pressure "
+                                 "solve exceeds this (gas mass not conserved: the solve did not converge)", lo=0.0,
+                                 lo_open=True)
     max_gas_speed: float = spec(300.0, unit="m/s", doc="stop when the gas moves faster than this anywhere (a gas "
                                 "step going unstable; jets of 50-100 m/s stay below it)", lo=0.0, lo_open=True)
 

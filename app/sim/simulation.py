@@ -194,8 +194,9 @@ class Guard:
     dem.force_dt) is the first suspect; otherwise contacts too soft for the impacts."""
 
     def __init__(self, max_overlap: float, max_speed: float, dt: float = 0.0, dt_limit: float = float("inf"),
-                 max_gas_speed: float = float("inf")):
+                 max_gas_speed: float = float("inf"), max_divergence: float = float("inf")):
         self.max_gas_speed = max_gas_speed
+        self.max_divergence = max_divergence
         self.max_overlap = max_overlap
         self.max_speed = max_speed
         self.dt = dt
@@ -208,6 +209,11 @@ class Guard:
         if d["gas_non_finite"]:
             raise Unstable(f"non-finite gas velocity or pressure at t = {t:.6g} s (gas CFL {d['gas_cfl']:.3g}): "
                            "lower run.step (the fluid step), raise gas.max_iterations, or check [boundary]")
+        if d["divergence_residual"] > self.max_divergence:
+            raise Unstable(f"the gas's divergence residual is {d['divergence_residual']:.3g} at t = {t:.6g} s "
+                           f"(guard.max_divergence = {self.max_divergence:g}; {d['pressure_iterations']} pressure "
+                           "iterations): the pressure solve did not converge, so gas mass is not conserved: raise "
+                           "gas.max_iterations, or lower run.step")
         if d["gas_max_speed"] > self.max_gas_speed:
             raise Unstable(f"the gas moves at {d['gas_max_speed']:.3g} m/s at t = {t:.6g} s (guard.max_gas_speed = "
                            f"{self.max_gas_speed:g} m/s; gas CFL {d['gas_cfl']:.3g}): the gas step is going unstable: "
