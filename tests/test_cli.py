@@ -129,7 +129,7 @@ def test_sigterm_stops_cleanly_with_checkpoint(tmp_path):
 def test_every_preset_runs_briefly(preset, tmp_path):
     """Smoke tier: each preset starts, steps and writes its outputs (float32, as on a GPU)."""
     # run.start_from is emptied: the smoke run starts from the preset's own fill, not a prepared stage
-    r = fbed("run", preset, "--set", "run.duration=0.004", "--set", "run.step=0.001", "--set", 'run.start_from=""',
+    r = fbed("run", preset, "--set", "run.duration=0.002", "--set", "run.step=0.001", "--set", 'run.start_from=""',
              "--arch", "cpu", "--out", tmp_path / "o")
     assert r.returncode == 0, r.stderr
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
