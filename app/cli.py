@@ -45,10 +45,11 @@ def build_parser() -> argparse.ArgumentParser:
                                    "writes RUN_DIR/analysis and updates summary.json.")
     a.add_argument("run_dir", help="output folder of a run")
     a.add_argument("--kind", choices=("boyce", "verma"), help="override the run's probes.analysis")
-    b = sub.add_parser("bench", help="stress scenes (fbed bench stress)",
+    b = sub.add_parser("bench", help="stress scenes and accuracy against cost (fbed bench stress|accuracy)",
                        description="fbed bench stress: hostile scenes that must finish clean or stop with a clear "
-                                   "message; writes STRESS.md and stress.json into --out.")
-    b.add_argument("kind", choices=("stress",))
+                                   "message; writes STRESS.md and stress.json into --out. fbed bench accuracy: "
+                                   "restitution error against the DEM step (CSV, Pareto plot, ACCURACY.md).")
+    b.add_argument("kind", choices=("stress", "accuracy"))
     b.add_argument("--out", help="output folder (default: runs/stress)")
     b.add_argument("--scenes", nargs="+", help="only these scenes")
     b.add_argument("--arch", choices=("cpu", "cuda"), default="cpu")
@@ -92,6 +93,12 @@ def main(argv: list[str] | None = None) -> int:
             if unknown:
                 raise ConfigError(f"unknown scene {unknown[0]!r}", "--scenes", unknown[0],
                                   hint="scenes: " + ", ".join(sc.name for sc in SCENES))
+            if args.kind == "accuracy":
+                from .bench import accuracy
+                from .sim import runtime
+
+                runtime.init(args.arch, "float32", 1)
+                return accuracy(args.out)
             return stress(args.out, args.scenes, args.arch, args.limit)
         if args.command == "analyze":
             from .run import analyze
