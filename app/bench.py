@@ -301,19 +301,16 @@ def pair_collision(dt_fraction: float, e: float = 0.9, v: float = 0.5, precision
     solved exactly from it in app.config.derived, so the error is the time integration's), the steps
     the contact took, and the wall time of the substeps (one thread)."""
     from .config import load_text
-    from .config.derived import derive
     from .scene import Scene
     from .sim.dem import DemSolver
 
     text = PAIR.format(precision=precision, e=e, f=dt_fraction, v=v)
-    cfg = load_text(text, "pair.toml")
-    scene = Scene(cfg, "pair.toml")
-    der = derive(cfg, "pair.toml")
+    scene = Scene(load_text(text, "pair.toml"), "pair.toml")
     dem = DemSolver(scene.model)
     r, gap = 1.0e-3, 1.0e-9
     dem.set_grains(np.array([[-r - gap, 0, 0], [r + gap, 0, 0]]), np.array([[v / 2, 0, 0], [-v / 2, 0, 0]]),
                    np.full(2, r))
-    dt = der.dt
+    dt = scene.derived.dt
     steps, touching_steps = 0, 0
     t0 = time.perf_counter()
     while steps < 200000:

@@ -169,6 +169,14 @@ class Progress:
             self.bar.stop()
 
 
+def restore_gas(flow, coupler, gas_arrays: dict) -> None:
+    """Load a checkpoint's gas group: the gas solver's arrays and, under the coupling_ prefix, the coupler's."""
+    flow.load_state_arrays(gas_arrays)
+    if coupler is not None:
+        coupler.load_state_arrays({k[len("coupling_"):]: v for k, v in gas_arrays.items()
+                                   if k.startswith("coupling_")})
+
+
 def load_prepared(cfg, sim, dem, flow, coupler, arrays, gas_arrays, meta) -> None:
     """Start from a prepared state: its grains (full contact state when the models match),
     its gas (when it has one) and its clock."""
@@ -183,10 +191,7 @@ def load_prepared(cfg, sim, dem, flow, coupler, arrays, gas_arrays, meta) -> Non
         except (KeyError, ValueError):  # other contact model: positions and velocities carry over, history restarts
             dem.set_grains(arrays["position"], arrays["velocity"], arrays["radius"], None, arrays.get("alive"))
     if flow is not None and gas_arrays is not None:
-        flow.load_state_arrays(gas_arrays)
-        if coupler is not None:
-            coupler.load_state_arrays({k[len("coupling_"):]: v for k, v in gas_arrays.items()
-                                       if k.startswith("coupling_")})
+        restore_gas(flow, coupler, gas_arrays)
     sim.step_count = int(round(steps))
     if sim.step_count >= sim.total_steps:
         raise ConfigError(f"the prepared state is at t = {t:g} s, past run.duration = {cfg.run.duration:g} s",
@@ -315,10 +320,7 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
             if gas_arrays is None:
                 raise ConfigError("the checkpoint holds no gas state", str(ckpt), "--resume",
                                   hint="resume with the run's own config.toml")
-            flow.load_state_arrays(gas_arrays)
-            if coupler is not None:
-                coupler.load_state_arrays({k[len("coupling_"):]: v for k, v in gas_arrays.items()
-                                           if k.startswith("coupling_")})
+            restore_gas(flow, coupler, gas_arrays)
         sim.step_count = int(meta["step"])
         if sim.step_count >= sim.total_steps:
             log(f"{out_dir}: already at t = {sim.time:g} s >= run.duration; extend it with --set run.duration=...")

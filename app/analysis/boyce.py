@@ -38,13 +38,6 @@ ERUPT_CELLS = 2.0         # top this close to the bed surface [cells] when last 
 BAND = (0.040, 0.100)     # Boyce's measured bubble diameters over the injection times [m]
 
 
-def find_bubble(eps2d: np.ndarray, h: float, mask=None, threshold: float = bb.THRESHOLD,
-                factor: int = bb.FACTOR) -> dict | None:
-    """The bubble in one slab frame (positions from the plane's origin corner, m), or None."""
-    b, _ = measure(eps2d, h, mask, threshold, factor)
-    return b
-
-
 def bed_surface(labels: np.ndarray, top_labels, dx: float) -> float:
     """Height of the bed surface [m from the plane's origin]: the median over the central half of
     the columns of the lowest freeboard sub-cell (the freeboard is the region touching the top)."""
@@ -79,8 +72,9 @@ def measure(eps2d: np.ndarray, h: float, mask=None, threshold: float = bb.THRESH
     k = int(np.argmax(sizes))
     if sizes[k] * dx * dx < MIN_AREA_CELLS * h * h:
         return None, surface
-    sl = ndimage.find_objects((labels == k + 1).astype(np.int32))[0]
-    ii, jj = np.nonzero(labels == k + 1)
+    sl = ndimage.find_objects(labels, max_label=k + 1)[k]
+    ii, jj = np.nonzero(labels[sl] == k + 1)
+    ii, jj = ii + sl[0].start, jj + sl[1].start
     area = float(sizes[k] * dx * dx)
     width = (sl[0].stop - sl[0].start) * dx
     height = (sl[1].stop - sl[1].start) * dx
@@ -91,7 +85,8 @@ def measure(eps2d: np.ndarray, h: float, mask=None, threshold: float = bb.THRESH
 
 
 def track(slab: np.ndarray, times: np.ndarray, h: float, origin, mask=None) -> list[dict]:
-    """The bubble in every frame: dicts with time [s] and the find_bubble figures in domain coordinates."""
+    """The bubble in every frame: dicts with time [s], the bed surface and the ``measure`` figures in
+    domain coordinates."""
     rows = []
     for t, frame in zip(times, slab):
         b, surface = measure(frame, h, mask)

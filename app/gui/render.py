@@ -168,6 +168,7 @@ class Renderer:
         self.grain_diameter = 2.0 * float(dem.radii().max()) if m.n else 0.0
         self.snapshot = RenderSnapshot(m.n, tracer=True)
         self._tracer_recorded = False
+        self._band = 1.0  # [m] width of the tracer bands (set from the bed when the tracer is recorded)
         self._gas = flow.fields if flow is not None else _Absent()
         self.window = ti.ui.Window(title, (settings.width, settings.height), show_window=show_window, vsync=False)
         self.canvas = self.window.get_canvas()
@@ -225,7 +226,7 @@ class Renderer:
         slab = self.settings.view == "slab"
         yc = 0.5 * (self.lo[1] + self.hi[1])
         take_snapshot(m, self.dem.fixed, s, self._gas, c, slab, yc, self.slab_half_width(), lo, hi,
-                      getattr(self, "_band", 1.0), self.snapshot)
+                      self._band, self.snapshot)
         return int(self.snapshot.count[None])
 
     # -- cameras --------------------------------------------------------------------------

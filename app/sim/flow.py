@@ -460,6 +460,18 @@ def _is_boundary(M: ti.template(), a, I):
 
 
 @ti.func
+def _tangential(a):
+    """The two axes other than a, in x, y, z order."""
+    t1 = 0
+    t2 = 2
+    if a == 0:
+        t1 = 1
+    if a == 2:
+        t2 = 1
+    return t1, t2
+
+
+@ti.func
 def _solved(F: ti.template(), M: ti.template(), f, a, I):
     """Face velocity is an unknown of the momentum equation."""
     n = _n(M)
@@ -476,12 +488,7 @@ def _bc_value(F: ti.template(), M: ti.template(), b, side, a, J):
     """Component a of the boundary vector of domain face (b, side) at the place of a-face J
     (J in range along the tangential axes). Inlet values are converted to interstitial."""
     n = _n(M)
-    t1 = 0
-    t2 = 2
-    if b == 0:
-        t1 = 1
-    if b == 2:
-        t2 = 1
+    t1, t2 = _tangential(b)
     blk = M[M_BCV + 2 * b + side]
     v = 0.0
     for q in range(2):
@@ -729,12 +736,7 @@ def _k_bc_prep(F: ND, M: ND, dt: float):
             side = 0 if I[a] == 0 else 1
             kind = M[M_BC + 2 * a + side]
             if kind == INLET:
-                t1 = 0
-                t2 = 2
-                if a == 0:
-                    t1 = 1
-                if a == 2:
-                    t2 = 1
+                t1, t2 = _tangential(a)
                 C = I
                 C[a] = 0 if side == 0 else n[a] - 1
                 v = F[M[M_BCV + 2 * a + side] + (a * n[t1] + I[t1]) * n[t2] + I[t2]] / F[M[R_EPS] + _cidx(M, C)]
