@@ -48,10 +48,14 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="stress scenes and accuracy against cost (fbed bench stress|accuracy)",
                        description="fbed bench stress: hostile scenes that must finish clean or stop with a clear "
                                    "message; writes STRESS.md and stress.json into --out. fbed bench accuracy: "
-                                   "restitution error against the DEM step (CSV, Pareto plot, ACCURACY.md).")
+                                   "error against cost for every verification case, one knob at a time (accuracy.csv, "
+                                   "pareto_<case>.png, ACCURACY.md with the recommended settings).")
     b.add_argument("kind", choices=("stress", "accuracy"))
-    b.add_argument("--out", help="output folder (default: runs/stress)")
-    b.add_argument("--scenes", nargs="+", help="only these scenes")
+    b.add_argument("--out", help="output folder (default: runs/stress or runs/accuracy)")
+    b.add_argument("--scenes", nargs="+", help="stress: only these scenes")
+    b.add_argument("--cases", nargs="+", help="accuracy: only these cases")
+    b.add_argument("--size", choices=("small", "full"), default="small",
+                   help="accuracy: 'small' (CPU minutes) or 'full' (the sizes meant for the GPU)")
     b.add_argument("--arch", choices=("cpu", "cuda"), default="cpu")
     b.add_argument("--limit", type=float, default=600.0, help="wall-clock limit per scene [s] (a hang fails)")
     w = sub.add_parser("sweep", help="run a preset over lists of values",
@@ -87,18 +91,22 @@ def main(argv: list[str] | None = None) -> int:
 
             return view(args.preset, args.overrides, args.arch, args.out)
         if args.command == "bench":
+            if args.kind == "accuracy":
+                from .accuracy import all_cases
+                from .accuracy.runner import accuracy
+
+                names = [c.name for c in all_cases()]
+                unknown = sorted(set(args.cases or []) - set(names))
+                if unknown:
+                    raise ConfigError(f"unknown case {unknown[0]!r}", "--cases", unknown[0],
+                                      hint="cases: " + ", ".join(names))
+                return accuracy(args.out, args.cases, args.size, args.arch, 1 if args.arch == "cpu" else None)
             from .bench import SCENES, stress
 
             unknown = sorted(set(args.scenes or []) - {sc.name for sc in SCENES})
             if unknown:
                 raise ConfigError(f"unknown scene {unknown[0]!r}", "--scenes", unknown[0],
                                   hint="scenes: " + ", ".join(sc.name for sc in SCENES))
-            if args.kind == "accuracy":
-                from .bench import accuracy
-                from .sim import runtime
-
-                runtime.init(args.arch, "float32", 1)
-                return accuracy(args.out)
             return stress(args.out, args.scenes, args.arch, args.limit)
         if args.command == "analyze":
             from .run import analyze

@@ -307,6 +307,8 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
         coupler = Coupler(scene.coupling, dem, flow)
     sim = Simulation(dem, cfg.run.step, der.substeps if der else 0, cfg.run.duration, flow=flow, coupler=coupler)
     sim.timing = True  # the split of the wall time per phase, sampled (see Simulation._lap)
+    if flow is not None:
+        sim.max_gas_cfl, sim.max_gas_split, sim.notify = cfg.gas.max_cfl, cfg.gas.max_split, log
     if prepared:
         load_prepared(cfg, sim, dem, flow, coupler, arrays, gas_arrays, meta)
         sim.fresh = True
@@ -493,7 +495,8 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
             "particle_substeps_per_s": scene.n * der.substeps * steps_here / max(sim.wall_elapsed, 1e-9),
             "neighbor_rebuilds": dem.nlist.builds})
     if flow is not None:
-        summary.update({"gas_cells": list(scene.flow.shape), "gas_cell_size": cfg.gas.cell_size})
+        summary.update({"gas_cells": list(scene.flow.shape), "gas_cell_size": cfg.gas.cell_size,
+                        "gas_split_peak": sim.gas_split_peak, "gas_split_changes": sim.gas_split_changes})
     split = sim.wall_split()  # coupling, gas and DEM sampled on every 25th step; callbacks on all
     if split:
         total = sum(split.values())

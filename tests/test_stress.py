@@ -25,7 +25,7 @@ def test_stress_scene_ends_as_specified(scene, tmp_path):
 def test_accuracy_restitution_error_falls_with_the_step_and_is_small_at_the_default():
     """Symplectic Euler's rebound error is O(dt / t_c): it must fall as the step shrinks, and at the
     default dt_fraction = 0.02 stay below 1% (test_contact.py allows 2% for e = 0.5-0.9)."""
-    from app.bench import DT_FRACTIONS, pair_collision
+    from app.accuracy.dem_cases import DT_FRACTIONS, pair_collision
 
     rows = [pair_collision(f, precision="float64") for f in DT_FRACTIONS]
     errors = [r["restitution_error"] for r in rows]

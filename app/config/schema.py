@@ -198,6 +198,11 @@ class GasConfig:
                                     "gas (small-cell removal: a sliver between wall and grid has no resolved wall "
                                     "shear and would be a frictionless bypass)", lo=0.0, hi=0.9)
     max_viscous_sweeps: int = spec(40, doc="most Gauss-Seidel sweeps of the implicit viscous predictor", lo=1)
+    max_cfl: float = spec(8.0, doc="adaptive fluid step: above this gas CFL number (largest gas speed x dt / h) the next fluid "
+                          "steps split into pieces (each with its deposit, drag and DEM substeps) until the CFL is "
+                          "back under it; the convection scheme is tested stable at 8", lo=0.0, lo_open=True)
+    max_split: int = spec(16, doc="most pieces a fluid step may split into (1 turns the adaptive step off)",
+                          lo=1, hi=1024)
     fields_interval: float = spec(0.0, unit="s", doc="interval of gas-field snapshots in run.h5 "
                                   "(0: first and last only)", lo=0.0)
 

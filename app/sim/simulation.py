@@ -7,6 +7,12 @@ holds (when it has grains). A scene without one of them allocates nothing for it
 
 Schedules count steps, not floating-point seconds, so a run resumed from a checkpoint
 fires its callbacks on exactly the same steps as an uninterrupted run.
+
+Adaptive fluid step: when the gas's CFL number (max|u| dt / h) passes ``max_gas_cfl``, the next
+steps split into ``gas_split`` pieces, each a whole number of DEM substeps with its own
+deposit -> drag -> gas step -> DEM substeps; the clock and the schedules still count whole
+``run.step`` steps, so outputs land where they would have. The split halves again once the CFL
+of the pieces is back below a quarter of the limit. Each change is reported through ``notify``.
 """
 from __future__ import annotations
 
@@ -57,6 +63,12 @@ class Simulation:
         self.callback_seconds = 0.0  # summed over every step
         self.steps_timed = 0
         self.steps_sampled = 0
+        self.max_gas_cfl = float("inf")  # adapt above this CFL (gas.max_cfl)
+        self.max_gas_split = 1          # most pieces a step may split into (gas.max_split)
+        self.gas_split = 1              # pieces of the current step
+        self.gas_split_peak = 1
+        self.gas_split_changes = 0
+        self.notify: Callable[[str], None] | None = None  # the run's log (solvers never print)
 
     def wall_split(self) -> dict[str, float]:
         """Estimated wall seconds per phase over the timed steps: coupling, gas and DEM scaled up
@@ -123,17 +135,50 @@ class Simulation:
             self._lap_start = wallclock.perf_counter()
         for fn in self.before_step:
             fn(self)
-        # one coupling order per fluid step: deposit eps -> drag -> gas step -> DEM substeps
-        if self.coupler is not None:
-            self.coupler.step(self.step_dt)
-            self._lap("coupling")
-        if self.flow is not None:
-            self.flow_info = self.flow.step(self.step_dt)
-            self._lap("gas")
-        if self.dem is not None:
-            self.dem.advance(self.substeps)
-            self._lap("dem")
+        pieces = min(self.gas_split, self.substeps) if self.dem is not None else self.gas_split
+        for k in self._piece_substeps(pieces):
+            dt = self.step_dt * k / self.substeps if self.dem is not None else self.step_dt / pieces
+            # one coupling order per fluid step: deposit eps -> drag -> gas step -> DEM substeps
+            if self.coupler is not None:
+                self.coupler.step(dt)
+                self._lap("coupling")
+            if self.flow is not None:
+                self.flow_info = self.flow.step(dt)
+                self._lap("gas")
+            if self.dem is not None:
+                self.dem.advance(k)
+                self._lap("dem")
         self.step_count += 1
+        if self.flow_info is not None and self.max_gas_split > 1:
+            self._adapt(self.flow_info.cfl, pieces)
+
+    def _piece_substeps(self, pieces: int) -> list[int]:
+        """DEM substeps in each piece of a split step (whole numbers summing to ``substeps``)."""
+        if pieces <= 1:
+            return [self.substeps]
+        base, extra = divmod(self.substeps, pieces)
+        return [base + (i < extra) for i in range(pieces)]
+
+    def _adapt(self, cfl: float, pieces: int) -> None:
+        """Choose the next step's split from the CFL of this step's pieces."""
+        limit = self.max_gas_cfl
+        if cfl > limit and pieces < self.max_gas_split:
+            new = min(self.max_gas_split, pieces * math.ceil(cfl / (0.8 * limit)))
+            why = f"gas CFL {cfl:.3g} > gas.max_cfl = {limit:g}"
+        elif pieces > 1 and 2 * cfl < 0.5 * limit:
+            new = max(1, pieces // 2)
+            why = f"gas CFL back to {cfl:.3g}"
+        else:
+            return
+        if new == pieces:
+            return
+        self.gas_split = new
+        self.gas_split_peak = max(self.gas_split_peak, new)
+        self.gas_split_changes += 1
+        if self.notify:
+            self.notify(f"fbed: t = {self.time:.6g} s: {why}: the fluid step is now {self.step_dt / new:.3g} s "
+                        f"(run.step / {new})" + ("; raise gas.max_split or lower run.step if this persists"
+                                                 if new == self.max_gas_split and cfl > limit else ""))
 
     def _lap(self, phase: str) -> None:
         """Wall time of each phase [s], summed over the sampled steps (``timing`` on: every

@@ -1,0 +1,52 @@
+"""`fbed bench accuracy`: run time against error, one cost knob at a time.
+
+Owns: the :class:`Case` record (a verification case with an exact or published answer, the knobs
+that trade its cost against its error, and the acceptable error that defines the knee), the
+registry of cases (one module per family: :mod:`.dem_cases`, :mod:`.gas_cases`, :mod:`.bed_cases`)
+and the runner (:mod:`.runner`: sweeps, CSV, Pareto plots, the recommended-settings table).
+
+A case's ``measure(settings, size)`` builds and runs its scene with ``settings`` (every knob of the
+case at its default except the one swept) at ``size`` ('small': seconds to a minute on a CPU core;
+'full': the sizes quoted in benchmarks/ACCURACY.md, meant for the GPU) and returns at least
+``error`` (>= 0, relative unless the case says otherwise) and ``cost`` (in the case's
+``cost_label`` unit, e.g. wall seconds of the timed steps after a warm-up, or DEM steps per contact).
+Taichi's precision is set by the runner before each measure (``settings['precision']``).
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+
+class Unavailable(Exception):
+    """Raised by a measure whose reference data is missing here: the runner skips the case and says why."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Case:
+    name: str                   # short id, used by --cases and in file names
+    title: str                  # what is measured, against what answer
+    error_label: str            # e.g. "relative error of the pressure drop"
+    cost_label: str             # e.g. "wall s per simulated s", "DEM steps per contact"
+    knobs: dict                 # knob -> tuple of values swept (cheapest last or first, any order)
+    defaults: dict              # knob -> the value fbed's presets use (the point the table judges)
+    tolerance: float            # acceptable error: the knee is the cheapest value within it
+    measure: Callable[[dict, str], dict]
+    note: str = ""              # one line for the table: the reference's own uncertainty, caveats
+
+
+def all_cases() -> list[Case]:
+    """Every registered case, in a stable order (DEM, gas, then coupled beds)."""
+    out: list[Case] = []
+    from . import dem_cases
+
+    out += dem_cases.CASES
+    for mod in ("gas_cases", "bed_cases"):
+        try:
+            m = __import__(f"{__name__}.{mod}", fromlist=["CASES"])
+        except ModuleNotFoundError as err:  # a family not written yet
+            if err.name != f"{__name__}.{mod}":
+                raise
+            continue
+        out += m.CASES
+    return out

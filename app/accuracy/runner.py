@@ -1,0 +1,183 @@
+"""The accuracy bench's driver: sweep each case's knobs one at a time, write the CSV, the Pareto plots
+and the recommended-settings table (ACCURACY.md).
+
+Owns: the order of the sweep (rows grouped by float precision, so Taichi restarts at most twice),
+the knee rule, and the files. The cases own their scenes (:mod:`app.accuracy`).
+
+Knee rule: among the values of one knob, the recommended one is the cheapest whose error is within
+the case's tolerance; where none is, the most accurate. The default is "on the knee" when it is the
+recommended value, or costs at most 1.5x the recommended one while staying within tolerance.
+"""
+from __future__ import annotations
+
+import csv
+import datetime
+import math
+import pathlib
+import platform
+import subprocess
+import time
+
+from . import Case, Unavailable, all_cases
+
+
+def _commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                              timeout=10).stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def sweep_case(case: Case, size: str, arch: str, threads: int | None = 1, log=print) -> list[dict]:
+    """Rows (one per knob value; the defaults measured once, as every knob's default row)."""
+    from ..sim import runtime
+
+    points: list[tuple[str, object, dict]] = [("default", "", dict(case.defaults))]
+    for knob, values in case.knobs.items():
+        for v in values:
+            if v == case.defaults[knob]:
+                continue
+            points.append((knob, v, {**case.defaults, knob: v}))
+    points.sort(key=lambda p: p[2].get("precision", "float32") != case.defaults.get("precision", "float32"))
+    rows = []
+    for knob, value, settings in points:
+        runtime.init(arch, settings.get("precision", "float32"), threads)
+        t0 = time.perf_counter()
+        res = case.measure(settings, size)
+        row = {"case": case.name, "knob": knob, "value": value, "error": float(res["error"]),
+               "cost": float(res["cost"]), "wall_s": time.perf_counter() - t0,
+               **{k: v for k, v in res.items() if k not in ("error", "cost")}}
+        log(f"  {case.name:18s} {knob:16s} {str(value):10s} error {row['error']:.3e}  cost {row['cost']:.4g}")
+        rows.append(row)
+    return rows
+
+
+def knee(case: Case, rows: list[dict], knob: str) -> dict:
+    """The recommended value of ``knob`` (see the module's rule) and whether the default is on it."""
+    base = next(r for r in rows if r["knob"] == "default")
+    cand = [r for r in rows if r["knob"] == knob] + [dict(base, value=case.defaults[knob])]
+    ok = [r for r in cand if math.isfinite(r["error"]) and r["error"] <= case.tolerance]
+    if ok:
+        best = min(ok, key=lambda r: (r["cost"], r["error"]))
+    else:
+        best = min(cand, key=lambda r: (r["error"] if math.isfinite(r["error"]) else math.inf, r["cost"]))
+    on = best["value"] == case.defaults[knob] or (
+        base["error"] <= case.tolerance and base["cost"] <= 1.5 * best["cost"])
+    return {"knob": knob, "recommended": best["value"], "error": best["error"], "cost": best["cost"],
+            "default": case.defaults[knob], "default_error": base["error"], "default_cost": base["cost"],
+            "default_on_knee": on}
+
+
+def pareto_plot(case: Case, rows: list[dict], path: pathlib.Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    base = next(r for r in rows if r["knob"] == "default")
+    floor = 1e-7
+    for i, knob in enumerate(case.knobs):
+        pts = sorted([r for r in rows if r["knob"] == knob] + [dict(base, value=case.defaults[knob])],
+                     key=lambda r: r["cost"])
+        c = [r["cost"] for r in pts]
+        e = [max(r["error"], floor) for r in pts]
+        ax.loglog(c, e, "o-", color=f"C{i}", label=knob)
+        for r, x, y in zip(pts, c, e):
+            ax.annotate(f"{r['value']:g}" if isinstance(r["value"], float) else str(r["value"]), (x, y),
+                        textcoords="offset points", xytext=(4, 3), fontsize=7, color=f"C{i}")
+    ax.loglog([base["cost"]], [max(base["error"], floor)], "k*", ms=12, label="default", zorder=5)
+    ax.axhline(case.tolerance, color="0.5", ls="--", lw=0.8, label=f"tolerance {case.tolerance:g}")
+    ax.set(xlabel=case.cost_label + " (cost)", ylabel=case.error_label, title=case.name)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _fmt(v) -> str:
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
+def report(cases: list[Case], rows: list[dict], size: str, arch: str, device: str) -> str:
+    lines = [f"# Accuracy against cost ({datetime.date.today().isoformat()}, commit {_commit()}, size '{size}', "
+             f"{arch}: {device})", "",
+             "Each case sweeps its cost knobs one at a time, the others at fbed's defaults. The recommended value",
+             "is the cheapest within the case's tolerance; the default is on the knee when it is that value, or",
+             "costs at most 1.5x it while within tolerance. Pareto plots: `pareto_<case>.png`; every row:",
+             "`accuracy.csv`.", "",
+             "## Recommended settings", "",
+             "| case | knob | default | default's error | recommended | its error | cost ratio (default / rec.) | on the knee |",
+             "|---|---|---|---|---|---|---|---|"]
+    for case in cases:
+        cr = [r for r in rows if r["case"] == case.name]
+        if not cr:
+            continue
+        for knob in case.knobs:
+            k = knee(case, cr, knob)
+            ratio = k["default_cost"] / k["cost"] if k["cost"] else float("nan")
+            lines.append(f"| {case.name} | {knob} | {_fmt(k['default'])} | {k['default_error']:.2e} | "
+                         f"{_fmt(k['recommended'])} | {k['error']:.2e} | {ratio:.2f} | "
+                         f"{'yes' if k['default_on_knee'] else 'no'} |")
+    lines += ["", "## Cases", ""]
+    for case in cases:
+        cr = [r for r in rows if r["case"] == case.name]
+        if not cr:
+            continue
+        lines += [f"### {case.name}", "", f"{case.title}. Error: {case.error_label}; cost: {case.cost_label}; "
+                  f"tolerance {case.tolerance:g}." + (f" {case.note}." if case.note else ""), "",
+                  "| knob | value | error | cost | wall of the measure [s] |", "|---|---|---|---|---|"]
+        lines += [f"| {r['knob']} | {_fmt(r['value'])} | {r['error']:.3e} | {r['cost']:.4g} | {r['wall_s']:.1f} |"
+                  for r in cr]
+        lines.append("")
+    return "\n".join(lines) + "\n"
+
+
+def accuracy(out: str | None = None, names: list[str] | None = None, size: str = "small", arch: str = "cpu",
+             threads: int | None = 1) -> int:
+    """Run the cases (all, or ``names``), write accuracy.csv, pareto_<case>.png and ACCURACY.md into
+    ``out`` (default runs/accuracy); print the table. Returns 0."""
+    from ..sim import runtime
+
+    cases = [c for c in all_cases() if not names or c.name in names]
+    out_dir = pathlib.Path(out) if out else pathlib.Path("runs") / "accuracy"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    previous = runtime._current
+    rows: list[dict] = []
+    try:
+        for case in cases:
+            print(f"{case.name}: {case.title}", flush=True)
+            try:
+                cr = sweep_case(case, size, arch, threads)
+            except Unavailable as why:
+                print(f"  skipped: {why}", flush=True)
+                continue
+            rows += cr
+            pareto_plot(case, cr, out_dir / f"pareto_{case.name}.png")
+            _write_csv(rows, out_dir / "accuracy.csv")  # after each case: a long bench keeps what it has
+    finally:
+        if previous is not None:  # hand Taichi back as it was (tests run in float64)
+            runtime.init(*previous)
+    device = platform.processor() or platform.machine()
+    if arch == "cuda":
+        try:
+            device = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"], capture_output=True,
+                                    text=True, timeout=10).stdout.strip() or "GPU"
+        except (OSError, subprocess.SubprocessError):
+            device = "GPU"
+    text = report(cases, rows, size, arch, device)
+    (out_dir / "ACCURACY.md").write_text(text)
+    print(text)
+    return 0
+
+
+def _write_csv(rows: list[dict], path: pathlib.Path) -> None:
+    keys: list[str] = []
+    for r in rows:
+        keys += [k for k in r if k not in keys]
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=keys)
+        w.writeheader()
+        w.writerows(rows)
