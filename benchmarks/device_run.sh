@@ -3,7 +3,9 @@
 # for the CPU, packed into $OUT/results.tgz. Usage on the device, from the project root:
 #   source .devkit/setup.sh && FBED_COMMIT=<hash> bash benchmarks/device_run.sh STAGE...
 # Stages: bench (DEM throughput, render cost), small (boyce_small with video), boyce (full rig),
-# sweep (the injection-time sweep from the cached bed).
+# sweep (the injection-time sweep from the cached bed), verma_start (the full Verma run, started in its
+# own process session so that it outlives this call: the machine stays lent while later calls poll it),
+# wait (poll the background run until it ends or LIMIT_wait), accuracy / stiffness (the full-size benches).
 set -uo pipefail
 L=runs/devout; mkdir -p $L  # inside runs/ (git-ignored): the device keeps it between calls
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$L/gpu.txt" 2>&1
@@ -24,6 +26,17 @@ for stage in "$@"; do
       $T python3 -m app run presets/verma.toml --arch cuda --out runs/verma --overwrite ;;
     verma_resume)
       $T python3 -m app run --resume runs/verma --arch cuda ;;
+    verma_start)
+      setsid nohup python3 -m app run presets/verma.toml --arch cuda --out runs/verma --overwrite \
+        > "$L/verma.log" 2>&1 < /dev/null &
+      echo $! > runs/verma.pid; sleep 20; tail -3 "$L/verma.log" ;;
+    wait)
+      end=$(( $(date +%s) + lim - 15 ))
+      while kill -0 "$(cat runs/verma.pid)" 2>/dev/null && [ "$(date +%s)" -lt "$end" ]; do sleep 5; done ;;
+    accuracy)
+      $T python3 -m app bench accuracy --size full --arch cuda --out runs/accuracy_full ;;
+    stiffness)
+      $T python3 -m app bench stiffness --size full --arch cuda --out runs/stiffness_full ;;
     sweep)
       $T python3 -m app sweep presets/boyce.toml --arch cuda --out runs/boyce-sweep --plot bubble_peak_diameter \
         --set boundary.bottom.jet_duration=0.1542,0.0667,0.0514,0.025 --set video.enabled=false ;;
@@ -37,3 +50,5 @@ ls -laR runs > "$L/ls.txt" 2>&1
 tar czf "$OUT/results.tgz" --exclude='*.h5' --exclude='*.mp4' --exclude='runs/prepared' runs
 for v in runs/*/video.mp4; do [ -f "$v" ] && cp "$v" "$OUT/$(basename "$(dirname "$v")").mp4"; done
 ls -la "$OUT"
+[ -f "$L/verma.log" ] && tail -n 25 "$L/verma.log"
+nvidia-smi --query-gpu=memory.used,utilization.gpu --format=csv
