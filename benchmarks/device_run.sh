@@ -27,12 +27,16 @@ for stage in "$@"; do
     verma_resume)
       $T python3 -m app run --resume runs/verma --arch cuda ;;
     verma_start)
-      setsid nohup python3 -m app run presets/verma.toml --arch cuda --out runs/verma --overwrite \
-        > "$L/verma.log" 2>&1 < /dev/null &
+      # a guard stop skips the automatic analysis: run it on the data up to the stop
+      setsid nohup bash -c "python3 -m app run presets/verma.toml --arch cuda --out runs/verma --overwrite \
+        ${VERMA_SET:-}; [ \$? -eq 3 ] && python3 -m app analyze runs/verma" > "$L/verma.log" 2>&1 < /dev/null &
       echo $! > runs/verma.pid; sleep 20; tail -3 "$L/verma.log" ;;
     wait)
       end=$(( $(date +%s) + lim - 15 ))
       while kill -0 "$(cat runs/verma.pid)" 2>/dev/null && [ "$(date +%s)" -lt "$end" ]; do sleep 5; done ;;
+    stop)  # SIGTERM: the run checkpoints, ends 'interrupted' and runs its analysis; wait for that
+      pkill -TERM -f "app run presets/verma.toml"
+      for _ in $(seq 1 $lim); do kill -0 "$(cat runs/verma.pid)" 2>/dev/null || break; sleep 1; done ;;
     accuracy)
       $T python3 -m app bench accuracy --size full --arch cuda --out runs/accuracy_full ;;
     stiffness)

@@ -83,3 +83,17 @@ def test_splitting_a_coupled_step_keeps_the_physics():
     assert v4 == pytest.approx(v1, rel=0.02)
     assert (0.3 - z4) == pytest.approx(0.3 - z1, rel=0.02)
     assert v1 > 0.1  # it did fall
+
+
+def test_gas_speed_guard_names_the_fastest_cell():
+    """A gas-speed stop says where: the 50 m/s jet enters through the 2x2 centre cells of the bottom."""
+    from app.sim.simulation import Guard, Unstable
+
+    sim = Simulation(None, 1e-3, 0, 0.01, flow=_jet_solver())
+    sim.add(Guard(max_overlap=0.2, max_speed=100.0, max_gas_speed=20.0), interval=1e-3)
+    with pytest.raises(Unstable) as err:
+        sim.run()
+    msg = str(err.value)
+    assert "guard.max_gas_speed = 20" in msg and "fastest in cell (" in msg
+    i, j, k = (int(x) for x in msg.split("fastest in cell (")[1].split(")")[0].split(","))
+    assert i in (7, 8) and j in (7, 8) and k < 16, msg

@@ -115,7 +115,17 @@ class Simulation:
         u = self.flow.cell_velocity()
         p = self.flow.pressure()
         info = self.flow_info
-        return {"gas_max_speed": float(np.sqrt((u ** 2).sum(-1)).max()) if u.size else 0.0,
+        speed = np.sqrt((u ** 2).sum(-1))
+        where = {}
+        if speed.size and np.isfinite(speed).all():
+            # where the gas is fastest, so a guard stop can say which cell went wrong
+            c = np.unravel_index(int(np.argmax(speed)), speed.shape)
+            g = self.flow.config.grid
+            where = {"gas_max_cell": tuple(int(x) for x in c),
+                     "gas_max_position": tuple(float(o + (i + 0.5) * g.h) for o, i in zip(g.origin, c)),
+                     "gas_max_open_fraction": float(self.flow.cut.volume[c]),
+                     "gas_max_eps": float(self.flow.fields.eps[c])}
+        return {"gas_max_speed": float(speed.max()) if speed.size else 0.0, **where,
                 "gas_non_finite": int((~np.isfinite(u)).sum() + (~np.isfinite(p)).sum()),
                 "gas_cfl": info.cfl if info else 0.0,
                 "pressure_iterations": info.pressure_iterations if info else 0,
@@ -258,6 +268,14 @@ class Simulation:
                 h.finish(self, reason)
 
 
+def _where(d: dict) -> str:
+    if "gas_max_cell" not in d:
+        return ""
+    x = ", ".join(f"{v:.4g}" for v in d["gas_max_position"])
+    return (f"; fastest in cell {d['gas_max_cell']} at ({x}) m, open volume fraction "
+            f"{d['gas_max_open_fraction']:.2f}, gas fraction {d['gas_max_eps']:.2f}")
+
+
 class Guard:
     """Stops a run that went wrong (NaN/inf, runaway overlap or speed) before it writes garbage.
 
@@ -287,7 +305,7 @@ class Guard:
                            "gas.max_iterations, or lower run.step")
         if d["gas_max_speed"] > self.max_gas_speed:
             raise Unstable(f"the gas moves at {d['gas_max_speed']:.3g} m/s at t = {t:.6g} s (guard.max_gas_speed = "
-                           f"{self.max_gas_speed:g} m/s; gas CFL {d['gas_cfl']:.3g}): the gas step is going unstable: "
+                           f"{self.max_gas_speed:g} m/s; gas CFL {d['gas_cfl']:.3g}{_where(d)}): the gas step is going unstable: "
                            "lower run.step (the fluid step) or raise coupling.smoothing_width; raise "
                            "guard.max_gas_speed if such speeds are real")
 
