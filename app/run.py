@@ -507,7 +507,7 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
                         "render_share": renderer.render_seconds / max(wall, 1e-9)})
         if writer is not None:
             summary.update({"video": str(writer.path), "video_encoder": writer.encoder})
-    if bed is not None and status != "unstable":
+    if bed is not None:  # also for a guard stop: `fbed analyze` of its data needs the bed weight
         summary.update(bed.summary(out_dir / "run.h5", cfg))
     summary.update({k: d[k] for k in dem_series + gas_series if k in d})
     if status == "unstable" and (out_dir / "checkpoint.h5").exists():

@@ -170,6 +170,7 @@ def flow_config(cfg: Config, walls: list):
                            gravity=tuple(d.gravity), bcs=bcs, walls=tuple(walls), pressure_form=g.pressure_form,
                            convection=g.convection, tol=g.tolerance, max_iter=g.max_iterations,
                            aperture_samples=g.aperture_samples, max_viscous_sweeps=g.max_viscous_sweeps,
+                           trace_forces=g.trace_forces,
                            min_open_fraction=g.min_open_fraction)
 
 

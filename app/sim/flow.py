@@ -34,8 +34,9 @@ Discretisation
   al. 2008): unconditionally stable (a 50 m/s jet on 6 mm cells at dt = 1e-3 s, CFL ~ 8,
   is fine), second order in smooth flow, first order where clamped. Selectable:
   "maccormack" (default), "semi_lagrangian", "none" (Stokes flow).
-  Second-order splitting: the field carried along the trajectory is u + dt/2 a and dt/2 a
-  is taken off at the arrival face, where a is the last step's non-advective acceleration
+  Second-order splitting: dt/2 a is added at the departure point and taken off at the
+  arrival face (the plain semi-Lagrangian trace of a, outside the MacCormack correction:
+  corrected together with u it fed back on itself and blew up), where a is the last step's non-advective acceleration
   (u^n - u~^(n-1))/dt weighted by the inertial share rho eps/(rho eps + beta dt) of the
   face. This is the trapezoidal rule for the forces along the path; without it the
   pressure impulse integrated along a curved trajectory is not a gradient and the
@@ -199,6 +200,7 @@ class FlowConfig:
     aperture_samples: int = 4
     min_open_fraction: float = 0.0
     max_viscous_sweeps: int = 40
+    trace_forces: bool = True
 
     def __post_init__(self):
         bad = ValueError
@@ -340,7 +342,7 @@ R_VEL, R_VOLD, R_VADV, R_VTMP, R_VLO, R_VHI, R_AP, R_CL = range(32, 40)
 R_EPS, R_DEPS, R_BETA, R_US, R_FX, R_THETA, R_UC, R_GP, R_DIV, R_PAR, R_SC, R_ACC, R_DPRED, R_P, R_EF, R_BF = range(40, 56)
 NM = 64
 # parameter slots (F[M[R_PAR] + ...])
-P_RHO, P_MU, P_H, P_G, P_POUT, P_THMIN = 0, 1, 2, 3, 6, 12
+P_RHO, P_MU, P_H, P_G, P_POUT, P_THMIN, P_TRACE = 0, 1, 2, 3, 6, 12, 13
 NPAR = 16
 # scalar slots (F[M[R_SC] + ...])
 SC_DMAX, SC_SMAX, SC_UMAX, SC_UOLD, SC_DV = range(5)
@@ -671,36 +673,44 @@ def _k_read(F: ND, off: ti.i32, dst: ND):
 
 @ti.kernel
 def _k_advect(F: ND, M: ND, dt: float) -> float:
-    """old = vel; adv = back-traced (vel + dt/2 a) - dt/2 a (a: last step's weighted acceleration),
-    with the MacCormack correction when asked; returns max|old|."""
+    """old = vel; adv = back-traced vel (MacCormack-corrected when asked) + dt/2 (a at the departure
+    point - a here), a being the last step's weighted acceleration; returns max|old|.
+
+    The acceleration's share is carried by the plain semi-Lagrangian trace, outside the
+    MacCormack correction: corrected together with the velocity (u + dt/2 a traced as one field),
+    the pair fed back on itself through the next step's a and grew without bound (a gas-only
+    cylinder with gusty inflow reached 200 m/s in 380 steps; either piece alone stays bounded)."""
     nf = M[M_NF]
     h = _par(F, M, P_H)
     cdt = dt / h
     vold = M[R_VOLD]
     vadv = M[R_VADV]
-    vw = M[R_VTMP]
+    vinc = M[R_VTMP]  # dt/2 (a_departure - a_arrival) per face
+    vmc = M[R_VLO]    # the MacCormack result overwrites the face's own lower clamp once used
     acc = M[R_ACC]
     F[M[R_SC] + SC_UOLD] = 0.0
     for f in range(nf):
         u = F[M[R_VEL] + f]
         F[vold + f] = u
-        F[vw + f] = u + 0.5 * dt * F[acc + f]
         ti.atomic_max(F[M[R_SC] + SC_UOLD], ti.abs(u))
     for f in range(nf):
         v = F[vold + f]
+        inc = 0.0
         a, I = _fdecode(M, f)
         if _solved(F, M, f, a, I):
-            v = F[vw + f]
             if M[M_SCHEME] > 0:
                 X = _face_pos(a, I)
                 U1 = _vel_at(F, M, vold, X)
                 U2 = _vel_at(F, M, vold, X - 0.5 * cdt * U1)
-                val, lo, hi = _interp(F, M, vw, a, X - cdt * U2)
+                val, lo, hi = _interp(F, M, vold, a, X - cdt * U2)
                 v = val
+                adep, _, _ = _interp(F, M, acc, a, X - cdt * U2)
+                inc = 0.5 * dt * (adep - F[acc + f])
                 if M[M_SCHEME] == 2:
                     F[M[R_VLO] + f] = lo
                     F[M[R_VHI] + f] = hi
         F[vadv + f] = v
+        F[vinc + f] = inc
     n2 = 0
     if M[M_SCHEME] == 2:
         n2 = nf
@@ -711,15 +721,15 @@ def _k_advect(F: ND, M: ND, dt: float) -> float:
             U1 = _vel_at(F, M, vold, X)
             U2 = _vel_at(F, M, vold, X + 0.5 * cdt * U1)
             back, _, _ = _interp(F, M, vadv, a, X + cdt * U2)
-            v = F[vadv + f] + 0.5 * (F[vw + f] - back)
-            F[vw + f] = ti.min(ti.max(v, F[M[R_VLO] + f]), F[M[R_VHI] + f])
+            v = F[vadv + f] + 0.5 * (F[vold + f] - back)
+            F[vmc + f] = ti.min(ti.max(v, F[M[R_VLO] + f]), F[M[R_VHI] + f])
     for f in range(nf):
         a, I = _fdecode(M, f)
         if _solved(F, M, f, a, I):
             v = F[vadv + f]
             if M[M_SCHEME] == 2:
-                v = F[vw + f]
-            F[vadv + f] = v - 0.5 * dt * F[acc + f]
+                v = F[vmc + f]
+            F[vadv + f] = v + F[vinc + f]
     return F[M[R_SC] + SC_UOLD]
 
 
@@ -1023,7 +1033,7 @@ def _k_correct(F: ND, M: ND, G: ND, MM: ND, dt: float, again: ti.i32) -> ti.type
             e = F[M[R_EF] + f]
             be = F[M[R_BF] + f]
             wt = rho * e / (rho * e + be * dt)
-            acc = wt * (F[vel + f] - F[M[R_VADV] + f]) / dt
+            acc = _par(F, M, P_TRACE) * wt * (F[vel + f] - F[M[R_VADV] + f]) / dt
         F[M[R_ACC] + f] = acc
     _cell_outputs(F, M, G, MM)
     sc = M[R_SC]
@@ -1246,6 +1256,7 @@ class FlowSolver:
         pout = [cfg.bc(f).pressure if kinds[i] == OUTLET else 0.0 for i, f in enumerate(FACES)]
         par[P_POUT:P_POUT + 6] = pout
         par[P_THMIN] = THETA_MIN
+        par[P_TRACE] = 1.0 if cfg.trace_forces else 0.0
         self._write(R_PAR, par)
         self._write(R_AP, np.concatenate([ap.ravel() for ap in cut.apertures]))
         if has_walls:
