@@ -35,8 +35,8 @@ for stage in "$@"; do
       end=$(( $(date +%s) + lim - 15 ))
       while kill -0 "$(cat runs/verma.pid)" 2>/dev/null && [ "$(date +%s)" -lt "$end" ]; do sleep 5; done ;;
     stop)  # SIGTERM: the run checkpoints, ends 'interrupted' and runs its analysis; wait for that
-      pkill -TERM -f "app run presets/verma.toml"
-      for _ in $(seq 1 $lim); do kill -0 "$(cat runs/verma.pid)" 2>/dev/null || break; sleep 1; done ;;
+      pkill -TERM -f "^python3 -m app run presets/verma.toml"  # the python, not its bash -c wrapper
+      for _ in $(seq 1 $lim); do pgrep -f "^python3 -m app (run|analyze)" > /dev/null || break; sleep 1; done ;;
     accuracy)
       $T python3 -m app bench accuracy --size full --arch cuda --out runs/accuracy_full ;;
     stiffness)
