@@ -61,3 +61,8 @@ def reset() -> None:
     """Forget the current settings so the next init() restarts Taichi (used by tests)."""
     global _current
     _current = None
+
+
+def sync() -> None:
+    """Wait for every launched kernel to finish (read the clock after this when timing kernels)."""
+    ti.sync()
