@@ -45,17 +45,20 @@ def build_parser() -> argparse.ArgumentParser:
                                    "writes RUN_DIR/analysis and updates summary.json.")
     a.add_argument("run_dir", help="output folder of a run")
     a.add_argument("--kind", choices=("boyce", "verma"), help="override the run's probes.analysis")
-    b = sub.add_parser("bench", help="stress scenes and accuracy against cost (fbed bench stress|accuracy)",
+    b = sub.add_parser("bench", help="stress scenes, accuracy against cost, contact stiffness "
+                                     "(fbed bench stress|accuracy|stiffness)",
                        description="fbed bench stress: hostile scenes that must finish clean or stop with a clear "
                                    "message; writes STRESS.md and stress.json into --out. fbed bench accuracy: "
                                    "error against cost for every verification case, one knob at a time (accuracy.csv, "
-                                   "pareto_<case>.png, ACCURACY.md with the recommended settings).")
-    b.add_argument("kind", choices=("stress", "accuracy"))
-    b.add_argument("--out", help="output folder (default: runs/stress or runs/accuracy)")
+                                   "pareto_<case>.png, ACCURACY.md with the recommended settings). fbed bench "
+                                   "stiffness: the small bed against Young's modulus (stiffness.csv, stiffness.png, "
+                                   "STIFFNESS.md).")
+    b.add_argument("kind", choices=("stress", "accuracy", "stiffness"))
+    b.add_argument("--out", help="output folder (default: runs/stress, runs/accuracy or runs/stiffness)")
     b.add_argument("--scenes", nargs="+", help="stress: only these scenes")
     b.add_argument("--cases", nargs="+", help="accuracy: only these cases")
     b.add_argument("--size", choices=("small", "full"), default="small",
-                   help="accuracy: 'small' (CPU minutes) or 'full' (the sizes meant for the GPU)")
+                   help="accuracy, stiffness: 'small' (CPU minutes) or 'full' (the sizes meant for the GPU)")
     b.add_argument("--arch", choices=("cpu", "cuda"), default="cpu")
     b.add_argument("--limit", type=float, default=600.0, help="wall-clock limit per scene [s] (a hang fails)")
     w = sub.add_parser("sweep", help="run a preset over lists of values",
@@ -101,6 +104,10 @@ def main(argv: list[str] | None = None) -> int:
                     raise ConfigError(f"unknown case {unknown[0]!r}", "--cases", unknown[0],
                                       hint="cases: " + ", ".join(names))
                 return accuracy(args.out, args.cases, args.size, args.arch, 1 if args.arch == "cpu" else None)
+            if args.kind == "stiffness":
+                from .accuracy.stiffness import stiffness
+
+                return stiffness(args.out, args.size, args.arch, 1 if args.arch == "cpu" else None)
             from .bench import SCENES, stress
 
             unknown = sorted(set(args.scenes or []) - {sc.name for sc in SCENES})
