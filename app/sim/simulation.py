@@ -59,6 +59,7 @@ class Simulation:
         self.timing = False  # per-phase wall times (coupling, gas, dem, callbacks) into phase_seconds
         self.timing_every = 25  # ... measured on every 25th step only (see _lap)
         self._timed = False
+        self._lap_start = 0.0  # wall clock at the start of the current phase (sampled steps)
         self.phase_seconds: dict[str, float] = {}  # summed over the sampled steps
         self.callback_seconds = 0.0  # summed over every step
         self.steps_timed = 0
@@ -79,7 +80,6 @@ class Simulation:
         out = {k: v * scale for k, v in self.phase_seconds.items()}
         out["callbacks"] = self.callback_seconds
         return out
-        self._lap_start = 0.0
 
     @property
     def time(self) -> float:
@@ -115,17 +115,7 @@ class Simulation:
         u = self.flow.cell_velocity()
         p = self.flow.pressure()
         info = self.flow_info
-        speed = np.sqrt((u ** 2).sum(-1))
-        where = {}
-        if speed.size and np.isfinite(speed).all():
-            # where the gas is fastest, so a guard stop can say which cell went wrong
-            c = np.unravel_index(int(np.argmax(speed)), speed.shape)
-            g = self.flow.config.grid
-            where = {"gas_max_cell": tuple(int(x) for x in c),
-                     "gas_max_position": tuple(float(o + (i + 0.5) * g.h) for o, i in zip(g.origin, c)),
-                     "gas_max_open_fraction": float(self.flow.cut.volume[c]),
-                     "gas_max_eps": float(self.flow.fields.eps[c])}
-        return {"gas_max_speed": float(speed.max()) if speed.size else 0.0, **where,
+        return {"gas_max_speed": float(np.sqrt((u ** 2).sum(-1)).max()) if u.size else 0.0,
                 "gas_non_finite": int((~np.isfinite(u)).sum() + (~np.isfinite(p)).sum()),
                 "gas_cfl": info.cfl if info else 0.0,
                 "pressure_iterations": info.pressure_iterations if info else 0,
@@ -133,6 +123,21 @@ class Simulation:
                 "pressure_converged": bool(info.converged) if info else True,
                 "divergence_residual": info.divergence if info else 0.0,
                 **({"clipped_cells": self.coupler.clipped_cells} if self.coupler is not None else {})}
+
+    def gas_fastest_cell(self) -> str:
+        """Where the gas is fastest (cell, position, open volume and gas fraction), for a guard's message;
+        read only when a guard stops the run, not every step."""
+        import numpy as np
+
+        u = self.flow.cell_velocity()
+        speed = np.sqrt((u ** 2).sum(-1))
+        if not speed.size or not np.isfinite(speed).all():
+            return ""
+        c = np.unravel_index(int(np.argmax(speed)), speed.shape)
+        g = self.flow.config.grid
+        x = ", ".join(f"{o + (i + 0.5) * g.h:.4g}" for o, i in zip(g.origin, c))
+        return (f"; fastest in cell {tuple(int(i) for i in c)} at ({x}) m, open volume fraction "
+                f"{float(self.flow.cut.volume[c]):.2f}, gas fraction {float(self.flow.fields.eps[c]):.2f}")
 
     def step(self) -> None:
         # sampled steps skip the first ones (kernel compilation would dominate them)
@@ -268,14 +273,6 @@ class Simulation:
                 h.finish(self, reason)
 
 
-def _where(d: dict) -> str:
-    if "gas_max_cell" not in d:
-        return ""
-    x = ", ".join(f"{v:.4g}" for v in d["gas_max_position"])
-    return (f"; fastest in cell {d['gas_max_cell']} at ({x}) m, open volume fraction "
-            f"{d['gas_max_open_fraction']:.2f}, gas fraction {d['gas_max_eps']:.2f}")
-
-
 class Guard:
     """Stops a run that went wrong (NaN/inf, runaway overlap or speed) before it writes garbage.
 
@@ -292,7 +289,7 @@ class Guard:
         self.dt_limit = dt_limit
         self.last_good_step = 0
 
-    def _gas_check(self, d: dict, t: float) -> None:
+    def _gas_check(self, sim: Simulation, d: dict, t: float) -> None:
         if "gas_non_finite" not in d:
             return
         if d["gas_non_finite"]:
@@ -305,7 +302,7 @@ class Guard:
                            "gas.max_iterations, or lower run.step")
         if d["gas_max_speed"] > self.max_gas_speed:
             raise Unstable(f"the gas moves at {d['gas_max_speed']:.3g} m/s at t = {t:.6g} s (guard.max_gas_speed = "
-                           f"{self.max_gas_speed:g} m/s; gas CFL {d['gas_cfl']:.3g}{_where(d)}): the gas step is going unstable: "
+                           f"{self.max_gas_speed:g} m/s; gas CFL {d['gas_cfl']:.3g}{sim.gas_fastest_cell()}): the gas step is going unstable: "
                            "lower run.step (the fluid step) or raise coupling.smoothing_width; raise "
                            "guard.max_gas_speed if such speeds are real")
 
@@ -320,7 +317,7 @@ class Guard:
     def __call__(self, sim: Simulation) -> None:
         d = sim.diagnostics()
         t = sim.time
-        self._gas_check(d, t)
+        self._gas_check(sim, d, t)
         if "non_finite" not in d:  # no grains in this scene
             self.last_good_step = sim.step_count
             return
