@@ -704,8 +704,9 @@ def _k_advect(F: ND, M: ND, dt: float) -> float:
                 U2 = _vel_at(F, M, vold, X - 0.5 * cdt * U1)
                 val, lo, hi = _interp(F, M, vold, a, X - cdt * U2)
                 v = val
-                adep, _, _ = _interp(F, M, acc, a, X - cdt * U2)
-                inc = 0.5 * dt * (adep - F[acc + f])
+                if _par(F, M, P_TRACE) > 0.0:  # a is all zero with gas.trace_forces off: skip its trace
+                    adep, _, _ = _interp(F, M, acc, a, X - cdt * U2)
+                    inc = 0.5 * dt * (adep - F[acc + f])
                 if M[M_SCHEME] == 2:
                     F[M[R_VLO] + f] = lo
                     F[M[R_VHI] + f] = hi
