@@ -152,9 +152,10 @@ def _taichi() -> tuple[str, str, int]:
     """(arch, precision, threads) Taichi was started with (by the runner, a test or the stiffness study)."""
     from ..sim import runtime
 
-    if runtime._current is None:
+    started = runtime.current()
+    if started is None:
         raise RuntimeError("Taichi is not started: app.sim.runtime.init(...) first (the accuracy runner does)")
-    arch, precision, threads, _ = runtime._current
+    arch, precision, threads, _ = started
     return arch, precision, threads or 0
 
 

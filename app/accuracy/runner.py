@@ -144,9 +144,8 @@ def accuracy(out: str | None = None, names: list[str] | None = None, size: str =
     cases = [c for c in all_cases() if not names or c.name in names]
     out_dir = pathlib.Path(out) if out else pathlib.Path("runs") / "accuracy"
     out_dir.mkdir(parents=True, exist_ok=True)
-    previous = runtime._current
     rows: list[dict] = []
-    try:
+    with runtime.kept():  # tests run in float64
         for case in cases:
             print(f"{case.name}: {case.title}", flush=True)
             try:
@@ -157,9 +156,6 @@ def accuracy(out: str | None = None, names: list[str] | None = None, size: str =
             rows += cr
             pareto_plot(case, cr, out_dir / f"pareto_{case.name}.png")
             _write_csv(rows, out_dir / "accuracy.csv")  # after each case: a long bench keeps what it has
-    finally:
-        if previous is not None:  # hand Taichi back as it was (tests run in float64)
-            runtime.init(*previous)
     device = platform.processor() or platform.machine()
     if arch == "cuda":
         try:

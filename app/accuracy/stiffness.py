@@ -163,9 +163,8 @@ def stiffness(out: str | None = None, size: str = "small", arch: str = "cpu", th
 
     out_dir = pathlib.Path(out) if out else pathlib.Path("runs") / "stiffness"
     out_dir.mkdir(parents=True, exist_ok=True)
-    previous = runtime._current
     rows = []
-    try:
+    with runtime.kept():
         runtime.init(arch, bed_cases.DEFAULTS["precision"], threads)
         for e in moduli:
             rows.append(measure(e, size))
@@ -173,9 +172,6 @@ def stiffness(out: str | None = None, size: str = "small", arch: str = "cpu", th
             print(f"  E = {e:g} Pa: {r.get('status')}, {_fmt(r.get('cost', math.nan), '.1f')} wall s per "
                   "simulated s", flush=True)
             write_csv(rows, out_dir / "stiffness.csv")
-    finally:
-        if previous is not None:
-            runtime.init(*previous)
     plot(rows, out_dir / "stiffness.png")
     text = report(rows, size, arch)
     (out_dir / "STIFFNESS.md").write_text(text)

@@ -5,6 +5,7 @@ scene with the same settings reuses the compiled kernels instead of resetting Ta
 """
 from __future__ import annotations
 
+import contextlib
 import os
 
 import taichi as ti
@@ -66,3 +67,20 @@ def reset() -> None:
 def sync() -> None:
     """Wait for every launched kernel to finish (read the clock after this when timing kernels)."""
     ti.sync()
+
+
+def current() -> tuple | None:
+    """(arch, precision, threads, debug) Taichi was started with, or None before the first init()."""
+    return _current
+
+
+@contextlib.contextmanager
+def kept():
+    """Hand Taichi back as it was on exit (a bench that switches precision inside must not leave a test
+    session, which runs in float64, on float32)."""
+    previous = _current
+    try:
+        yield
+    finally:
+        if previous is not None:
+            init(*previous)
