@@ -5,28 +5,17 @@ O(dt) error."""
 import numpy as np
 import pytest
 
-from app.sim import flow
 from app.sim.coupling import Coupler
 from app.sim.dem import DemSolver
 from app.sim.flow import FlowSolver
 from app.sim.simulation import Simulation
 
 from dem_helpers import make
-
-
-def _jet_solver():
-    """test_flow's 50 m/s jet on 6 mm cells (CFL ~ 8 at 1 ms)."""
-    cfg = flow.FlowConfig(shape=(16, 16, 32), h=0.006, rho=1.2, mu=1.8e-5, gravity=(0, 0, -9.81), tol=1e-8,
-                          bcs={"bottom": flow.velocity_inlet((0, 0, 0)), "top": flow.pressure_outlet()})
-    s = flow.FlowSolver(cfg)
-    prof = np.zeros((16, 16))
-    prof[7:9, 7:9] = 50.0
-    s.set_inlet_profile("bottom", prof)
-    return s
+from flow_helpers import jet_solver
 
 
 def test_high_cfl_splits_the_fluid_step_and_pieces_are_exact_smaller_steps():
-    sim = Simulation(None, 1e-3, 0, 0.012, flow=_jet_solver())
+    sim = Simulation(None, 1e-3, 0, 0.012, flow=jet_solver())
     sim.max_gas_cfl, sim.max_gas_split = 2.0, 16
     notes, splits = [], []
     sim.notify = notes.append
@@ -38,7 +27,7 @@ def test_high_cfl_splits_the_fluid_step_and_pieces_are_exact_smaller_steps():
     assert notes and "gas.max_cfl = 2" in notes[0]
     assert sim.flow.time == pytest.approx(0.012, rel=1e-12)  # the pieces add up to the steps
     # the same gas stepped by hand with the same pieces: identical fields
-    ref = _jet_solver()
+    ref = jet_solver()
     for n in splits:
         for _ in range(n):
             ref.step(1e-3 / n)
@@ -46,7 +35,7 @@ def test_high_cfl_splits_the_fluid_step_and_pieces_are_exact_smaller_steps():
 
 
 def test_split_returns_to_one_when_the_flow_calms():
-    sim = Simulation(None, 1e-3, 0, 0.02, flow=_jet_solver())
+    sim = Simulation(None, 1e-3, 0, 0.02, flow=jet_solver())
     sim.max_gas_cfl, sim.max_gas_split = 2.0, 16
     sim.gas_split = 8  # as after a burst; the jet is off, the gas at rest: the CFL is ~0
     sim.flow.set_inlet_profile("bottom", np.zeros((16, 16)))
@@ -89,7 +78,7 @@ def test_gas_speed_guard_names_the_fastest_cell():
     """A gas-speed stop says where: the 50 m/s jet enters through the 2x2 centre cells of the bottom."""
     from app.sim.simulation import Guard, Unstable
 
-    sim = Simulation(None, 1e-3, 0, 0.01, flow=_jet_solver())
+    sim = Simulation(None, 1e-3, 0, 0.01, flow=jet_solver())
     sim.add(Guard(max_overlap=0.2, max_speed=100.0, max_gas_speed=20.0), interval=1e-3)
     with pytest.raises(Unstable) as err:
         sim.run()
