@@ -114,3 +114,37 @@ def test_kernel_and_numpy_give_the_same_beta(law):
 
     run(drag.law_of(law))
     np.testing.assert_allclose(out.to_numpy(), drag.beta(law, eps, w, D, RHO, MU), rtol=1e-10)
+
+
+@pytest.mark.parametrize("law", sorted(set(drag.LAWS) - {"di_felice"}))
+def test_a_grain_alone_in_its_cell_feels_stokes_drag_even_where_phi_rounds_to_zero(law):
+    """Where a grain fills less than ~1e-7 of its cell, float32 rounds eps to 1 and phi = 1 - eps to 0;
+    the coupling asks each law for beta / phi with phi passed in, so the grain still feels its
+    single-sphere drag. At Re = 1e-8 every law's dilute limit is Stokes, 3 pi mu d w per grain
+    (the Reynolds terms add at most 0.15 Re^0.687 ~ 5e-7)."""
+    w = slip_for(1.0, 1e-8)
+    got = drag.per_grain_volume(law, 1.0, w, D, RHO, MU, phi=0.0)
+    assert got * vp() * w == pytest.approx(3 * math.pi * MU * D * w, rel=1e-5)
+    assert drag.per_grain_volume(law, 0.6, w, D, RHO, MU) * 0.4 == pytest.approx(
+        drag.beta(law, 0.6, w, D, RHO, MU), rel=1e-12)
+
+
+def test_di_felice_dilute_limit_is_its_own_drag_coefficient():
+    """Di Felice's C_D = (0.63 + 4.8 / sqrt(Re))^2 tends to 23.04 / Re, not 24 / Re: 0.96 of Stokes."""
+    w = slip_for(1.0, 1e-8)
+    got = drag.per_grain_volume("di_felice", 1.0, w, D, RHO, MU, phi=0.0)
+    assert got * vp() * w == pytest.approx(0.96 * 3 * math.pi * MU * D * w, rel=1e-3)
+
+
+def test_kernel_per_grain_volume_at_eps_one_is_finite_and_positive():
+    import taichi as ti
+
+    out = ti.field(float, ())
+
+    @ti.kernel
+    def run(lw: ti.template()):
+        out[None] = drag.per_grain_volume_func(lw, 1.0, 0.0, 1e-3, D, RHO, MU)
+
+    run(drag.law_of("wen_yu"))
+    assert out[None] == pytest.approx(drag.per_grain_volume("wen_yu", 1.0, 1e-3, D, RHO, MU, phi=0.0), rel=1e-10)
+    assert out[None] > 0

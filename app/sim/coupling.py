@@ -199,9 +199,9 @@ def exchange(cm: ti.template(), m: ti.template(), g: ti.template(), s: ti.templa
                 gp += w[k] * gf.grad_p[c]
             v = s.v[i]
             slip = (ug - v).norm()
-            phi = 1.0 - eps
-            beta = drag.beta_func(cm.law, eps, slip, 2.0 * r, cm.gas_density, cm.gas_viscosity)
-            kp = beta * vol / ti.max(phi, 1e-12)
+            phi = ti.max(1.0 - eps, 0.0)
+            # beta / phi directly: in float32 a grain alone in a large cell has eps == 1 (phi == 0)
+            kp = drag.per_grain_volume_func(cm.law, eps, phi, slip, 2.0 * r, cm.gas_density, cm.gas_viscosity) * vol
             if ti.static(cm.model_b):
                 kp /= eps
                 buoyancy = -cm.gas_density * vol * ti.Vector(cm.gravity)
