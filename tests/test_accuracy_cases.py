@@ -104,3 +104,21 @@ def test_runner_writes_csv_plot_and_recommended_settings(tmp_path):
     row = next(line for line in md.splitlines() if line.startswith("| contact_time | dt_fraction |"))
     cells = [c.strip() for c in row.split("|")[1:-1]]
     assert cells[4] == "0.1" and cells[-1] == "no"
+
+
+def test_knee_picks_the_cheapest_of_equal_errors_when_none_is_within_tolerance():
+    """Ergun at 4 mm cells: no tolerance value brings the error under 5% (the cell size sets it), so
+    the errors tie within rounding; the knee must then pick the cheapest, not the value whose error
+    happens to be 1e-9 smaller. A clearly better value (2% smaller error) still wins over cost."""
+    from app.accuracy import Case
+    from app.accuracy.runner import knee
+
+    case = Case(name="t", title="", error_label="", cost_label="", knobs={"tolerance": (1e-3, 1e-8)},
+                defaults={"tolerance": 1e-6}, tolerance=0.05, measure=lambda settings, size: {})
+    rows = [{"knob": "default", "value": "", "error": 0.0539, "cost": 7.0},
+            {"knob": "tolerance", "value": 1e-3, "error": 0.0539 + 1e-9, "cost": 5.4},
+            {"knob": "tolerance", "value": 1e-8, "error": 0.0539 - 1e-9, "cost": 13.7}]
+    k = knee(case, rows, "tolerance")
+    assert k["recommended"] == 1e-3 and not k["default_on_knee"]
+    rows[2]["error"] = 0.0539 * 0.98
+    assert knee(case, rows, "tolerance")["recommended"] == 1e-8

@@ -3,8 +3,8 @@
 Owns: one small bed (3 mm glass beads, 2500 kg/m^3, in a vertical cylinder, Wen-Yu drag) at two sizes
 ('small': 2,500 grains for one CPU core; 'full': the bed twice as wide, 10,000 grains, for the GPU), its packing
 settled with the gas off (one per Young's modulus), the tightly resolved reference run and a perturbed twin of
-the default run (all cached in runs/prepared/, keyed by the size and the scene text), and the three cases'
-measures.
+the default run (all cached in runs/prepared/, keyed by the size, the scene text and the solver's sources),
+and the three cases' measures.
 
 One run serves all three cases (``bed_run``, memoised per settings): from the settled bed the inlet ramps
 linearly from 0 to 2 U_mf over 0.1 s and holds until 0.3 s. The fixed-bed part of the ramp gives U_mf (case
@@ -235,8 +235,20 @@ def stepping_cost(series: dict, warm_up: float = WARM_UP) -> float:
     return float((wall[-1] - wall[i]) / max(t[-1] - t[i], 1e-12))
 
 
+@functools.lru_cache(maxsize=1)
+def _solver_fingerprint() -> str:
+    """Hash of the solver's sources (app/sim, app/config): a cached settled bed or reference run made by
+    another version of the solver is not reused."""
+    root = pathlib.Path(__file__).resolve().parents[1]
+    h = hashlib.sha1()
+    for f in sorted([*root.glob("sim/*.py"), *root.glob("config/*.py")]):
+        h.update(f.name.encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()
+
+
 def _cache_dir(kind: str, size: str, identity: str) -> pathlib.Path:
-    key = hashlib.sha1(identity.encode()).hexdigest()[:10]
+    key = hashlib.sha1((identity + _solver_fingerprint()).encode()).hexdigest()[:10]
     return pathlib.Path("runs") / "prepared" / f"accuracy-{kind}-{size}-{key}"
 
 
@@ -481,7 +493,7 @@ def bed_run(settings: dict, size: str) -> dict:
 def reference(size: str) -> dict:
     """The tightly resolved run (REFERENCE settings, float64) and the default run's perturbed twin (its grains
     displaced at random by PERTURBATION at the start), each in its own process, their figures cached (the key
-    is the scenes' text: after a change to the solver, delete runs/prepared/accuracy-*). ``noise_*``: the twin
+    is the scenes' text and a hash of the solver's sources, so a changed solver runs afresh). ``noise_*``: the twin
     against the default run, relative: how far a perturbation far below any knob's effect moves the figure
     (a bubbling bed is chaotic), so an error below it cannot be resolved."""
     cache = _cache_dir("reference", size, bed_text(size, REFERENCE) + bed_text(size, DEFAULTS))

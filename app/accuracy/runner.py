@@ -5,7 +5,9 @@ Owns: the order of the sweep (rows grouped by float precision, so Taichi restart
 the knee rule, and the files. The cases own their scenes (:mod:`app.accuracy`).
 
 Knee rule: among the values of one knob, the recommended one is the cheapest whose error is within
-the case's tolerance; where none is, the most accurate. The default is "on the knee" when it is the
+the case's tolerance; where none is, the cheapest of those within 1% of the smallest error (errors that
+close are one error: a sweep whose knob changes nothing must not pick a value by rounding). The default
+is "on the knee" when it is the
 recommended value, or costs at most 1.5x the recommended one while staying within tolerance.
 """
 from __future__ import annotations
@@ -53,6 +55,9 @@ def sweep_case(case: Case, size: str, arch: str, threads: int | None = 1, log=pr
     return rows
 
 
+KNEE_TIE = 0.01  # relative: errors closer than this count as equal when none is within tolerance
+
+
 def knee(case: Case, rows: list[dict], knob: str) -> dict:
     """The recommended value of ``knob`` (see the module's rule) and whether the default is on it."""
     base = next(r for r in rows if r["knob"] == "default")
@@ -61,7 +66,10 @@ def knee(case: Case, rows: list[dict], knob: str) -> dict:
     if ok:
         best = min(ok, key=lambda r: (r["cost"], r["error"]))
     else:
-        best = min(cand, key=lambda r: (r["error"] if math.isfinite(r["error"]) else math.inf, r["cost"]))
+        finite = [r for r in cand if math.isfinite(r["error"])] or cand
+        least = min(r["error"] for r in finite)
+        near = [r for r in finite if r["error"] <= least * (1 + KNEE_TIE)]
+        best = min(near or finite, key=lambda r: (r["cost"], r["error"]))
     on = best["value"] == case.defaults[knob] or (
         base["error"] <= case.tolerance and base["cost"] <= 1.5 * best["cost"])
     return {"knob": knob, "recommended": best["value"], "error": best["error"], "cost": best["cost"],
