@@ -34,7 +34,7 @@ BASE = dict(
     # frictionless walls: this CI-sized box is 10 grains wide and slugs; wall friction on the rising slugs
     # then adds ~4% to the mean pressure drop (measured: 1.08 W with wall friction 0.3, 1.04 W without),
     # a wall effect of narrow beds, not the gas-grain balance these tests check
-    contact={"youngs_modulus": 5e6, "restitution": 0.5, "friction": 0.3, "wall_friction": 0.0}, dem={"dt_fraction": 0.03},
+    contact={"youngs_modulus": 5e6, "restitution": 0.5, "friction": 0.3, "wall_friction": 0.0},
     gas={"cell_size": 5e-3, "pressure_form": "shared"}, coupling={"drag": "wen_yu"},
 )
 

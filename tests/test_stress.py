@@ -24,7 +24,7 @@ def test_stress_scene_ends_as_specified(scene, tmp_path):
 
 def test_accuracy_restitution_error_falls_with_the_step_and_is_small_at_the_default():
     """Symplectic Euler's rebound error is O(dt / t_c): it must fall as the step shrinks, and at the
-    default dt_fraction = 0.02 stay below 1% (test_contact.py allows 2% for e = 0.5-0.9)."""
+    default dt_fraction = 0.05 stay below 1% (measured 0.30%; test_contact.py allows 2% for e = 0.5-0.9)."""
     from app.accuracy.dem_cases import DT_FRACTIONS, pair_collision
 
     rows = [pair_collision(f, precision="float64") for f in DT_FRACTIONS]
@@ -33,4 +33,4 @@ def test_accuracy_restitution_error_falls_with_the_step_and_is_small_at_the_defa
     assert steps == sorted(steps, reverse=True) and steps[0] > 150 and steps[-1] >= 4
     assert errors[-1] > errors[0]  # the coarsest step is the least accurate
     assert all(b >= a * 0.8 for a, b in zip(errors, errors[1:]))  # falls with the step (20% slack for rounding)
-    assert rows[DT_FRACTIONS.index(0.02)]["restitution_error"] < 0.01
+    assert rows[DT_FRACTIONS.index(0.05)]["restitution_error"] < 0.01
