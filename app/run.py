@@ -160,8 +160,14 @@ class Progress:
             self.bar.update(self.task, completed=s.step_count, simt=f"t = {s.time:.4g}/{s.duration:g} s",
                             rate=f"{rate:.1f} steps/s")
         else:
+            # log lines are what a long headless (GPU) run leaves: with gas, where its fastest cell is, so a run
+            # that later blows up, or carries a wall channel, shows where its gas was racing (one device read
+            # per line, every output.log_interval of wall time)
+            gas = ""
+            if s.flow is not None:
+                gas = f"  gas max {s.diagnostics()['gas_max_speed']:.3g} m/s{s.gas_fastest_cell()}"
             log(f"t = {s.time:.5g}/{s.duration:g} s  step {s.step_count}/{s.total_steps}  {rate:.2f} steps/s  "
-                f"ETA {eta:.0f} s")
+                f"ETA {eta:.0f} s{gas}")
 
     def finish(self, sim, reason):
         if self.bar:

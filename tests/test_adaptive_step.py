@@ -86,3 +86,14 @@ def test_gas_speed_guard_names_the_fastest_cell():
     assert "guard.max_gas_speed = 20" in msg and "fastest in cell (" in msg
     i, j, k = (int(x) for x in msg.split("fastest in cell (")[1].split(")")[0].split(","))
     assert i in (7, 8) and j in (7, 8) and k < 16, msg
+
+
+def test_headless_log_lines_say_where_the_gas_is_fastest(capsys):
+    """A long GPU run leaves only its log: each line names the fastest gas cell (the jet's column)."""
+    from app.run import Progress
+
+    sim = Simulation(None, 1e-3, 0, 0.003, flow=jet_solver())
+    sim.run()
+    Progress(sim, "jet", 5.0)(sim)
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "gas max" in line and ("fastest in cell (7, " in line or "fastest in cell (8, " in line), line

@@ -125,8 +125,8 @@ class Simulation:
                 **({"clipped_cells": self.coupler.clipped_cells} if self.coupler is not None else {})}
 
     def gas_fastest_cell(self) -> str:
-        """Where the gas is fastest (cell, position, open volume and gas fraction), for a guard's message;
-        read only when a guard stops the run, not every step."""
+        """Where the gas is fastest (cell, position, open volume and gas fraction), for a guard's message and
+        the headless log lines; read then only, not every step."""
         import numpy as np
 
         u = self.flow.cell_velocity()
