@@ -391,6 +391,7 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
         return (dem.state_arrays() if dem is not None else None, gas)
 
     def checkpoint(s, path=out_dir / "checkpoint.h5"):
+        runfile.flush()  # every row up to the checkpoint is on disk: a resumed run continues the series
         grains, gas = state_of(s)
         store.write_checkpoint(path, grains, gas, s.time, s.step_count, config_text)
 

@@ -21,6 +21,7 @@ import json
 import math
 import os
 import pathlib
+import time as wallclock
 
 import h5py
 import numpy as np
@@ -74,8 +75,17 @@ def read_state(path: pathlib.Path) -> tuple[dict, dict]:
 FRAME_GROUPS = ("slab", "planes", "porosity3d")  # groups of appendable frames (probes)
 
 
+# Series rows and probe frames are held in memory and written in batches: an HDF5 resize, write and flush per
+# row cost ~5 ms (measured on this CPU: 16 series), a few percent of a million-grain GPU step. What is held is
+# written when SERIES_BATCH rows or FRAME_BYTES of frames are pending, FLUSH_WALL seconds have passed, before
+# every checkpoint (so a resumed run finds every row up to its checkpoint) and at close.
+SERIES_BATCH = 256       # rows
+FRAME_BYTES = 32 << 20   # bytes of pending probe frames
+FLUSH_WALL = 10.0        # s of wall time
+
+
 class RunFile:
-    """Appends series rows and particle snapshots to run.h5, flushing after each write."""
+    """Appends series rows, probe frames and snapshots to run.h5 (series and frames batched, see above)."""
 
     def __init__(self, path: pathlib.Path, preset: str, resume_time: float | None = None):
         self.path = pathlib.Path(path)
@@ -84,6 +94,10 @@ class RunFile:
         self.f.attrs.update(fbed_version=VERSION, preset=preset, units=json.dumps(SERIES_UNITS))
         self.series = self.f.require_group("series")
         self.particles = self.f.require_group("particles")
+        self._rows: list[dict] = []
+        self._frames: dict[str, list] = {}
+        self._frame_bytes = 0
+        self._written = wallclock.perf_counter()
         if resume_time is not None:
             self._truncate_after(resume_time)
 
@@ -110,15 +124,32 @@ class RunFile:
 
     def append(self, row: dict) -> None:
         """One sample of every series in ``row``; a series first seen now is NaN for earlier samples."""
-        n = self.series["time"].shape[0] if "time" in self.series else 0
-        for name, value in row.items():
-            if name not in self.series:
-                self.series.create_dataset(name, shape=(n,), maxshape=(None,), dtype="f8", chunks=(4096,),
-                                           fillvalue=math.nan)
-            ds = self.series[name]
-            ds.resize((n + 1,))
-            ds[n] = float(value)
+        self._rows.append({k: float(v) for k, v in row.items()})
+        self._maybe_flush()
+
+    def _maybe_flush(self) -> None:
+        if (len(self._rows) >= SERIES_BATCH or self._frame_bytes >= FRAME_BYTES
+                or wallclock.perf_counter() - self._written >= FLUSH_WALL):
+            self.flush()
+
+    def flush(self) -> None:
+        """Write what is held (series rows, probe frames) and flush the file."""
+        if self._rows:
+            rows, self._rows = self._rows, []
+            n = self.series["time"].shape[0] if "time" in self.series else 0
+            names = list(dict.fromkeys([*self.series, *(k for r in rows for k in r)]))
+            for name in names:
+                if name not in self.series:
+                    self.series.create_dataset(name, shape=(n,), maxshape=(None,), dtype="f8", chunks=(4096,),
+                                               fillvalue=math.nan)
+                ds = self.series[name]
+                ds.resize((n + len(rows),))
+                ds[n:] = np.array([r.get(name, math.nan) for r in rows])
+        frames, self._frames, self._frame_bytes = self._frames, {}, 0
+        for group, items in frames.items():
+            self._write_frames(group, items)
         self.f.flush()
+        self._written = wallclock.perf_counter()
 
     def snapshot(self, time: float, position, velocity, radius) -> int:
         k = len(self.particles)
@@ -151,22 +182,27 @@ class RunFile:
     def frame(self, group: str, time: float, data, attrs: dict | None = None, dtype="f4") -> None:
         """Append one frame (an array) to ``group``'s ``time`` and ``porosity`` datasets (created on first use,
         with ``attrs``)."""
-        data = np.asarray(data, dtype)
+        data = np.array(data, dtype)  # a copy: the caller's array may change before the batch is written
+        self._frames.setdefault(group, []).append((time, data, attrs))
+        self._frame_bytes += data.nbytes
+        self._maybe_flush()
+
+    def _write_frames(self, group: str, items: list) -> None:
+        data = items[0][1]
         g = self.f.require_group(group)
         if "time" not in g:
             g.create_dataset("time", shape=(0,), maxshape=(None,), dtype="f8", chunks=(1024,))
-            g.create_dataset("porosity", shape=(0,) + data.shape, maxshape=(None,) + data.shape, dtype=dtype,
+            g.create_dataset("porosity", shape=(0,) + data.shape, maxshape=(None,) + data.shape, dtype=data.dtype,
                              chunks=(max(1, min(64, (1 << 20) // max(1, data.nbytes))),) + data.shape,
                              compression="gzip" if data.size > 4096 else None,
                              compression_opts=1 if data.size > 4096 else None)
-            for k, v in (attrs or {}).items():
+            for k, v in (items[0][2] or {}).items():
                 g.attrs[k] = v
-        n = g["time"].shape[0]
-        g["time"].resize((n + 1,))
-        g["time"][n] = time
-        g["porosity"].resize((n + 1,) + data.shape)
-        g["porosity"][n] = data
-        self.f.flush()
+        n, k = g["time"].shape[0], len(items)
+        g["time"].resize((n + k,))
+        g["time"][n:] = [t for t, _, _ in items]
+        g["porosity"].resize((n + k,) + data.shape)
+        g["porosity"][n:] = np.stack([d for _, d, _ in items])
 
     def put(self, name: str, data) -> None:
         """A fixed dataset (written once, e.g. a mask)."""
@@ -176,6 +212,7 @@ class RunFile:
 
     def close(self) -> None:
         if self.f:
+            self.flush()
             self.f.close()
             self.f = None
 
