@@ -1096,6 +1096,42 @@ def _k_push(F: ND, M: ND, G: ND, MM: ND, p: ti.template(), uc: ti.template(), gp
 
 
 # ============================================================================ host classes
+@ti.kernel
+def _k_gas_extremes(u: ti.template(), p: ti.template(), out: ti.template()):
+    """out = [largest |u|^2 over the cells, number of cells with a non-finite velocity or pressure]: the
+    per-step diagnostics reduced on the device (copying u and p to the host every step cost more)."""
+    out[0] = 0.0
+    out[1] = 0.0
+    for I in ti.grouped(p):
+        v = u[I]
+        ti.atomic_max(out[0], v.dot(v))
+        bad = 0.0
+        for a in ti.static(range(3)):
+            if not ti.abs(v[a]) < 1e30:  # also catches NaN
+                bad = 1.0
+        if not ti.abs(p[I]) < 1e30:
+            bad = 1.0
+        ti.atomic_add(out[1], bad)
+
+
+@ti.kernel
+def _k_end_layer_pressures(p: ti.template(), vf: ti.template(), out: ti.template()):
+    """out = [sums over the first, second, second-to-last and last cell layers of p x open fraction of the
+    end layer (first for the bottom two, last for the top two), the first layer's and the last's open sum]."""
+    for k in range(6):
+        out[k] = 0.0
+    nz = p.shape[2]
+    for i, j in ti.ndrange(p.shape[0], p.shape[1]):
+        wb = vf[i, j, 0]
+        wt = vf[i, j, nz - 1]
+        ti.atomic_add(out[0], p[i, j, 0] * wb)
+        ti.atomic_add(out[1], p[i, j, 1] * wb)
+        ti.atomic_add(out[2], p[i, j, nz - 2] * wt)
+        ti.atomic_add(out[3], p[i, j, nz - 1] * wt)
+        ti.atomic_add(out[4], wb)
+        ti.atomic_add(out[5], wt)
+
+
 @ti.data_oriented
 class GasFields:
     """Taichi fields of the gas, shared with the coupling code (all cell-centred, shape (nx, ny, nz)).
@@ -1197,6 +1233,7 @@ class FlowSolver:
         per = cfg.periodic
         self.cut = cut = cut_cells(grid, cfg.walls, int(cfg.aperture_samples), per, float(cfg.min_open_fraction))
         self.fields = GasFields(grid, cut)
+        self._reduced = ti.field(float, 6)  # device-side reductions (diagnostics, end-layer pressures)
         self.mg = ls.MGPCG(cfg.shape, per)
         kinds = [KINDS[cfg.bc(f).kind] for f in FACES]
         self._kinds = kinds
@@ -1411,6 +1448,23 @@ class FlowSolver:
 
     def pressure_gradient(self) -> np.ndarray:
         return self.fields.grad_p.to_numpy()
+
+    def gas_extremes(self) -> tuple[float, int]:
+        """(largest gas speed at cell centres [m/s], number of cells with a non-finite velocity or pressure),
+        reduced on the device."""
+        _k_gas_extremes(self.fields.u_gas, self.fields.p, self._reduced)
+        r = self._reduced.to_numpy()
+        return float(np.sqrt(max(r[0], 0.0))), int(r[1])
+
+    def end_layer_pressures(self) -> tuple[float, float, float, float]:
+        """Open-area means of the pressure [Pa] in the first, second, second-to-last and last cell layers
+        (weighted by the open fraction of the bottom layer for the first two, of the top layer for the others)."""
+        if self.shape[2] < 2:
+            raise ValueError("flow: end-layer pressures need at least two cell layers")
+        _k_end_layer_pressures(self.fields.p, self.fields.vol_frac, self._reduced)
+        r = self._reduced.to_numpy()
+        wb, wt = max(r[4], 1e-300), max(r[5], 1e-300)
+        return float(r[0] / wb), float(r[1] / wb), float(r[2] / wt), float(r[3] / wt)
 
     @property
     def cfl(self) -> float:
