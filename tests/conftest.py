@@ -16,7 +16,10 @@ REFERENCE = pathlib.Path(os.environ.get("FBED_REFERENCE", ROOT.parent / "shared"
 def taichi_cpu64():
     from app.sim import runtime
 
-    runtime.init(arch="cpu", precision="float64")
+    # under pytest-xdist the cores are shared between the workers (CI: 2 cores, 2 workers, 1 thread each)
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    threads = max(1, (os.cpu_count() or 1) // workers) if workers > 1 else None
+    runtime.init(arch="cpu", precision="float64", threads=threads)
     yield
 
 
