@@ -31,11 +31,10 @@ class BedMeasures:
         self.dem = dem
         g = scene.cfg.gas
         gz = abs(scene.cfg.domain.gravity[2])
-        vf = flow.fields.vol_frac.to_numpy()
-        self.bottom = vf[:, :, 0]
         height = scene.flow.shape[2] * g.cell_size
         self.hydro = g.density * gz * height
-        self.area = float(self.bottom.sum()) * g.cell_size ** 2
+        # open cross-section: the bottom layer's open volume fractions (the pressure drop's weights too)
+        self.area = float(flow.fields.vol_frac.to_numpy()[:, :, 0].sum()) * g.cell_size ** 2
         self.weight_factor = gz * (1.0 - g.density / scene.cfg.particles.density)  # buoyant weight per kg
         radius = scene.initial["radius"]
         self._initial_mass = float(np.sum(scene.cfg.particles.density * 4.0 / 3.0 * np.pi * radius ** 3))
