@@ -326,6 +326,145 @@ def rise_velocity(lower, upper, dt: float, spacing: float, mask=None,
     return float(spacing / lag), float(lag)
 
 
+def _crossings(series: np.ndarray, threshold: float, rising: bool) -> np.ndarray:
+    """Sub-sample times (in samples) where a 1-D series crosses ``threshold`` upward
+    (``rising``) or downward, by linear interpolation between the two samples."""
+    above = series > threshold
+    i = np.nonzero((~above[:-1] & above[1:]) if rising else (above[:-1] & ~above[1:]))[0]
+    s0, s1 = series[i], series[i + 1]
+    return i + (threshold - s0) / (s1 - s0)  # s0 != s1: one is above, one is not
+
+
+def _interquartile_mean(x: np.ndarray) -> float:
+    q1, q3 = np.percentile(x, [25.0, 75.0])
+    mid = x[(x >= q1) & (x <= q3)]
+    return float(mid.mean())
+
+
+def edge_velocities(lower, upper, dt: float, spacing: float, threshold: float = THRESHOLD, mask=None,
+                    min_velocity: float = 0.05) -> dict:
+    """Rise velocities of bubble noses and tails between two horizontal planes, by time of flight.
+
+    A check on ``rise_velocity`` (which correlates the whole porosity signal): in every cell
+    (inside ``mask``), each time the porosity of the lower plane crosses ``threshold`` upward (a
+    bubble's nose arrives) is paired with the next upward crossing in the same cell of the upper
+    plane, if no other lower crossing comes first and the lag is at most spacing / min_velocity;
+    downward crossings (tails) likewise. Crossing times are interpolated linearly between samples.
+    A bubble that stretches as it rises has a faster nose than tail; the correlation lag sits
+    between the two.
+
+    lower, upper: (nt, nx, ny) porosity sampled every ``dt`` [s]; ``spacing`` [m] between the planes.
+    Returns {"nose": {...}, "tail": {...}}, each with ``velocity`` [m/s] = spacing / lag, where
+    ``lag`` [s] is the mean of the paired lags between their quartiles (robust to the few
+    mispaired events), and ``count``, the number of paired events; velocity and lag are nan
+    when no event pairs.
+    """
+    a = _as_frames(lower).astype(float)
+    b = _as_frames(upper).astype(float)
+    if a.shape != b.shape:
+        raise ValueError(f"lower {a.shape} and upper {b.shape} shapes differ")
+    m = _check_mask(mask, a.shape[1:])
+    cells = np.argwhere(m) if m is not None else np.argwhere(np.ones(a.shape[1:], bool))
+    max_lag = spacing / min_velocity / dt  # samples
+    out = {}
+    for kind, rising in (("nose", True), ("tail", False)):
+        lags = []
+        for i, j in cells:
+            ta = _crossings(a[:, i, j], threshold, rising)
+            tb = _crossings(b[:, i, j], threshold, rising)
+            if not ta.size or not tb.size:
+                continue
+            k = np.searchsorted(tb, ta, side="right")  # first upper crossing after each lower one
+            ok = k < tb.size
+            ta, k = ta[ok], k[ok]
+            after = tb[k]
+            nxt = np.append(_crossings(a[:, i, j], threshold, rising), np.inf)
+            nxt = nxt[np.searchsorted(nxt, ta, side="right")]  # the next lower crossing
+            lag = after - ta
+            keep = (after < nxt) & (lag > 0.0) & (lag <= max_lag)
+            lags.append(lag[keep])
+        lag = np.concatenate(lags) if lags else np.zeros(0)
+        if lag.size:
+            mean_lag = _interquartile_mean(lag) * dt
+            out[kind] = {"velocity": float(spacing / mean_lag), "lag": mean_lag, "count": int(lag.size)}
+        else:
+            out[kind] = {"velocity": float("nan"), "lag": float("nan"), "count": 0}
+    return out
+
+
+def track_bubbles(frames3d, times, h: float, threshold: float = THRESHOLD, mask=None,
+                  min_cells: int = 8, max_growth: float = 0.3) -> dict:
+    """Bubbles followed through 3-D porosity frames; a check on the plane-pair rise velocities.
+
+    A bubble is a connected region (6-connectivity) of cells with porosity above ``threshold``,
+    inside ``mask`` ((nx, ny) or (nx, ny, nz)); regions reaching the top layer are open to the
+    freeboard and dropped, as are regions of fewer than ``min_cells`` cells. Its height is the
+    centroid of its cells weighted by (porosity - threshold). A bubble of one frame is the same
+    bubble in the next when each is the other's largest overlap and the volume changes by less
+    than ``max_growth`` (coalescences, splits and eruptions are left out). The frames must be
+    close enough in time that a bubble overlaps its former self (it rises less than its height).
+
+    frames3d: (nt, nx, ny, nz) on cells of size h [m], layer k centred at (k + 0.5) h above the
+    frames' origin; times: (nt,) [s]. Returns a dict of arrays, one entry per matched pair of
+    frames: ``time`` [s] and ``z`` [m above the origin] at the midpoint, ``velocity`` [m/s] (rise
+    of the centroid over the frame interval) and ``diameter`` [m] (sphere of the mean volume).
+    """
+    a = np.asarray(frames3d)
+    if a.ndim != 4:
+        raise ValueError(f"expected frames of shape (nt, nx, ny, nz), got {a.shape}")
+    t = np.asarray(times, dtype=float)
+    if t.shape != (a.shape[0],):
+        raise ValueError(f"times has shape {t.shape}, expected ({a.shape[0]},)")
+    inside = np.ones(a.shape[1:], bool)
+    if mask is not None:
+        mk = np.asarray(mask).astype(bool)
+        if mk.shape == a.shape[1:3]:
+            mk = np.broadcast_to(mk[:, :, None], a.shape[1:])
+        inside = _check_mask(mk, a.shape[1:])
+    zc = (np.arange(a.shape[3]) + 0.5) * h
+
+    def regions(eps):
+        lab, n = ndimage.label((eps > threshold) & inside)
+        idx = np.arange(1, n + 1)
+        vol = np.bincount(lab.ravel(), minlength=n + 1)[1:]
+        drop = np.zeros(n + 1, bool)
+        drop[np.unique(lab[:, :, -1])] = True  # open to the freeboard
+        drop[1:] |= vol < min_cells
+        lab[drop[lab]] = 0
+        w = np.where(lab > 0, eps - threshold, 0.0)
+        wsum = ndimage.sum(w, lab, idx)
+        zcen = ndimage.sum(w * zc[None, None, :], lab, idx) / np.where(wsum > 0, wsum, 1.0)
+        return lab, vol, zcen
+
+    rows = []
+    prev = regions(a[0])
+    for n in range(1, a.shape[0]):
+        cur = regions(a[n])
+        (la, va, za), (lb, vb, zb) = prev, cur
+        both = (la > 0) & (lb > 0)
+        if both.any():
+            nb = int(lb.max()) + 1
+            code, cnt = np.unique(la[both].astype(np.int64) * nb + lb[both], return_counts=True)
+            pa, pb = code // nb, code % nb
+            order = np.argsort(-cnt, kind="stable")  # largest overlaps first
+            best_a, best_b = {}, {}
+            for r in order:
+                best_a.setdefault(int(pa[r]), int(pb[r]))
+                best_b.setdefault(int(pb[r]), int(pa[r]))
+            dt = t[n] - t[n - 1]
+            for ia, ib in best_a.items():
+                if best_b[ib] != ia:
+                    continue
+                v1, v2 = va[ia - 1], vb[ib - 1]
+                if abs(v2 / v1 - 1.0) >= max_growth:
+                    continue
+                rows.append((0.5 * (t[n] + t[n - 1]), 0.5 * (za[ia - 1] + zb[ib - 1]),
+                             (zb[ib - 1] - za[ia - 1]) / dt, (3.0 * (v1 + v2) * h ** 3 / math.pi) ** (1.0 / 3.0)))
+        prev = cur
+    r = np.asarray(rows, dtype=float).reshape(-1, 4)
+    return {"time": r[:, 0], "z": r[:, 1], "velocity": r[:, 2], "diameter": r[:, 3]}
+
+
 def porosity_pdf(values, bin: float = 0.04, range: tuple[float, float] = (0.0, 1.0)):  # noqa: A002
     """Probability density of porosity values with bins of width ``bin`` over ``range``.
 

@@ -21,6 +21,12 @@ The recipe (``postprocessing`` in the reference json): porosity > 0.7 after 4x l
 interpolation, regions below 2 h^2 dropped, number-average of sqrt(4 A / pi); rise velocity =
 pair spacing / lag of the peak of the area-weighted cross-correlation (parabolic sub-sample
 peak); PDF bins of 0.04. The first ``t_discard`` seconds are discarded (clipped to half the run).
+
+Because the correlation lag mixes every porosity change between the planes (bubble noses, tails,
+the bed surface's rise and fall), ``rise_velocity.csv`` / ``.md`` give each pair's velocity two
+other ways beside it: bubble noses and tails timed cell by cell between the planes
+(``bubbles.edge_velocities``) and the centroids of bubbles followed through the 3-D frames
+(``bubbles.track_bubbles``).
 """
 from __future__ import annotations
 
@@ -62,6 +68,8 @@ BED_WEIGHT_KEY = "bed_weight_per_area"   # summary.json [Pa]
 # ---- outputs ----------------------------------------------------------------------------------
 TABLE_CSV = "table.csv"
 TABLE_MD = "table.md"
+RISE_CSV = "rise_velocity.csv"     # the rise velocity of each pair measured three ways (a check on the table's)
+RISE_MD = "rise_velocity.md"
 FIGURES = ("diameter_vs_height", "porosity_pdf", "pressure_drop", "bubbles_3d")
 
 REFERENCE_NAME = "verma2014.json"
@@ -257,8 +265,8 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
             v, lag = bb.rise_velocity(lo["porosity"][:nt], up["porosity"][:nt], dt, spacing, mask=m)
         pairs[label] = {"z": lo["z"], "spacing": spacing, "velocity": v, "lag": lag}
 
-    # ---- 3-D frames: diameter profile
-    profile = None
+    # ---- 3-D frames: diameter profile, and bubbles followed from frame to frame
+    profile = tracks = None
     vol = run["vol"]
     if vol is not None and len(vol["porosity"]):
         eps = vol["porosity"]
@@ -269,6 +277,32 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
         z, De, cnt = bb.diameter_profile(eps, h3, zc, threshold, factor, mask=m3,
                                          max_area=_max_area(m3, eps.shape[1:3], h3))
         profile = {"z": z, "De": De, "count": cnt}
+        if len(eps) >= 2:
+            tracks = bb.track_bubbles(eps, vol["time"], h3, threshold, mask=m3)
+            tracks["z"] = tracks["z"] + z0
+
+    # ---- the pairs' rise velocity checked two other ways: noses and tails timed cell by cell
+    # between the planes, and the centroids of bubbles followed through the 3-D frames within
+    # half a spacing of the pair
+    for label, d in by_pair.items():
+        if label not in pairs:
+            continue
+        lo, up = d[LOWER], d[UPPER]
+        nt = min(len(lo["time"]), len(up["time"]))
+        pr = pairs[label]
+        pr["nose"] = pr["tail"] = {"velocity": float("nan"), "count": 0}
+        if nt >= 4:
+            dt = float(np.median(np.diff(lo["time"][:nt])))
+            m = _mask_for(run["mask"], lo["porosity"].shape[1:])
+            edges = bb.edge_velocities(lo["porosity"][:nt], up["porosity"][:nt], dt, pr["spacing"], threshold, mask=m)
+            pr["nose"], pr["tail"] = edges["nose"], edges["tail"]
+        pr["tracked"] = {"velocity": float("nan"), "median": float("nan"), "count": 0}
+        if tracks is not None:
+            band = (tracks["z"] >= lo["z"] - 0.5 * pr["spacing"]) & (tracks["z"] < up["z"] + 0.5 * pr["spacing"])
+            if band.any():
+                v = tracks["velocity"][band]
+                pr["tracked"] = {"velocity": float(v.mean()), "median": float(np.median(v)), "count": int(band.sum())}
+    _write_rise_tables(out, pairs)
 
     # ---- pressure drop
     dp_w = float("nan")
@@ -311,7 +345,7 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
     for p in planes.values():
         p.pop("values")
     return {"table": table, "figures": figures, "planes": planes, "pairs": pairs, "profile": profile,
-            "dp_over_weight": dp_w, "t_cut": t_cut, "out_dir": out}
+            "tracks": tracks, "dp_over_weight": dp_w, "t_cut": t_cut, "out_dir": out}
 
 
 # ---- output helpers ---------------------------------------------------------------------------
@@ -332,6 +366,28 @@ def _write_tables(out: pathlib.Path, table: dict, columns) -> None:
     for key, label, *_ in ROWS:
         lines.append(f"| {label} | " + " | ".join(_fmt(table[key].get(c)) or "-" for c in columns) + " |")
     (out / TABLE_MD).write_text("\n".join(lines) + "\n")
+
+
+def _write_rise_tables(out: pathlib.Path, pairs: dict) -> None:
+    """rise_velocity.csv / .md: per plane pair, the paper's correlation velocity beside the nose and
+    tail times of flight and the 3-D centroid velocity, with the number of events behind each."""
+    cols = (("correlation", "correlation (the paper's)"), ("nose", "noses, time of flight"),
+            ("tail", "tails, time of flight"), ("tracked", "3-D centroids"))
+    with open(out / RISE_CSV, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["pair", "z_lower_m", *(f"{c}_m_s" for c, _ in cols), *(f"{c}_count" for c, _ in cols[1:])])
+        for label, p in sorted(pairs.items(), key=lambda kv: kv[1]["z"]):
+            vals = [p["velocity"]] + [p.get(c, {}).get("velocity", float("nan")) for c, _ in cols[1:]]
+            w.writerow([label, _fmt(p["z"]), *(_fmt(v) for v in vals),
+                        *(p.get(c, {}).get("count", 0) for c, _ in cols[1:])])
+    lines = ["| pair | " + " | ".join(f"{lab} [m/s]" for _, lab in cols) + " |", "|---|" + "---|" * len(cols)]
+    for label, p in sorted(pairs.items(), key=lambda kv: kv[1]["z"]):
+        cells = [_fmt(p["velocity"]) or "-"]
+        for c, _ in cols[1:]:
+            q = p.get(c, {})
+            cells.append(f"{_fmt(q.get('velocity', float('nan'))) or '-'} (n = {q.get('count', 0)})")
+        lines.append(f"| {label} (z = {p['z']:.3f} m) | " + " | ".join(cells) + " |")
+    (out / RISE_MD).write_text("\n".join(lines) + "\n")
 
 
 def _new_figure(figsize=(6.0, 4.5), **kw):
@@ -480,6 +536,11 @@ def summarize(run_dir) -> dict:
             continue
         name = key.replace("_mm", "_m") if kind == "De" else key
         out["verma_" + name] = float(v) * (1e-3 if kind == "De" else 1.0)
+    for p in res["pairs"].values():
+        for kind in ("nose", "tail", "tracked"):
+            v = p.get(kind, {}).get("velocity", float("nan"))
+            if np.isfinite(v):
+                out[f"verma_{kind}_rise_velocity_at_{p['z']:.2f}m_m_s"] = float(v)
     return out
 
 
