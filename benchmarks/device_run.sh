@@ -6,13 +6,17 @@
 # sweep (the injection-time sweep from the cached bed), verma_start (the full Verma run, started in its
 # own process session so that it outlives this call: the machine stays lent while later calls poll it),
 # wait (poll the background run until it ends or LIMIT_wait), accuracy / stiffness (the full-size benches).
+# Before a call that runs the cavity or the Verma analysis: `mkdir -p runs && cp -r ../shared/reference runs/`
+# here, and carry [".devkit", "runs/reference"] (../shared is not copied to the device).
+# Keep LIMIT_<stage> at least 40 s under the call's timeout: the packing below needs the time.
 set -uo pipefail
 L=runs/devout; mkdir -p $L  # inside runs/ (git-ignored): the device keeps it between calls
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$L/gpu.txt" 2>&1
+[ -d runs/reference ] && export FBED_REFERENCE=$PWD/runs/reference  # X-ray, Ghia: for the analyses' reference columns
 for stage in "$@"; do
   start=$(date +%s)
   lim=$(eval echo "\${LIMIT_$stage:-590}")  # e.g. LIMIT_boyce=300: SIGTERM stops the run cleanly in time
-  T="timeout -s TERM $lim"
+  T="timeout -k 15 -s TERM $lim"  # -k: a bench whose scenes run in child processes is killed 15 s after
   case "$stage" in
     bench)
       $T python3 benchmarks/dem_throughput.py --arch cuda --sizes 10000 100000 1000000 --substeps 500 ;;
@@ -37,8 +41,8 @@ for stage in "$@"; do
     stop)  # SIGTERM: the run checkpoints, ends 'interrupted' and runs its analysis; wait for that
       pkill -TERM -f "^python3 -m app run presets/verma.toml"  # the python, not its bash -c wrapper
       for _ in $(seq 1 $lim); do pgrep -f "^python3 -m app (run|analyze)" > /dev/null || break; sleep 1; done ;;
-    accuracy)
-      $T python3 -m app bench accuracy --size full --arch cuda --out runs/accuracy_full ;;
+    accuracy)  # ACC_CASES="cavity umf ..." picks cases; the reference data travel in runs/reference (carry it)
+      $T python3 -m app bench accuracy --size full --arch cuda --out runs/accuracy_full ${ACC_CASES:+--cases $ACC_CASES} ;;
     stiffness)
       $T python3 -m app bench stiffness --size full --arch cuda --out runs/stiffness_full ;;
     sweep)
