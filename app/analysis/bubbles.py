@@ -374,12 +374,10 @@ def edge_velocities(lower, upper, dt: float, spacing: float, threshold: float = 
             tb = _crossings(b[:, i, j], threshold, rising)
             if not ta.size or not tb.size:
                 continue
+            nxt = np.append(ta[1:], np.inf)  # the next lower crossing after each
             k = np.searchsorted(tb, ta, side="right")  # first upper crossing after each lower one
             ok = k < tb.size
-            ta, k = ta[ok], k[ok]
-            after = tb[k]
-            nxt = np.append(_crossings(a[:, i, j], threshold, rising), np.inf)
-            nxt = nxt[np.searchsorted(nxt, ta, side="right")]  # the next lower crossing
+            ta, nxt, after = ta[ok], nxt[ok], tb[k[ok]]
             lag = after - ta
             keep = (after < nxt) & (lag > 0.0) & (lag <= max_lag)
             lags.append(lag[keep])

@@ -259,11 +259,14 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
         nt = min(len(lo["time"]), len(up["time"]))
         spacing = up["z"] - lo["z"]
         v = lag = float("nan")
+        # a check on the correlation: bubble noses and tails timed cell by cell between the planes
+        edges = dict.fromkeys(("nose", "tail"), {"velocity": float("nan"), "count": 0})
         if nt >= 4:
             dt = float(np.median(np.diff(lo["time"][:nt])))
             m = _mask_for(run["mask"], lo["porosity"].shape[1:])
             v, lag = bb.rise_velocity(lo["porosity"][:nt], up["porosity"][:nt], dt, spacing, mask=m)
-        pairs[label] = {"z": lo["z"], "spacing": spacing, "velocity": v, "lag": lag}
+            edges = bb.edge_velocities(lo["porosity"][:nt], up["porosity"][:nt], dt, spacing, threshold, mask=m)
+        pairs[label] = {"z": lo["z"], "spacing": spacing, "velocity": v, "lag": lag, **edges}
 
     # ---- 3-D frames: diameter profile, and bubbles followed from frame to frame
     profile = tracks = None
@@ -281,24 +284,12 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
             tracks = bb.track_bubbles(eps, vol["time"], h3, threshold, mask=m3)
             tracks["z"] = tracks["z"] + z0
 
-    # ---- the pairs' rise velocity checked two other ways: noses and tails timed cell by cell
-    # between the planes, and the centroids of bubbles followed through the 3-D frames within
-    # half a spacing of the pair
-    for label, d in by_pair.items():
-        if label not in pairs:
-            continue
-        lo, up = d[LOWER], d[UPPER]
-        nt = min(len(lo["time"]), len(up["time"]))
-        pr = pairs[label]
-        pr["nose"] = pr["tail"] = {"velocity": float("nan"), "count": 0}
-        if nt >= 4:
-            dt = float(np.median(np.diff(lo["time"][:nt])))
-            m = _mask_for(run["mask"], lo["porosity"].shape[1:])
-            edges = bb.edge_velocities(lo["porosity"][:nt], up["porosity"][:nt], dt, pr["spacing"], threshold, mask=m)
-            pr["nose"], pr["tail"] = edges["nose"], edges["tail"]
+    # ---- and the centroids of bubbles followed through the 3-D frames within half a spacing of each pair
+    for pr in pairs.values():
         pr["tracked"] = {"velocity": float("nan"), "median": float("nan"), "count": 0}
         if tracks is not None:
-            band = (tracks["z"] >= lo["z"] - 0.5 * pr["spacing"]) & (tracks["z"] < up["z"] + 0.5 * pr["spacing"])
+            z_lo, z_up = pr["z"], pr["z"] + pr["spacing"]
+            band = (tracks["z"] >= z_lo - 0.5 * pr["spacing"]) & (tracks["z"] < z_up + 0.5 * pr["spacing"])
             if band.any():
                 v = tracks["velocity"][band]
                 pr["tracked"] = {"velocity": float(v.mean()), "median": float(np.median(v)), "count": int(band.sum())}
