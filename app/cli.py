@@ -5,6 +5,8 @@
     fbed view PRESET [--set ...]      (the run in a window with live controls)
     fbed analyze RUN_DIR              (the preset's bubble analysis on a finished run)
     fbed bench stress [--out DIR]     (hostile scenes: finish clean or stop with a clear message)
+    fbed bench accuracy|stiffness [--size small|full] [--arch cpu|cuda] [--out DIR] [--resume]
+                                      (error against cost; --resume goes on from the rows in --out)
     fbed sweep PRESET --set key=v1,v2,... [--set ...] [--jobs N] [--out DIR] [--plot FIGURE]
 
 Bad input (preset, key, unit, range, file) prints one clear message and exits with 2.
@@ -60,6 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--size", choices=("small", "full"), default="small",
                    help="accuracy, stiffness: 'small' (CPU minutes) or 'full' (the sizes meant for the GPU)")
     b.add_argument("--arch", choices=("cpu", "cuda"), default="cpu")
+    b.add_argument("--resume", action="store_true",
+                   help="accuracy, stiffness: keep the rows already in --out's CSV (same --size and --arch) and "
+                        "measure only the rest (a bench cut off by a time limit goes on where it stopped)")
     b.add_argument("--limit", type=float, default=600.0, help="wall-clock limit per scene [s] (a hang fails)")
     w = sub.add_parser("sweep", help="run a preset over lists of values",
                        description="Run PRESET for every combination of the --set lists; write sweep.csv.")
@@ -103,11 +108,13 @@ def main(argv: list[str] | None = None) -> int:
                 if unknown:
                     raise ConfigError(f"unknown case {unknown[0]!r}", "--cases", unknown[0],
                                       hint="cases: " + ", ".join(names))
-                return accuracy(args.out, args.cases, args.size, args.arch, 1 if args.arch == "cpu" else None)
+                return accuracy(args.out, args.cases, args.size, args.arch, 1 if args.arch == "cpu" else None,
+                                resume=args.resume)
             if args.kind == "stiffness":
                 from .accuracy.stiffness import stiffness
 
-                return stiffness(args.out, args.size, args.arch, 1 if args.arch == "cpu" else None)
+                return stiffness(args.out, args.size, args.arch, 1 if args.arch == "cpu" else None,
+                                 resume=args.resume)
             from .bench import SCENES, stress
 
             unknown = sorted(set(args.scenes or []) - {sc.name for sc in SCENES})

@@ -41,10 +41,13 @@ for stage in "$@"; do
     stop)  # SIGTERM: the run checkpoints, ends 'interrupted' and runs its analysis; wait for that
       pkill -TERM -f "^python3 -m app run presets/verma.toml"  # the python, not its bash -c wrapper
       for _ in $(seq 1 $lim); do pgrep -f "^python3 -m app (run|analyze)" > /dev/null || break; sleep 1; done ;;
-    accuracy)  # ACC_CASES="cavity umf ..." picks cases; the reference data travel in runs/reference (carry it)
-      $T python3 -m app bench accuracy --size full --arch cuda --out runs/accuracy_full ${ACC_CASES:+--cases $ACC_CASES} ;;
+    accuracy)  # ACC_CASES="cavity umf ..." picks cases; the reference data travel in runs/reference (carry it).
+      # --resume: a call cut off by its limit keeps its rows (and runs/prepared its settled beds and reference
+      # runs, while the machine stays warm); the next call with the same stage measures only the rest
+      $T python3 -m app bench accuracy --size full --arch cuda --out runs/accuracy_full --resume \
+        ${ACC_CASES:+--cases $ACC_CASES} ;;
     stiffness)
-      $T python3 -m app bench stiffness --size full --arch cuda --out runs/stiffness_full ;;
+      $T python3 -m app bench stiffness --size full --arch cuda --out runs/stiffness_full --resume ;;
     sweep)
       $T python3 -m app sweep presets/boyce.toml --arch cuda --out runs/boyce-sweep --plot bubble_peak_diameter \
         --set boundary.bottom.jet_duration=0.1542,0.0667,0.0514,0.025 --set video.enabled=false ;;

@@ -122,3 +122,99 @@ def test_knee_picks_the_cheapest_of_equal_errors_when_none_is_within_tolerance()
     assert k["recommended"] == 1e-3 and not k["default_on_knee"]
     rows[2]["error"] = 0.0539 * 0.98
     assert knee(case, rows, "tolerance")["recommended"] == 1e-8
+
+
+def _fake_case(calls):
+    """A case whose measure is arithmetic (error = dt_fraction^2, cost = 1/dt_fraction) and counts its calls."""
+    from app.accuracy import Case
+
+    def measure(settings, size):
+        calls.append((settings["dt_fraction"], settings["precision"]))
+        return {"error": settings["dt_fraction"] ** 2, "cost": 1.0 / settings["dt_fraction"]}
+
+    return Case(name="fake", title="arithmetic", error_label="e", cost_label="c",
+                knobs={"dt_fraction": (0.01, 0.1, 0.2), "precision": ("float64",)},
+                defaults={"dt_fraction": 0.05, "precision": "float32"}, tolerance=0.02, measure=measure)
+
+
+def test_resume_measures_only_what_an_interrupted_bench_had_not(tmp_path, monkeypatch, capsys):
+    """A bench stopped by a signal mid-case keeps every row measured before the stop (written row by row),
+    records none for the stopped run and ends with 130; --resume measures only the missing points, and the
+    report covers them all. Resuming at another size is refused with the file and the fix named."""
+    from app import cli
+    from app.accuracy import Interrupted, runner
+
+    calls: list = []
+    case = _fake_case(calls)
+    monkeypatch.setattr(runner, "all_cases", lambda: [case])
+    measure = case.measure
+
+    def stopped_on_the_third(settings, size):
+        if len(calls) == 2:
+            raise Interrupted("SIGTERM")
+        return measure(settings, size)
+
+    object.__setattr__(case, "measure", stopped_on_the_third)
+    assert runner.accuracy(out=str(tmp_path), size="small", arch="cpu") == 130
+    first = (tmp_path / "accuracy.csv").read_text().splitlines()
+    assert len(first) == 1 + 2 and len(calls) == 2
+    assert first[0].split(",")[-3:] == ["size", "arch", "commit"]
+
+    object.__setattr__(case, "measure", measure)
+    calls.clear()
+    assert runner.accuracy(out=str(tmp_path), size="small", arch="cpu", resume=True) == 0
+    assert len(calls) == 5 - 2  # default, three dt_fractions, float64: the first two are kept
+    rows = (tmp_path / "accuracy.csv").read_text().splitlines()
+    assert rows[1:3] == first[1:3] and len(rows) == 1 + 5
+    md = (tmp_path / "ACCURACY.md").read_text()
+    knee_row = next(line for line in md.splitlines() if line.startswith("| fake | dt_fraction |"))
+    assert [c.strip() for c in knee_row.split("|")[1:-1]][4] == "0.1"  # error 0.01 <= 0.02 at the lowest cost
+
+    calls.clear()
+    assert runner.accuracy(out=str(tmp_path), size="small", arch="cpu", resume=True) == 0 and not calls
+    capsys.readouterr()
+    assert cli.main(["bench", "accuracy", "--out", str(tmp_path), "--size", "full", "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "accuracy.csv: --resume" in err and "'small'" in err and "hint:" in err and "Traceback" not in err
+
+
+def test_an_interrupted_bed_run_is_neither_a_row_nor_memoised(monkeypatch):
+    """A bed run stopped by a signal ends 'interrupted' (exit 130): the bench must not record it as a setting
+    that failed, nor hand its figures to the next case that shares the run."""
+    from app.accuracy import Interrupted, bed_cases
+
+    runs = []
+    monkeypatch.setattr(bed_cases, "bed_text", lambda size, settings, start=None: "")
+    monkeypatch.setattr(bed_cases, "run_scene",
+                        lambda text, folder: runs.append(folder) or {"status": "interrupted", "exit": 130})
+    for _ in range(2):
+        with pytest.raises(Interrupted):
+            bed_cases.bed_run({**bed_cases.DEFAULTS, "skin": 1.0e-3}, "small")
+    assert len(runs) == 2
+
+
+def test_stiffness_resume_keeps_the_measured_moduli(tmp_path, monkeypatch):
+    """The stiffness study writes each modulus's row at once; --resume runs only the moduli missing."""
+    from app.accuracy import Interrupted, stiffness
+
+    calls = []
+
+    def measure(e, size):
+        calls.append(e)
+        if e == 1.0e7 and len(calls) == 3:
+            raise Interrupted("SIGTERM")
+        return {"youngs_modulus": e, "status": "finished", "substeps": int(10 * e ** 0.2), "dem_dt": 1e-5,
+                "stepping_wall_s": 1.0, "cost": e ** 0.2, "bed_height_mean": 0.05, "bed_height_std": 0.002,
+                "bed_height_max": 0.06, "dp_over_weight": 0.99, "dp_over_weight_raw": 0.97, "bubble_diameter": 0.01,
+                "bubbles": 3, "gas_pocket_height": 0.0, "max_overlap_pct": 1e3 * e ** -0.4, "umf_simulated": 1.2,
+                "umf_predicted": 1.25}
+
+    monkeypatch.setattr(stiffness, "measure", measure)
+    moduli = (1.0e5, 1.0e6, 1.0e7)
+    assert stiffness.stiffness(str(tmp_path), moduli=moduli) == 130
+    assert len((tmp_path / "stiffness.csv").read_text().splitlines()) == 1 + 2
+    calls.clear()
+    assert stiffness.stiffness(str(tmp_path), moduli=moduli, resume=True) == 0
+    assert calls == [1.0e7]
+    md = (tmp_path / "STIFFNESS.md").read_text()
+    assert "| 100000 | 100 |" in md and "| 1e+07 | 251 |" in md

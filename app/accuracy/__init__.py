@@ -22,6 +22,11 @@ class Unavailable(Exception):
     """Raised by a measure whose reference data is missing here: the runner skips the case and says why."""
 
 
+class Interrupted(Exception):
+    """Raised by a measure whose run was stopped by a signal (Ctrl-C, or SIGTERM from a time limit): the bench
+    writes what it has measured and ends; ``--resume`` continues it. Not a result: the row is not recorded."""
+
+
 @dataclasses.dataclass(frozen=True)
 class Case:
     name: str                   # short id, used by --cases and in file names

@@ -45,7 +45,7 @@ import time
 
 import numpy as np
 
-from . import Case
+from . import Case, Interrupted
 from ..config.schema import ContactConfig, DemConfig, GasConfig, RunConfig
 
 DIAMETER, DENSITY = 3.0e-3, 2500.0   # [m], [kg/m^3]: glass; 3 mm for a DEM step a CPU core can afford
@@ -223,6 +223,8 @@ def run_process(text: str, folder: pathlib.Path) -> float:
     clock = _Clock(resource.RUSAGE_CHILDREN)
     r = subprocess.run([sys.executable, "-m", "app", "run", str(folder / "scene.toml"), "--out", str(folder / "run"),
                         "--overwrite", "--arch", _taichi()[0]], capture_output=True, text=True, env=env)
+    if r.returncode in (130, -2, -15):  # stopped by Ctrl-C or SIGTERM (the signal reaches its process group)
+        raise Interrupted(f"{folder}: the run was stopped by a signal")
     if r.returncode != 0:
         raise RuntimeError(f"{folder}: the run did not finish (exit {r.returncode}):\n{r.stderr[-2000:]}")
     return clock.share()
@@ -481,6 +483,8 @@ def bed_run(settings: dict, size: str) -> dict:
         return dict(_RUNS[key], shared=True)
     with tempfile.TemporaryDirectory(prefix="fbed-bed-") as tmp:
         summary = run_scene(bed_text(size, settings), pathlib.Path(tmp))
+        if summary["status"] == "interrupted":  # a signal, not the settings: no figure, and not memoised
+            raise Interrupted(f"the bed run at {settings} was stopped by a signal")
         if summary["exit"] != 0:
             out = {"status": summary["status"], "message": summary.get("message", ""), "cost": float("nan")}
         else:

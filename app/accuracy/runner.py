@@ -7,8 +7,13 @@ the knee rule, and the files. The cases own their scenes (:mod:`app.accuracy`).
 Knee rule: among the values of one knob, the recommended one is the cheapest whose error is within
 the case's tolerance; where none is, the cheapest of those within 1% of the smallest error (errors that
 close are one error: a sweep whose knob changes nothing must not pick a value by rounding). The default
-is "on the knee" when it is the
-recommended value, or costs at most 1.5x the recommended one while staying within tolerance.
+is "on the knee" when it is the recommended value, or costs at most 1.5x the recommended one while staying
+within tolerance.
+
+Resuming: every row is written to accuracy.csv as soon as it is measured, with the size, the arch and the
+commit it was measured at; ``resume=True`` keeps the rows already there (same size and arch) and measures
+only the missing points, so a bench cut off by a time limit (a lent GPU's call) goes on where it stopped.
+A run stopped by a signal (:class:`Interrupted`) records no row.
 """
 from __future__ import annotations
 
@@ -20,7 +25,7 @@ import platform
 import subprocess
 import time
 
-from . import Case, Unavailable, all_cases
+from . import Case, Interrupted, Unavailable, all_cases
 
 
 def _commit() -> str:
@@ -31,10 +36,9 @@ def _commit() -> str:
         return "unknown"
 
 
-def sweep_case(case: Case, size: str, arch: str, threads: int | None = 1, log=print) -> list[dict]:
-    """Rows (one per knob value; the defaults measured once, as every knob's default row)."""
-    from ..sim import runtime
-
+def sweep_points(case: Case) -> list[tuple[str, object, dict]]:
+    """(knob, value, settings) of every point of the sweep: the defaults once (knob 'default'), then each knob's
+    other values, grouped by float precision (so Taichi restarts at most twice)."""
     points: list[tuple[str, object, dict]] = [("default", "", dict(case.defaults))]
     for knob, values in case.knobs.items():
         for v in values:
@@ -42,16 +46,33 @@ def sweep_case(case: Case, size: str, arch: str, threads: int | None = 1, log=pr
                 continue
             points.append((knob, v, {**case.defaults, knob: v}))
     points.sort(key=lambda p: p[2].get("precision", "float32") != case.defaults.get("precision", "float32"))
+    return points
+
+
+def sweep_case(case: Case, size: str, arch: str, threads: int | None = 1, log=print, done: dict | None = None,
+               on_row=None) -> list[dict]:
+    """Rows (one per knob value; the defaults measured once, as every knob's default row). ``done``: rows
+    already measured, by (knob, str(value)): reused, not measured again. ``on_row(row)``: called after each
+    new row (the runner writes the CSV there)."""
+    from ..sim import runtime
+
+    done = done or {}
     rows = []
-    for knob, value, settings in points:
+    for knob, value, settings in sweep_points(case):
+        if (knob, str(value)) in done:
+            rows.append(done[(knob, str(value))])
+            continue
         runtime.init(arch, settings.get("precision", "float32"), threads)
         t0 = time.perf_counter()
         res = case.measure(settings, size)
         row = {"case": case.name, "knob": knob, "value": value, "error": float(res["error"]),
                "cost": float(res["cost"]), "wall_s": time.perf_counter() - t0,
-               **{k: v for k, v in res.items() if k not in ("error", "cost")}}
+               **{k: v for k, v in res.items() if k not in ("error", "cost")},
+               "size": size, "arch": arch, "commit": _commit()}
         log(f"  {case.name:18s} {knob:16s} {str(value):10s} error {row['error']:.3e}  cost {row['cost']:.4g}")
         rows.append(row)
+        if on_row:
+            on_row(row)
     return rows
 
 
@@ -110,7 +131,8 @@ def _fmt(v) -> str:
 
 
 def report(cases: list[Case], rows: list[dict], size: str, arch: str, device: str) -> str:
-    lines = [f"# Accuracy against cost ({datetime.date.today().isoformat()}, commit {_commit()}, size '{size}', "
+    commits = ", ".join(sorted({str(r["commit"]) for r in rows if r.get("commit")})) or _commit()
+    lines = [f"# Accuracy against cost ({datetime.date.today().isoformat()}, commit {commits}, size '{size}', "
              f"{arch}: {device})", "",
              "Each case sweeps its cost knobs one at a time, the others at fbed's defaults. The recommended value",
              "is the cheapest within the case's tolerance; the default is on the knee when it is that value, or",
@@ -144,26 +166,42 @@ def report(cases: list[Case], rows: list[dict], size: str, arch: str, device: st
 
 
 def accuracy(out: str | None = None, names: list[str] | None = None, size: str = "small", arch: str = "cpu",
-             threads: int | None = 1) -> int:
+             threads: int | None = 1, resume: bool = False) -> int:
     """Run the cases (all, or ``names``), write accuracy.csv, pareto_<case>.png and ACCURACY.md into
-    ``out`` (default runs/accuracy); print the table. Returns 0."""
+    ``out`` (default runs/accuracy); print the table. ``resume``: keep the rows already in out/accuracy.csv
+    and measure the rest (the report then covers every case with rows). Returns 0, or 130 when a run was
+    stopped by a signal (what was measured is written)."""
     from ..sim import runtime
 
     cases = [c for c in all_cases() if not names or c.name in names]
     out_dir = pathlib.Path(out) if out else pathlib.Path("runs") / "accuracy"
     out_dir.mkdir(parents=True, exist_ok=True)
-    rows: list[dict] = []
+    csv_path = out_dir / "accuracy.csv"
+    rows: list[dict] = load_rows(csv_path, size, arch) if resume else []
+    if resume:
+        print(f"resuming: {len(rows)} rows kept from {csv_path}", flush=True)
+    rc = 0
+
+    def keep(row: dict) -> None:  # every new row on disk at once: a bench killed mid-case keeps it
+        rows.append(row)
+        _write_csv(rows, csv_path)
+
     with runtime.kept():  # tests run in float64
         for case in cases:
             print(f"{case.name}: {case.title}", flush=True)
+            done = {(r["knob"], str(r["value"])): r for r in rows if r["case"] == case.name}
             try:
-                cr = sweep_case(case, size, arch, threads)
+                cr = sweep_case(case, size, arch, threads, done=done, on_row=keep)
             except Unavailable as why:
                 print(f"  skipped: {why}", flush=True)
                 continue
-            rows += cr
+            except Interrupted as why:
+                print(f"  interrupted: {why}; what was measured is in {csv_path}: go on with --resume", flush=True)
+                rc = 130
+                break
             pareto_plot(case, cr, out_dir / f"pareto_{case.name}.png")
-            _write_csv(rows, out_dir / "accuracy.csv")  # after each case: a long bench keeps what it has
+    if not rows:
+        return rc
     device = platform.processor() or platform.machine()
     if arch == "cuda":
         try:
@@ -171,10 +209,59 @@ def accuracy(out: str | None = None, names: list[str] | None = None, size: str =
                                     text=True, timeout=10).stdout.strip() or "GPU"
         except (OSError, subprocess.SubprocessError):
             device = "GPU"
-    text = report(cases, rows, size, arch, device)
+    reported = [c for c in all_cases() if any(r["case"] == c.name for r in rows)]
+    text = report(reported, rows, size, arch, device)
     (out_dir / "ACCURACY.md").write_text(text)
     print(text)
-    return 0
+    return rc
+
+
+def _cell(text: str):
+    """A CSV cell back as the value it was written from: int, float, or the text."""
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def same_bench(row: dict, path: pathlib.Path, size: str, arch: str) -> None:
+    """Refuse to resume from a row of another size or arch (its errors or costs are not this bench's)."""
+    from ..config import ConfigError
+
+    if (row.get("size"), row.get("arch")) != (size, arch):
+        raise ConfigError(f"it holds rows of size {row.get('size') or '?'!r} on {row.get('arch') or '?'!r}; this bench "
+                          f"is size {size!r} on {arch!r}", str(path), "--resume",
+                          hint="resume with the same --size and --arch, or write to another --out")
+
+
+def load_rows(path: pathlib.Path, size: str, arch: str) -> list[dict]:
+    """The rows of an accuracy.csv to resume from (none when it does not exist yet). Rows of points no case
+    sweeps any more are dropped; a file of another size or arch is refused (its costs and errors are not
+    this bench's)."""
+    if not path.exists():
+        return []
+    with open(path, newline="") as fh:
+        raw = list(csv.DictReader(fh))
+    cases = {c.name: c for c in all_cases()}
+    rows = []
+    for r in raw:
+        same_bench(r, path, size, arch)
+        case = cases.get(r["case"])
+        if case is None:
+            continue
+        if r["knob"] == "default":
+            value = ""
+        else:
+            value = next((v for v in case.knobs.get(r["knob"], ()) if str(v) == r["value"]), None)
+            if value is None:
+                continue
+        rows.append({**{k: _cell(v) for k, v in r.items()}, "value": value, "case": r["case"], "knob": r["knob"],
+                     "commit": r.get("commit", "")})
+    return rows
 
 
 def _write_csv(rows: list[dict], path: pathlib.Path) -> None:

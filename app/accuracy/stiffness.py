@@ -11,6 +11,9 @@ grows as E^(-2/5): each decade of softness buys 2.5x fewer steps. Softness is no
 E^(-2/5) at impacts and E^(-2/3) under static load, and a bed of soft grains is a spring that stores the
 slug's energy. The study shows where the bed's figures stop changing with E against what the stiffer
 contacts cost.
+
+Resuming: each modulus's row is written as soon as it is measured, with its size and arch; ``resume=True``
+keeps the rows already in stiffness.csv and runs the missing moduli (a run stopped by a signal records none).
 """
 from __future__ import annotations
 
@@ -19,14 +22,14 @@ import datetime
 import math
 import pathlib
 
-from . import bed_cases
+from . import Interrupted, bed_cases
 
 MODULI = (1.0e5, 1.0e6, 5.0e6, 1.0e7, 1.0e8)   # [Pa]; 5e6 is fbed's default (the schema's)
 SETTLED = 0.05                                  # a step of E that changes no figure by more than 5% leaves it settled
 COLUMNS = ("youngs_modulus", "status", "substeps", "dem_dt", "stepping_wall_s", "cost", "cost_wall", "cpu_share",
            "bed_height_mean", "bed_height_std", "bed_height_max", "dp_over_weight", "dp_over_weight_raw",
            "floor_over_weight", "momentum_over_weight", "bubble_diameter", "bubbles", "gas_pocket_height",
-           "max_overlap_pct", "umf_simulated", "umf_predicted", "message")
+           "max_overlap_pct", "umf_simulated", "umf_predicted", "message", "size", "arch")
 COMPARED = ("bed_height_mean", "bed_height_std", "bed_height_max", "dp_over_weight", "umf_simulated")
 
 
@@ -156,24 +159,45 @@ def report(rows: list[dict], size: str, arch: str) -> str:
 
 
 def stiffness(out: str | None = None, size: str = "small", arch: str = "cpu", threads: int | None = 1,
-              moduli: tuple = MODULI) -> int:
+              moduli: tuple = MODULI, resume: bool = False) -> int:
     """Run the bed at each modulus; write stiffness.csv, stiffness.png and STIFFNESS.md into ``out`` (default
-    runs/stiffness) and print the table. Returns 0."""
+    runs/stiffness) and print the table. ``resume``: keep the moduli already in out/stiffness.csv. Returns 0, or
+    130 when a run was stopped by a signal (the moduli measured before it are written)."""
     from ..sim import runtime
+    from .runner import _cell, same_bench
 
     out_dir = pathlib.Path(out) if out else pathlib.Path("runs") / "stiffness"
     out_dir.mkdir(parents=True, exist_ok=True)
-    rows = []
+    csv_path = out_dir / "stiffness.csv"
+    kept = {}
+    if resume and csv_path.exists():
+        with open(csv_path, newline="") as fh:
+            for r in csv.DictReader(fh):
+                same_bench(r, csv_path, size, arch)
+                kept[float(r["youngs_modulus"])] = {k: (v if k in ("status", "message") else _cell(v))
+                                                    for k, v in r.items() if v != ""}
+        print(f"resuming: {len(kept)} moduli kept from {csv_path}", flush=True)
+    rows, rc = [], 0
     with runtime.kept():
         runtime.init(arch, bed_cases.DEFAULTS["precision"], threads)
         for e in moduli:
-            rows.append(measure(e, size))
+            if e in kept:
+                rows.append(kept[e])
+                continue
+            try:
+                rows.append({**measure(e, size), "size": size, "arch": arch})
+            except Interrupted as why:
+                print(f"  interrupted: {why}; the moduli measured are in {csv_path}: go on with --resume", flush=True)
+                rc = 130
+                break
             r = rows[-1]
             print(f"  E = {e:g} Pa: {r.get('status')}, {_fmt(r.get('cost', math.nan), '.1f')} wall s per "
                   "simulated s", flush=True)
-            write_csv(rows, out_dir / "stiffness.csv")
+            write_csv(rows, csv_path)
+    if not rows:
+        return rc
     plot(rows, out_dir / "stiffness.png")
     text = report(rows, size, arch)
     (out_dir / "STIFFNESS.md").write_text(text)
     print(text)
-    return 0
+    return rc
