@@ -19,6 +19,8 @@ from .config import ConfigError
 from .io import store
 from .schedule import InletSchedule
 
+STANDARD_GRAVITY = 9.80665  # [m/s^2]: the guard's energy floor is set in standard g, whatever the scene's gravity
+
 EXIT_OK, EXIT_INPUT, EXIT_UNSTABLE, EXIT_INTERRUPTED = 0, 2, 3, 130
 
 
@@ -389,9 +391,12 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
         grains, gas = state_of(s)
         store.write_checkpoint(path, grains, gas, s.time, s.step_count, config_text)
 
+    energy_floor = 0.0
+    if dem is not None:  # every grain at sqrt(g d), the speed of a fall through one diameter (standard g)
+        energy_floor = 0.5 * float(np.sum(dem.masses())) * STANDARD_GRAVITY * 2.0 * der.radius_min
     guard = Guard(cfg.guard.max_overlap, cfg.guard.max_speed, der.dt if der else 0.0,
                   der.dt_limit if der else float("inf"), cfg.guard.max_gas_speed,
-                  cfg.guard.max_divergence)
+                  cfg.guard.max_divergence, cfg.guard.max_energy_growth, energy_floor, cfg.guard.interval)
 
     def guarded(fn):
         """Writers check the guard first, so nothing non-finite ever reaches a file."""

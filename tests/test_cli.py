@@ -170,6 +170,23 @@ def test_guard_stops_an_unstable_run_and_keeps_readable_outputs(tmp_path):
         assert np.all(np.isfinite(f["grains/position"][...]))
 
 
+def test_energy_growth_stops_a_blow_up_the_other_limits_were_raised_for(tmp_path):
+    """With the overlap and speed limits out of the way, the same forced step is stopped by the kinetic energy's
+    growth, at the same check (t = 0.042 s with the default limits too), and names the step."""
+    out = tmp_path / "boom"
+    r = fbed("run", ROOT / "presets" / "settle.toml", "--set", "dem.dt=8e-5", "--set", "dem.force_dt=true",
+             "--set", "guard.max_overlap=50", "--set", "guard.max_speed=1e12", "--set", "run.duration=1.0",
+             "--arch", "cpu", "--out", out)
+    assert r.returncode == 3, r.stderr
+    assert "guard.max_energy_growth" in r.stderr and "dem.dt" in r.stderr and "Traceback" not in r.stderr
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "unstable" and s["time"] < 0.1
+    with h5py.File(out / "run.h5") as f:
+        energy = f["series/kinetic_energy"][...]
+        # the series ends at the check before the blow-up (4e-4 J; the stopped state held 1.02 J): never written
+        assert np.all(np.isfinite(energy)) and energy[-1] < 1e-2
+
+
 def test_sweep_runs_every_case_and_records_a_failed_one(tmp_path):
     """Two cases of the settle preset, one forced to a DEM step of ~13 stable limits (it blows up on the
     first contacts, t ~ 6 ms): the sweep finishes the

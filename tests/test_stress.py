@@ -34,3 +34,17 @@ def test_accuracy_restitution_error_falls_with_the_step_and_is_small_at_the_defa
     assert errors[-1] > errors[0]  # the coarsest step is the least accurate
     assert all(b >= a * 0.8 for a, b in zip(errors, errors[1:]))  # falls with the step (20% slack for rounding)
     assert rows[DT_FRACTIONS.index(0.05)]["restitution_error"] < 0.01
+
+
+def test_energy_check_measures_growth_from_the_floor_and_one_interval_back():
+    """The guard's energy rule on its own (no run): growth from rest is measured from the floor (a bed starting
+    to move is not a blow-up), the reference moves once per guard interval, and the factor is the limit."""
+    from app.sim.simulation import Guard, Unstable
+
+    g = Guard(max_overlap=0.2, max_speed=100.0, max_energy_growth=100.0, energy_floor=1e-3, interval=1e-3)
+    g._energy_check(0.0, 0.0)
+    g._energy_check(0.09, 0.5e-3)    # 90x the floor within the interval: physical
+    g._energy_check(0.09, 1.0e-3)    # the reference moves to 0.09 J at t = 1 ms
+    g._energy_check(8.9, 1.5e-3)     # 99x the reference: still under the limit
+    with pytest.raises(Unstable, match=r"grew 111x in 0.001 s .*guard.max_energy_growth = 100x"):
+        g._energy_check(10.0, 2.0e-3)

@@ -277,7 +277,14 @@ class Guard:
     dem.force_dt) is the first suspect; otherwise contacts too soft for the impacts."""
 
     def __init__(self, max_overlap: float, max_speed: float, dt: float = 0.0, dt_limit: float = float("inf"),
-                 max_gas_speed: float = float("inf"), max_divergence: float = float("inf")):
+                 max_gas_speed: float = float("inf"), max_divergence: float = float("inf"),
+                 max_energy_growth: float = float("inf"), energy_floor: float = 0.0, interval: float = 0.0):
+        # energy growth: the grains' kinetic energy against the one of the check an interval before, measured
+        # from at least energy_floor [J] (from rest any factor is physical: a bed starting to move)
+        self.max_energy_growth = max_energy_growth
+        self.energy_floor = energy_floor
+        self.interval = interval
+        self._energy_ref: tuple[float, float] | None = None   # (time [s], kinetic energy [J])
         self.max_gas_speed = max_gas_speed
         self.max_divergence = max_divergence
         self.max_overlap = max_overlap
@@ -326,4 +333,21 @@ class Guard:
         if d["max_speed"] > self.max_speed:
             raise Unstable(f"a grain moves at {d['max_speed']:.3g} m/s at t = {t:.6g} s (guard.max_speed = "
                            f"{self.max_speed:g} m/s; raise it if such speeds are real): {self._advice()}")
+        self._energy_check(d["kinetic_energy"], t)
         self.last_good_step = sim.step_count
+
+    def _energy_check(self, energy: float, t: float) -> None:
+        """Stop when the kinetic energy grew more than max_energy_growth times since the reference check (one
+        to two guard intervals back; checks in between, from the writers, compare with the same reference)."""
+        if self._energy_ref is not None:
+            t_ref, e_ref = self._energy_ref
+            base = max(e_ref, self.energy_floor)
+            if energy > self.max_energy_growth * base:
+                raise Unstable(
+                    f"the grains' kinetic energy grew {energy / base:.3g}x in {t - t_ref:.3g} s (to {energy:.3g} J) "
+                    f"at t = {t:.6g} s (guard.max_energy_growth = {self.max_energy_growth:g}x per guard.interval): "
+                    f"{self._advice()}. Grains that start overlapping release their stored energy like this: settle "
+                    "the bed with the run's contacts. Raise guard.max_energy_growth if the growth is real")
+            if t - t_ref < self.interval * (1.0 - 1e-9):
+                return
+        self._energy_ref = (t, energy)
