@@ -9,6 +9,9 @@
 # Before a call that runs the cavity or the Verma analysis: `mkdir -p runs && cp -r ../shared/reference runs/`
 # here, and carry [".devkit", "runs/reference"] (../shared is not copied to the device).
 # Keep LIMIT_<stage> at least 40 s under the call's timeout: the packing below needs the time.
+# The accuracy and stiffness stages resume (--resume): to go on from rows already committed, copy them first,
+# e.g. `mkdir -p runs/accuracy_full && cp benchmarks/accuracy/full_gpu/accuracy.csv runs/accuracy_full/`, and
+# carry runs/accuracy_full too; a stage cut off by its limit goes on when the same stage is called again.
 set -uo pipefail
 L=runs/devout; mkdir -p $L  # inside runs/ (git-ignored): the device keeps it between calls
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$L/gpu.txt" 2>&1

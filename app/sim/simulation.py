@@ -271,7 +271,8 @@ class Simulation:
 
 
 class Guard:
-    """Stops a run that went wrong (NaN/inf, runaway overlap or speed) before it writes garbage.
+    """Stops a run that went wrong (NaN/inf, runaway overlap, speed or kinetic energy growth; a gas step going
+    unstable or a pressure solve that did not converge) before it writes garbage.
 
     Its message names the setting to change: a DEM step above the stable limit (forced with
     dem.force_dt) is the first suspect; otherwise contacts too soft for the impacts."""
