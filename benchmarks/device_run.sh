@@ -11,7 +11,8 @@
 # Keep LIMIT_<stage> at least 40 s under the call's timeout: the packing below needs the time.
 # The accuracy and stiffness stages resume (--resume): to go on from rows already committed, copy them first,
 # e.g. `mkdir -p runs/accuracy_full && cp benchmarks/accuracy/full_gpu/accuracy.csv runs/accuracy_full/`, and
-# carry runs/accuracy_full too; a stage cut off by its limit goes on when the same stage is called again.
+# carry runs/accuracy_full on that first call only (a carried path replaces the device's copy: later calls would
+# lose the rows measured since); a stage cut off by its limit goes on when the same stage is called again.
 set -uo pipefail
 L=runs/devout; mkdir -p $L  # inside runs/ (git-ignored): the device keeps it between calls
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$L/gpu.txt" 2>&1

@@ -218,3 +218,32 @@ def test_stiffness_resume_keeps_the_measured_moduli(tmp_path, monkeypatch):
     assert calls == [1.0e7]
     md = (tmp_path / "STIFFNESS.md").read_text()
     assert "| 100000 | 100 |" in md and "| 1e+07 | 251 |" in md
+
+
+def test_sigterm_ends_the_bench_with_its_rows_and_report(tmp_path, monkeypatch):
+    """A time limit's SIGTERM in the middle of a measure (not a bed run, which handles its own) ends the bench
+    like Ctrl-C: exit 130, the rows before it and the report written, the handler put back afterwards."""
+    import os
+    import signal
+    import threading
+
+    from app.accuracy import runner
+
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signals are delivered to the main thread only")
+    calls: list = []
+    case = _fake_case(calls)
+    monkeypatch.setattr(runner, "all_cases", lambda: [case])
+    measure = case.measure
+
+    def terminated_on_the_second(settings, size):
+        if len(calls) == 1:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return measure(settings, size)
+
+    object.__setattr__(case, "measure", terminated_on_the_second)
+    before = signal.getsignal(signal.SIGTERM)
+    assert runner.accuracy(out=str(tmp_path), size="small", arch="cpu") == 130
+    assert signal.getsignal(signal.SIGTERM) is before
+    assert len((tmp_path / "accuracy.csv").read_text().splitlines()) == 1 + 1
+    assert (tmp_path / "ACCURACY.md").exists()

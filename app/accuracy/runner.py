@@ -17,6 +17,7 @@ A run stopped by a signal (:class:`Interrupted`) records no row.
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import datetime
 import math
@@ -186,7 +187,7 @@ def accuracy(out: str | None = None, names: list[str] | None = None, size: str =
         rows.append(row)
         _write_csv(rows, csv_path)
 
-    with runtime.kept():  # tests run in float64
+    with runtime.kept(), signals_interrupt():  # tests run in float64
         for case in cases:
             print(f"{case.name}: {case.title}", flush=True)
             done = {(r["knob"], str(r["value"])): r for r in rows if r["case"] == case.name}
@@ -195,8 +196,9 @@ def accuracy(out: str | None = None, names: list[str] | None = None, size: str =
             except Unavailable as why:
                 print(f"  skipped: {why}", flush=True)
                 continue
-            except Interrupted as why:
-                print(f"  interrupted: {why}; what was measured is in {csv_path}: go on with --resume", flush=True)
+            except (Interrupted, KeyboardInterrupt) as why:
+                print(f"  interrupted: {why or 'a signal'}; what was measured is in {csv_path}: go on with --resume",
+                      flush=True)
                 rc = 130
                 break
             pareto_plot(case, cr, out_dir / f"pareto_{case.name}.png")
@@ -226,6 +228,23 @@ def _cell(text: str):
         return float(text)
     except ValueError:
         return text
+
+
+@contextlib.contextmanager
+def signals_interrupt():
+    """SIGTERM (a time limit) raises KeyboardInterrupt while a bench runs, as Ctrl-C does, so the bench ends with
+    its report instead of dying mid-write (fbed run installs its own handlers during a bed run: Interrupted)."""
+    import signal
+
+    try:
+        old = signal.signal(signal.SIGTERM, signal.default_int_handler)
+    except ValueError:  # not the main thread: leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 def same_bench(row: dict, path: pathlib.Path, size: str, arch: str) -> None:

@@ -164,7 +164,7 @@ def stiffness(out: str | None = None, size: str = "small", arch: str = "cpu", th
     runs/stiffness) and print the table. ``resume``: keep the moduli already in out/stiffness.csv. Returns 0, or
     130 when a run was stopped by a signal (the moduli measured before it are written)."""
     from ..sim import runtime
-    from .runner import _cell, same_bench
+    from .runner import _cell, same_bench, signals_interrupt
 
     out_dir = pathlib.Path(out) if out else pathlib.Path("runs") / "stiffness"
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -178,7 +178,7 @@ def stiffness(out: str | None = None, size: str = "small", arch: str = "cpu", th
                                                     for k, v in r.items() if v != ""}
         print(f"resuming: {len(kept)} moduli kept from {csv_path}", flush=True)
     rows, rc = [], 0
-    with runtime.kept():
+    with runtime.kept(), signals_interrupt():
         runtime.init(arch, bed_cases.DEFAULTS["precision"], threads)
         for e in moduli:
             if e in kept:
@@ -186,8 +186,8 @@ def stiffness(out: str | None = None, size: str = "small", arch: str = "cpu", th
                 continue
             try:
                 rows.append({**measure(e, size), "size": size, "arch": arch})
-            except Interrupted as why:
-                print(f"  interrupted: {why}; the moduli measured are in {csv_path}: go on with --resume", flush=True)
+            except (Interrupted, KeyboardInterrupt) as why:
+                print(f"  interrupted: {why or 'a signal'}; the moduli measured are in {csv_path}: go on with --resume", flush=True)
                 rc = 130
                 break
             r = rows[-1]
