@@ -124,17 +124,21 @@ def test_knee_picks_the_cheapest_of_equal_errors_when_none_is_within_tolerance()
     assert knee(case, rows, "tolerance")["recommended"] == 1e-8
 
 
-def _fake_case(calls):
-    """A case whose measure is arithmetic (error = dt_fraction^2, cost = 1/dt_fraction) and counts its calls."""
-    from app.accuracy import Case
+def _fake_bench(monkeypatch, calls, before=None):
+    """The runner's only case: its measure is arithmetic (error = dt_fraction^2, cost = 1/dt_fraction) and
+    counts its calls; ``before(n)``, with n the calls so far, runs first (to interrupt the bench)."""
+    from app.accuracy import Case, runner
 
     def measure(settings, size):
+        if before:
+            before(len(calls))
         calls.append((settings["dt_fraction"], settings["precision"]))
         return {"error": settings["dt_fraction"] ** 2, "cost": 1.0 / settings["dt_fraction"]}
 
-    return Case(name="fake", title="arithmetic", error_label="e", cost_label="c",
+    case = Case(name="fake", title="arithmetic", error_label="e", cost_label="c",
                 knobs={"dt_fraction": (0.01, 0.1, 0.2), "precision": ("float64",)},
                 defaults={"dt_fraction": 0.05, "precision": "float32"}, tolerance=0.02, measure=measure)
+    monkeypatch.setattr(runner, "all_cases", lambda: [case])
 
 
 def test_resume_measures_only_what_an_interrupted_bench_had_not(tmp_path, monkeypatch, capsys):
@@ -144,24 +148,19 @@ def test_resume_measures_only_what_an_interrupted_bench_had_not(tmp_path, monkey
     from app import cli
     from app.accuracy import Interrupted, runner
 
-    calls: list = []
-    case = _fake_case(calls)
-    monkeypatch.setattr(runner, "all_cases", lambda: [case])
-    measure = case.measure
-
-    def stopped_on_the_third(settings, size):
-        if len(calls) == 2:
+    def stopped_on_the_third(n):
+        if n == 2:
             raise Interrupted("SIGTERM")
-        return measure(settings, size)
 
-    object.__setattr__(case, "measure", stopped_on_the_third)
+    calls: list = []
+    _fake_bench(monkeypatch, calls, stopped_on_the_third)
     assert runner.accuracy(out=str(tmp_path), size="small", arch="cpu") == 130
     first = (tmp_path / "accuracy.csv").read_text().splitlines()
     assert len(first) == 1 + 2 and len(calls) == 2
     assert first[0].split(",")[-3:] == ["size", "arch", "commit"]
 
-    object.__setattr__(case, "measure", measure)
     calls.clear()
+    _fake_bench(monkeypatch, calls)
     assert runner.accuracy(out=str(tmp_path), size="small", arch="cpu", resume=True) == 0
     assert len(calls) == 5 - 2  # default, three dt_fractions, float64: the first two are kept
     rows = (tmp_path / "accuracy.csv").read_text().splitlines()
@@ -231,17 +230,11 @@ def test_sigterm_ends_the_bench_with_its_rows_and_report(tmp_path, monkeypatch):
 
     if threading.current_thread() is not threading.main_thread():
         pytest.skip("signals are delivered to the main thread only")
-    calls: list = []
-    case = _fake_case(calls)
-    monkeypatch.setattr(runner, "all_cases", lambda: [case])
-    measure = case.measure
-
-    def terminated_on_the_second(settings, size):
-        if len(calls) == 1:
+    def terminated_on_the_second(n):
+        if n == 1:
             os.kill(os.getpid(), signal.SIGTERM)
-        return measure(settings, size)
 
-    object.__setattr__(case, "measure", terminated_on_the_second)
+    _fake_bench(monkeypatch, [], terminated_on_the_second)
     before = signal.getsignal(signal.SIGTERM)
     assert runner.accuracy(out=str(tmp_path), size="small", arch="cpu") == 130
     assert signal.getsignal(signal.SIGTERM) is before

@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import datetime
+import functools
 import math
 import pathlib
 import platform
@@ -29,7 +30,8 @@ import time
 from . import Case, Interrupted, Unavailable, all_cases
 
 
-def _commit() -> str:
+@functools.lru_cache(maxsize=1)
+def _commit() -> str:  # once per process: every row records it
     try:
         return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                               timeout=10).stdout.strip() or "unknown"

@@ -187,7 +187,8 @@ def stiffness(out: str | None = None, size: str = "small", arch: str = "cpu", th
             try:
                 rows.append({**measure(e, size), "size": size, "arch": arch})
             except (Interrupted, KeyboardInterrupt) as why:
-                print(f"  interrupted: {why or 'a signal'}; the moduli measured are in {csv_path}: go on with --resume", flush=True)
+                print(f"  interrupted: {why or 'a signal'}; the moduli measured are in {csv_path}: go on with "
+                      "--resume", flush=True)
                 rc = 130
                 break
             r = rows[-1]
