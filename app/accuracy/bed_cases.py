@@ -554,9 +554,9 @@ def _defaults(*names: str) -> dict:
 
 
 CASES = [
-    Case("umf", "minimum fluidisation velocity of the settled bed (2,500 3 mm glass beads, Wen-Yu drag), read off "
-         "the fixed-bed pressure drop on a slow inlet ramp, against the drag law's U_mf at the packing's bulk "
-         "voidage", "relative error of U_mf", "wall s per simulated s",
+    Case("umf", "minimum fluidisation velocity of the settled bed (3 mm glass beads, 2,500 at 'small' and 10,000 at "
+         "'full', Wen-Yu drag), read off the fixed-bed pressure drop on a slow inlet ramp, against the drag "
+         "law's U_mf at the packing's bulk voidage", "relative error of U_mf", "wall s per simulated s",
          knobs={"dt_fraction": (0.02,), "youngs_modulus": (1.0e6,), "cell_size": (9.0e-3, 5.625e-3)},
          defaults=_defaults("dt_fraction", "youngs_modulus", "cell_size"), tolerance=0.25, measure=_umf,
          note="the reference is the drag law itself at the packing's voidage, so the error is numerical, not the "

@@ -1,6 +1,6 @@
 """`fbed bench stiffness`: how soft may the grains be? The contact-stiffness study.
 
-Owns: the sweep of Young's modulus over the small bed of :mod:`.bed_cases` (the same run as its accuracy
+Owns: the sweep of Young's modulus over the bed of :mod:`.bed_cases` (the same run as its accuracy
 cases: 3 mm glass ramped to 2 U_mf, statistics over [0.1, 0.3] s; each modulus starts from a bed settled
 with its own contacts, and every modulus is blown at the same inlet velocity), the table (stiffness.csv), the
 figure (stiffness.png) and the report (STIFFNESS.md) with the paragraph that judges the default from the
@@ -89,7 +89,7 @@ def write_csv(rows: list[dict], path: pathlib.Path) -> None:
         w.writerows(rows)
 
 
-def plot(rows: list[dict], path: pathlib.Path) -> None:
+def plot(rows: list[dict], path: pathlib.Path, size: str = "small") -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -121,7 +121,8 @@ def plot(rows: list[dict], path: pathlib.Path) -> None:
     ax2.set_ylabel("DEM steps per fluid step", color="C3")
     for ax in axes[-1]:
         ax.set_xlabel("Young's modulus E [Pa]")
-    fig.suptitle("Contact stiffness: the small bed at 2 U_mf, window 0.1-0.3 s (dashed: fbed's default)")
+    fig.suptitle(f"Contact stiffness: the {bed_cases.SIZES[size].count:,}-grain bed ('{size}') at 2 U_mf, "
+                 "window 0.1-0.3 s (dashed: fbed's default)")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -197,7 +198,7 @@ def stiffness(out: str | None = None, size: str = "small", arch: str = "cpu", th
             write_csv(rows, csv_path)
     if not rows:
         return rc
-    plot(rows, out_dir / "stiffness.png")
+    plot(rows, out_dir / "stiffness.png", size)
     text = report(rows, size, arch)
     (out_dir / "STIFFNESS.md").write_text(text)
     print(text)
