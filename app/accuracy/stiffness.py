@@ -71,14 +71,22 @@ def verdict(rows: list[dict]) -> str:
     else:
         lines.append(f"Above E = {ok[plateau]['youngs_modulus']:g} Pa every step changes them by less than "
                      f"{100 * SETTLED:g}%: there the physics stops changing with E.")
+    stiff = ok[-1]
+    close = [deviation(r, stiff)[0] <= SETTLED for r in ok]
+    # the softest modulus from which every stiffer one is within SETTLED of the stiffest: the knee of the study
+    knee = next(ok[i] for i in range(len(ok)) if all(close[i:]))
+    lines.append(f"From E = {knee['youngs_modulus']:g} Pa up, every figure is within {100 * SETTLED:g}% of "
+                 f"E = {stiff['youngs_modulus']:g} Pa's, at {knee['cost'] / stiff['cost']:.2f}x its cost.")
     default = next((r for r in ok if r["youngs_modulus"] == bed_cases.DEFAULTS["youngs_modulus"]), None)
     if default is not None:
-        stiff = ok[-1]
         d, k = deviation(default, stiff)
+        where = ("it is that modulus" if default is knee else
+                 "it is softer than that" if default["youngs_modulus"] < knee["youngs_modulus"] else
+                 "it is stiffer than that")
         lines.append(f"The default E = {default['youngs_modulus']:g} Pa differs from E = {stiff['youngs_modulus']:g} "
-                     f"Pa by {100 * d:.1f}% ({k}) at {default['cost'] / stiff['cost']:.2f}x its cost, with overlaps "
-                     f"up to {default['max_overlap_pct']:.1f}% of d (E = {ok[0]['youngs_modulus']:g} Pa: "
-                     f"{ok[0]['max_overlap_pct']:.1f}%).")
+                     f"Pa by {100 * d:.1f}% ({k}) at {default['cost'] / stiff['cost']:.2f}x its cost ({where}), "
+                     f"with overlaps up to {default['max_overlap_pct']:.1f}% of d (E = {ok[0]['youngs_modulus']:g} "
+                     f"Pa: {ok[0]['max_overlap_pct']:.1f}%).")
     return " ".join(lines)
 
 
