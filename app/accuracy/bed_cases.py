@@ -557,7 +557,7 @@ CASES = [
     Case("umf", "minimum fluidisation velocity of the settled bed (3 mm glass beads, 2,500 at 'small' and 10,000 at "
          "'full', Wen-Yu drag), read off the fixed-bed pressure drop on a slow inlet ramp, against the drag "
          "law's U_mf at the packing's bulk voidage", "relative error of U_mf", "wall s per simulated s",
-         knobs={"dt_fraction": (0.02,), "youngs_modulus": (1.0e6,), "cell_size": (9.0e-3, 5.625e-3)},
+         knobs={"dt_fraction": (0.02, 0.1), "youngs_modulus": (1.0e6,), "cell_size": (9.0e-3, 5.625e-3)},
          defaults=_defaults("dt_fraction", "youngs_modulus", "cell_size"), tolerance=0.25, measure=_umf,
          note="the reference is the drag law itself at the packing's voidage, so the error is numerical, not the "
               "correlation's scatter; it is mostly how a grid of 2.5 d cells sees the packing: the cut cells at "
@@ -569,7 +569,7 @@ CASES = [
          "plus the floor's force, less the grains' momentum change, over the buoyant weight per area, against 1",
          "|(mean dp A + floor - dP/dt) / W - 1|", "wall s per simulated s",
          knobs={"fluid_step": (2e-3,), "cell_size": (9.0e-3, 5.625e-3), "youngs_modulus": (1.0e6,),
-                "dt_fraction": (0.02,), "skin": (1.2e-3,), "precision": ("float64",)},
+                "dt_fraction": (0.02, 0.1), "skin": (1.2e-3,), "precision": ("float64",)},
          defaults=_defaults("fluid_step", "cell_size", "youngs_modulus", "dt_fraction", "skin", "precision"),
          tolerance=0.05, measure=_pressure_drop,
          note="runs shared with the other bed cases (a shared measure's wall is ~0); the raw dp/W over the window "
@@ -579,7 +579,7 @@ CASES = [
          "[0.1, 0.3] s of the same run (the bed's first slug), against a tightly resolved run of the same bed "
          "(dt_fraction 0.01, gas tolerance 1e-8, float64, fluid step 0.5 ms; E and grid at the defaults)",
          "max of the relative errors of mean and std of the bed height", "wall s per simulated s",
-         knobs={"dt_fraction": (0.02,), "youngs_modulus": (1.0e6,), "cell_size": (9.0e-3, 5.625e-3),
+         knobs={"dt_fraction": (0.02, 0.1), "youngs_modulus": (1.0e6,), "cell_size": (9.0e-3, 5.625e-3),
                 "tolerance": (1e-4,), "skin": (1.2e-3,), "precision": ("float64",), "fluid_step": (2e-3,)},
          defaults=dict(DEFAULTS), tolerance=0.05, measure=_bubbling,
          note="noise floor: a twin of the default run with every grain moved by 1 um at the start differs by "

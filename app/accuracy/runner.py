@@ -22,6 +22,7 @@ import csv
 import datetime
 import functools
 import math
+import os
 import pathlib
 import platform
 import subprocess
@@ -32,6 +33,8 @@ from . import Case, Interrupted, Unavailable, all_cases
 
 @functools.lru_cache(maxsize=1)
 def _commit() -> str:  # once per process: every row records it
+    if os.environ.get("FBED_COMMIT"):  # set where the checkout has no .git (a snapshot, the GPU machine's copy)
+        return os.environ["FBED_COMMIT"]
     try:
         return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                               timeout=10).stdout.strip() or "unknown"
@@ -101,6 +104,102 @@ def knee(case: Case, rows: list[dict], knob: str) -> dict:
             "default_on_knee": on}
 
 
+# Why a default stays where no case binds it (a cheaper value passes in every case that measured one). Each is a
+# fact measured elsewhere or a property of the method; a knob bound by some case's tolerance needs no entry.
+WHY_DEFAULT = {
+    "dt_fraction": "0.05 keeps a 2x margin under dem.max_dt_fraction = 0.1, the largest step fbed accepts: impacts "
+                   "up to 32x faster than dem.impact_speed keep 10 or more steps per contact (t_c ~ v^-1/5); at 0.1 "
+                   "every impact faster than dem.impact_speed gets fewer",
+    "youngs_modulus": "set by the contact-stiffness study (`fbed bench stiffness`), which compares the bed with "
+                      "glass-like 1e8 Pa contacts, not with these cases' tolerances",
+    "cell_size": "set per preset: in a bed the cell size is part of the model (eps and drag are averaged over a "
+                 "cell), so it is not converged away",
+    "cells": "the validation preset's own grid: the case measures what its resolution buys",
+    "cells_across": "the case's own resolution, not a preset's default",
+    "precision": "float32 halves the memory of every field; float64 cost more in the coupled beds",
+    "tolerance": "a looser tolerance saved nothing in the cavity or the bubbling bed, and a bed's transient was not "
+                 "tested at 1e-3",
+    "advection": "MacCormack is second order in space and time; semi-Lagrangian is first order and more diffusive",
+}
+
+
+def defaults_across(cases: list[Case], rows: list[dict]) -> list[dict]:
+    """Each knob judged over every case that sweeps it: the knee of one case says only that a value passes that
+    case's tolerance, and a default serves them all. Per case, the default is bound (a value measured cheaper
+    than it fails the case's tolerance), passed (a cheaper value is within tolerance: the cheapest is named), out
+    (the default itself fails; a cheaper value as accurate, within KNEE_TIE, counts as passing), or none cheaper
+    (no value was measured cheaper). The knob's default is on the knee across the cases when some case binds it;
+    otherwise WHY_DEFAULT says what keeps it, or nothing does."""
+    out: dict[str, dict] = {}
+    for case in cases:
+        cr = [r for r in rows if r["case"] == case.name]
+        base = next((r for r in cr if r["knob"] == "default"), None)
+        if base is None:
+            continue
+        for knob in case.knobs:
+            mine = [r for r in cr if r["knob"] == knob and math.isfinite(r["cost"]) and r["cost"] < base["cost"]]
+            passing = [r for r in mine if math.isfinite(r["error"]) and r["error"] <= case.tolerance]
+            failing = [r for r in mine if r not in passing]
+            entry = {"case": case.name, "default": case.defaults[knob], "default_error": base["error"],
+                     "tolerance": case.tolerance}
+            if not math.isfinite(base["error"]) or base["error"] > case.tolerance:
+                entry["verdict"] = "out"
+                same = [r for r in mine if math.isfinite(r["error"]) and
+                        r["error"] <= base["error"] * (1 + KNEE_TIE)] if math.isfinite(base["error"]) else []
+                if same:
+                    best = min(same, key=lambda r: r["cost"])
+                    entry.update(value=best["value"], error=best["error"], ratio=base["cost"] / best["cost"])
+            elif passing:
+                best = min(passing, key=lambda r: r["cost"])
+                entry.update(verdict="passed", value=best["value"], error=best["error"],
+                             ratio=base["cost"] / best["cost"] if best["cost"] > 0 else math.inf)
+            elif failing:
+                worst = max(failing, key=lambda r: r["cost"])  # the cheaper value nearest the default's cost
+                entry.update(verdict="bound", value=worst["value"], error=worst["error"])
+            else:
+                entry["verdict"] = "none cheaper"
+            out.setdefault(knob, {"knob": knob, "cases": []})["cases"].append(entry)
+    for k in out.values():
+        verdicts = {e["verdict"] for e in k["cases"]}
+        k["bound"] = "bound" in verdicts
+        k["cheaper_passes"] = any("value" in e for e in k["cases"] if e["verdict"] in ("passed", "out"))
+        k["why"] = "" if k["bound"] or not k["cheaper_passes"] else WHY_DEFAULT.get(k["knob"], "")
+    return list(out.values())
+
+
+def _across_lines(cases: list[Case], rows: list[dict]) -> list[str]:
+    lines = ["## Defaults across the cases", "",
+             "A default serves every case, so each knob is judged over all the cases that sweep it. Per case: "
+             "**bound** (a value measured cheaper than the default fails the case's tolerance), **passes** (a "
+             "cheaper value is within it: the cheapest, and how much cheaper), **out** (the default itself "
+             "fails; a cheaper value at least as accurate is named), **none cheaper** (no value was measured cheaper). "
+             "The default is on the knee across the cases when a case binds it; otherwise the last column says "
+             "what keeps it.", "",
+             "| knob | per case | on the knee across the cases |", "|---|---|---|"]
+    for k in defaults_across(cases, rows):
+        parts = []
+        for e in k["cases"]:
+            head = f"{e['case']} ({_fmt(e['default'])})"
+            if e["verdict"] == "bound":
+                parts.append(f"{head}: bound, {_fmt(e['value'])} gives {e['error']:.2e} > {e['tolerance']:g}")
+            elif e["verdict"] == "passed":
+                parts.append(f"{head}: {_fmt(e['value'])} passes, {e['ratio']:.2f}x cheaper ({e['error']:.2e})")
+            elif e["verdict"] == "out":
+                parts.append(f"{head}: out, {e['default_error']:.2e} > {e['tolerance']:g}" + (
+                    f"; {_fmt(e['value'])} at least as accurate, {e['ratio']:.2f}x cheaper" if "value" in e else ""))
+            else:
+                parts.append(f"{head}: none cheaper")
+        if k["bound"]:
+            verdict = "yes: " + ", ".join(e["case"] for e in k["cases"] if e["verdict"] == "bound") + " binds it"
+        elif not k["cheaper_passes"]:
+            verdict = "no value was measured cheaper"
+        else:
+            verdict = ("no; kept: " + k["why"]) if k["why"] else \
+                "no, and nothing measured keeps it: a candidate to change"
+        lines.append(f"| {k['knob']} | {'; '.join(parts)} | {verdict} |")
+    return lines + [""]
+
+
 def pareto_plot(case: Case, rows: list[dict], path: pathlib.Path) -> None:
     import matplotlib
 
@@ -154,7 +253,7 @@ def report(cases: list[Case], rows: list[dict], size: str, arch: str, device: st
             lines.append(f"| {case.name} | {knob} | {_fmt(k['default'])} | {k['default_error']:.2e} | "
                          f"{_fmt(k['recommended'])} | {k['error']:.2e} | {ratio:.2f} | "
                          f"{'yes' if k['default_on_knee'] else 'no'} |")
-    lines += ["", "## Cases", ""]
+    lines += [""] + _across_lines(cases, rows) + ["## Cases", ""]
     for case in cases:
         cr = [r for r in rows if r["case"] == case.name]
         if not cr:
