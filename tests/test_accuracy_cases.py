@@ -125,8 +125,9 @@ def test_knee_picks_the_cheapest_of_equal_errors_when_none_is_within_tolerance()
 
 
 def test_a_default_is_on_the_knee_across_cases_only_where_a_case_binds_it(monkeypatch):
-    """One case's knee says only that a cheaper value passes that case; a default serves every case. Knob k:
-    case A passes the cheaper 0.1, case B fails it (bound: on the knee). Knob j: the cheaper value passes the only
+    """One case's knee says only that a cheaper value passes that case; a default serves every case. Knob k
+    (dt_fraction's cheap side: larger): case A passes the cheaper 0.1, case B fails it (bound: on the knee), though
+    B measured it dearer than the default (a bed's cost scatters). Knob j: the cheaper value passes the only
     case that sweeps it and no reason is on record (a candidate to change), or one is (it is quoted). Knob t: the
     default fails case A's tolerance and a cheaper value is as accurate, which counts as passing."""
     from app.accuracy import Case, runner
@@ -135,29 +136,30 @@ def test_a_default_is_on_the_knee_across_cases_only_where_a_case_binds_it(monkey
         return Case(name=name, title="", error_label="", cost_label="", knobs=knobs, defaults=defaults,
                     tolerance=tol, measure=lambda settings, size: {})
 
-    a = case("A", {"k": (0.1,), "j": (2,)}, {"k": 0.05, "j": 1})
-    b = case("B", {"k": (0.02, 0.1)}, {"k": 0.05})
+    a = case("A", {"dt_fraction": (0.1,), "j": (2,)}, {"dt_fraction": 0.05, "j": 1})
+    b = case("B", {"dt_fraction": (0.02, 0.1)}, {"dt_fraction": 0.05})
     c = case("C", {"t": (1e-3,)}, {"t": 1e-6}, tol=0.01)
     rows = [{"case": "A", "knob": "default", "value": "", "error": 0.01, "cost": 10.0},
-            {"case": "A", "knob": "k", "value": 0.1, "error": 0.03, "cost": 5.0},
+            {"case": "A", "knob": "dt_fraction", "value": 0.1, "error": 0.03, "cost": 5.0},
             {"case": "A", "knob": "j", "value": 2, "error": 0.02, "cost": 4.0},
             {"case": "B", "knob": "default", "value": "", "error": 0.04, "cost": 10.0},
-            {"case": "B", "knob": "k", "value": 0.02, "error": 0.01, "cost": 25.0},
-            {"case": "B", "knob": "k", "value": 0.1, "error": 0.09, "cost": 5.0},
+            {"case": "B", "knob": "dt_fraction", "value": 0.02, "error": 0.01, "cost": 25.0},
+            {"case": "B", "knob": "dt_fraction", "value": 0.1, "error": 0.09, "cost": 10.5},
             {"case": "C", "knob": "default", "value": "", "error": 0.02, "cost": 3.0},
             {"case": "C", "knob": "t", "value": 1e-3, "error": 0.02 * (1 + 1e-4), "cost": 1.0}]
     monkeypatch.setattr(runner, "WHY_DEFAULT", {})
     got = {k["knob"]: k for k in runner.defaults_across([a, b, c], rows)}
-    assert [e["verdict"] for e in got["k"]["cases"]] == ["passed", "bound"] and got["k"]["bound"]
-    assert got["k"]["cases"][1]["value"] == 0.1  # the failing cheaper value, not the dearer 0.02
+    k = got["dt_fraction"]
+    assert [e["verdict"] for e in k["cases"]] == ["passed", "bound"] and k["bound"]
+    assert k["cases"][1]["value"] == 0.1  # the failing value on the cheap side, not the passing 0.02
     assert not got["j"]["bound"] and got["j"]["cheaper_passes"] and got["j"]["why"] == ""
     assert got["t"]["cases"][0]["verdict"] == "out" and got["t"]["cases"][0]["value"] == 1e-3
     table = "\n".join(runner._across_lines([a, b, c], rows))
-    assert "| k | A (0.05): 0.1 passes, 2.00x cheaper (3.00e-02); B (0.05): bound, 0.1 gives 9.00e-02 > 0.05 | " \
-           "yes: B binds it |" in table
-    assert "| j | A (1): 2 passes, 2.50x cheaper (2.00e-02) | no, and nothing measured keeps it" in table
+    assert "| dt_fraction | A (0.05): 0.1 passes at 0.50x the cost (3.00e-02); B (0.05): bound, 0.1 gives " \
+           "9.00e-02 > 0.05 | yes: B binds it |" in table
+    assert "| j | A (1): 2 passes at 0.40x the cost (2.00e-02) | no, and nothing measured keeps it" in table
     monkeypatch.setattr(runner, "WHY_DEFAULT", {"j": "a reason measured elsewhere"})
-    assert "| j | A (1): 2 passes, 2.50x cheaper (2.00e-02) | no; kept: a reason measured elsewhere |" in \
+    assert "| j | A (1): 2 passes at 0.40x the cost (2.00e-02) | no; kept: a reason measured elsewhere |" in \
         "\n".join(runner._across_lines([a, b, c], rows))
 
 
