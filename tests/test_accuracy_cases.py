@@ -125,8 +125,8 @@ def test_knee_picks_the_cheapest_of_equal_errors_when_none_is_within_tolerance()
 
 
 def test_a_default_is_on_the_knee_across_cases_only_where_a_case_binds_it(monkeypatch):
-    """One case's knee says only that a cheaper value passes that case; a default serves every case. Knob k
-    (dt_fraction's cheap side: larger): case A passes the cheaper 0.1, case B fails it (bound: on the knee), though
+    """One case's knee says only that a cheaper value passes that case; a default serves every case. Knob
+    dt_fraction (cheap side: larger): case A passes the cheaper 0.1, case B fails it (bound: on the knee), though
     B measured it dearer than the default (a bed's cost scatters). Knob j: the cheaper value passes the only
     case that sweeps it and no reason is on record (a candidate to change), or one is (it is quoted). Knob t: the
     default fails case A's tolerance and a cheaper value is as accurate, which counts as passing."""
