@@ -102,6 +102,17 @@ class RcfdRecorder:
         self.prev_eps = None
         self.prev_boundary_eps = None
         self._flushed = time.perf_counter()
+        if sim.step_count >= self.s0:  # resumed, or continued from a checkpoint, past the start
+            times = self.f["boundary/time"][...]
+            if times.size and abs(times[-1] - sim.time) < 1e-9 * max(1.0, sim.time) and self.counted is not None:
+                # resumed on a frame boundary: its grains are the checkpoint's, so the frame goes on
+                cells = self.cells_of(read_solvers(sim, "grains")[0][self.counted])
+                self.open_frame, self.last_cells = (times.size - 1, cells), cells
+                self.prev_boundary_eps = read_solvers(sim, "eps")[:, :, :nz].astype(np.float64)
+                if self.fluxes:
+                    self.flux_sum = [np.zeros(a.shape) for a in self.apertures]
+            else:
+                self(sim)
         sim.add(guarded(self), self.step, finish=self.finish)
 
     def _open(self, vol, resume_time) -> None:

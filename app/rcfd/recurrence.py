@@ -8,9 +8,10 @@
   period is the peak's, resolved to one bin df = 1 / (N dt).
 - The mean distance against lag D(tau) = mean_i R(i, i + tau); its first local minimum after its
   first rise is a second estimate of the period.
-- The database-length check (CFDEM's standardRecStatAnalysis): S(n) = mean over i <= n of
-  max over j <= i - w of (1 - R_ij): how similar each state is to its best earlier recurrence;
-  the database is long enough when S(n) levels off.
+- The database-length check: b(i) = max over j <= i - w of (1 - R_ij), how similar each state is
+  to its best earlier recurrence, and its running mean S(n) (CFDEM's standardRecStatAnalysis); the
+  database is long enough when b stops rising (its last quarter's mean within 0.01 of the quarter
+  before; S(n), a cumulative mean, approaches its limit only as 1/n).
 - The Taylor time scale sqrt(<g^2> / <dg/dt^2>) of g = eps - mean(eps) (the source paper's Eq. 13).
 """
 from __future__ import annotations
@@ -82,27 +83,34 @@ def first_recurrence(Dtau: np.ndarray) -> int:
     return 0
 
 
-def similarity_curve(R: np.ndarray, window: int) -> np.ndarray:
-    """S(n) = mean over i <= n of max over j <= i - window of (1 - R_ij); NaN until a state has an earlier
-    one outside the window."""
+def best_recurrence(R: np.ndarray, window: int) -> np.ndarray:
+    """max over j <= i - window of (1 - R_ij) for each state i (NaN before the first state with an earlier one
+    outside the window): how well each state recurs in what came before it."""
     n = R.shape[0]
     best = np.full(n, np.nan)
     for i in range(window, n):
         best[i] = 1.0 - R[i, : i - window + 1].min()
-    out = np.full(n, np.nan)
+    return best
+
+
+def similarity_curve(R: np.ndarray, window: int) -> np.ndarray:
+    """S(n) = mean over i <= n of best_recurrence(i) (CFDEMcoupling's average similarity)."""
+    best = best_recurrence(R, window)
+    out = np.full(best.size, np.nan)
     ok = ~np.isnan(best)
     out[ok] = np.cumsum(best[ok]) / np.arange(1, ok.sum() + 1)
     return out
 
 
-def levelled_off(S: np.ndarray, tol: float = 0.01) -> dict:
-    """Does S(n) level off? Its rise over the last quarter of the states against its total range."""
-    s = S[~np.isnan(S)]
+def levelled_off(best: np.ndarray, tol: float = 0.01) -> dict:
+    """Does the best earlier recurrence level off? The mean of best_recurrence over the last quarter of the
+    states against the quarter before it: within ``tol``, a longer database would find no better recurrences."""
+    s = best[~np.isnan(best)]
     if s.size < 8:
         return {"levelled_off": False, "last_quarter_rise": float("nan")}
     q = s.size // 4
-    rise = float(s[-1] - s[-q - 1])
-    return {"levelled_off": bool(abs(rise) <= tol), "last_quarter_rise": rise}
+    rise = float(s[-q:].mean() - s[-2 * q:-q].mean())
+    return {"levelled_off": bool(rise <= tol), "last_quarter_rise": rise}
 
 
 def taylor_time(var: float, rate_var: float) -> float:
