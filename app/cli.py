@@ -96,6 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--name", help="run: name of the output folder under RUN_DIR/rcfd")
     rc.add_argument("--start", choices=("end", "begin"), default="end",
                     help="run: tag at the database's last state (end) or first (begin)")
+    rc.add_argument("--gas", action="store_true", help="run: also a gas tracer (step input at the inlet) on the "
+                                                        "recorded fluxes: rtd.csv, the outlet's step response")
     rc.add_argument("--t0", type=float, help="validate: start of the database [s]")
     rc.add_argument("--t1", type=float, help="validate: end of the database, start of the continuations [s]")
     rc.add_argument("--t2", type=float, help="validate: end of the continuations [s]")

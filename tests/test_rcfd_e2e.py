@@ -67,7 +67,7 @@ def test_analyze_and_reproducible_paths(recorded):
         assert (recorded / "rcfd" / name).stat().st_size > 1000
     runs = []
     for name in ("a", "b"):
-        r = fbed("rcfd", "run", recorded, "--horizon", "0.5", "--paths", "3", "--seed", "3", "--name", name)
+        r = fbed("rcfd", "run", recorded, "--horizon", "0.5", "--paths", "3", "--seed", "3", "--name", name, "--gas")
         assert r.returncode == 0, r.stderr[-3000:]
         runs.append(recorded / "rcfd" / name)
     assert (runs[0] / "path.csv").read_text() == (runs[1] / "path.csv").read_text()
@@ -80,6 +80,8 @@ def test_analyze_and_reproducible_paths(recorded):
     assert 0.0 < M[-1, -2] <= 1.0
     assert s["cost"]["marginal_speedup"] > 0 and s["jumps_per_path"] >= 1
     assert (runs[0] / "recurrence_path.png").exists() and (runs[0] / "mixing.png").exists()
+    g = s["gas_tracer"]  # on the recorded fluxes: the balance closes; c exceeds 1 only by the continuity residual
+    assert g["balance_error_max"] <= 1e-9 and g["c_min"] >= 0 and g["c_max"] <= 1 + 1e-4
 
 
 def test_bad_input_exits_2(recorded, tmp_path):

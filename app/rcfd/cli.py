@@ -48,7 +48,7 @@ def main(args) -> int:
                 raise ConfigError(str(err), "", "--tag") from None
         try:
             s = commands.run_paths(str(d), args.horizon, args.paths, args.seed, args.tag, args.name, args.out,
-                                   args.start, log=log)
+                                   args.start, log=log, gas=args.gas)
         except ValueError as err:
             raise ConfigError(str(err), str(d / "rcfd.h5"), "--horizon") from None
         c = s["cost"]
@@ -58,6 +58,10 @@ def main(args) -> int:
               f"of the grain volume; tracer drift {s['tracer_drift_max']:.2g}")
         print(f"speed-up: marginal {c['marginal_speedup']:.3g}x, total {c['total_speedup_with_database']:.3g}x "
               f"(database counted), {c['total_speedup_without_database']:.3g}x (not counted)")
+        if "gas_tracer" in s:
+            g = s["gas_tracer"]
+            print(f"gas tracer (step input): outlet F at {args.horizon:g} s {g['step_response_final']:.4f}, mean "
+                  f"residence time {g['mean_residence_time']:.4g} s, balance error {g['balance_error_max']:.2g}")
         return 0
     from .validate import validate
 
