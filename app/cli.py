@@ -98,6 +98,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="run: tag at the database's last state (end) or first (begin)")
     rc.add_argument("--gas", action="store_true", help="run: also a gas tracer (step input at the inlet) on the "
                                                         "recorded fluxes: rtd.csv, the outlet's step response")
+    rc.add_argument("--lag", type=int, default=1, help="run, validate: a frame spans LAG recorded frames, its shift "
+                                                       "built from each grain's cell at its ends (motion that "
+                                                       "reverses within it is no dispersion)")
     rc.add_argument("--t0", type=float, help="validate: start of the database [s]")
     rc.add_argument("--t1", type=float, help="validate: end of the database, start of the continuations [s]")
     rc.add_argument("--t2", type=float, help="validate: end of the continuations [s]")

@@ -66,6 +66,7 @@ class RcfdRecorder:
         self.z_max = p.rcfd_z_max
         self.tag = p.rcfd_tag
         self.fluxes = p.rcfd_fluxes
+        self.grain_cells = p.rcfd_grain_cells
         self.step = cfg.run.step
         self.axis = np.asarray(axis_xy, float)
         self.f = None
@@ -159,7 +160,9 @@ class RcfdRecorder:
         next one starts at the next frame boundary (its b0 then differs from the last frame's b1)."""
         f = self.f
         nb = int(np.searchsorted(f["boundary/time"][...], t + 1e-9, side="right"))
-        for k in ("time", "eps", "bed_height", "solid", "tag_now", "tagged"):
+        for k in ("time", "eps", "bed_height", "solid", "tag_now", "tagged", "cells"):
+            if f"boundary/{k}" not in f:
+                continue
             ds = f[f"boundary/{k}"]
             ds.resize((nb,) + ds.shape[1:])
         nf = int(np.sum(f["frame/b1"][...] < nb))
@@ -224,6 +227,11 @@ class RcfdRecorder:
             f.create_dataset("grains_counted", data=self.counted)
             f.create_dataset("grains_tagged", data=self.tagged_ids)
             f.attrs["grains"] = int(self.counted.size)
+            if self.grain_cells:
+                n = int(self.counted.size)
+                f.create_dataset("grains_volume", data=4.0 / 3.0 * np.pi * r[self.counted] ** 3)
+                f.create_dataset("boundary/cells", shape=(0, n), maxshape=(None, n), dtype="i4",
+                                 chunks=(max(1, min(64, (1 << 20) // (4 * n))), n), compression="gzip")
         ids = self.counted
         xi = x[ids]
         if self.last_cells is not None:  # a grain that left the domain stays in its last cell
@@ -239,6 +247,8 @@ class RcfdRecorder:
         self._append(f["boundary/time"], sim.time)
         self._append(f["boundary/eps"], eps.astype(np.float32))
         self._append(f["boundary/bed_height"], read_solvers(sim, "bed_height"))
+        if "boundary/cells" in f:
+            self._append(f["boundary/cells"], cells.astype(np.int32))
         for name, sel in (("solid", None), ("tag_now", now), ("tagged", tagged)):
             w = vol if sel is None else vol * sel
             self._append(f[f"boundary/{name}"], np.bincount(cells, weights=w, minlength=self.n).astype(np.float32))

@@ -55,6 +55,14 @@ def test_recording_is_self_consistent(recorded):
         assert np.abs(P @ a - db.solid[db.b1[k]]).max() <= 1e-6 * a.max()
         assert np.abs(a - db.solid[db.b0[k]]).max() <= 1e-6 * a.max()
     assert np.allclose(db.tagged.sum(1), db.tagged[0].sum(), rtol=1e-6)  # the real tracer is the same grains
+    # frames over 4 recorded ones, from each grain's cell at their ends: the same consistency
+    lagged = load(recorded, lag=4)
+    assert lagged.n_frames == 21 and np.all(lagged.b1 == lagged.b0 + 4)
+    assert np.all(lagged.successor()[:17] == np.arange(4, 21))
+    for k in range(lagged.n_frames):
+        P, a = lagged.shift(k)
+        assert np.allclose(np.asarray(P.sum(0)).ravel(), 1.0, rtol=0, atol=1e-12)
+        assert np.abs(P @ a - db.solid[lagged.b1[k]]).max() <= 1e-6 * a.max()
     assert np.all((db.eps > 0) & (db.eps <= 1))
 
 

@@ -175,6 +175,9 @@ class ProbesConfig:
                              "in the top layer; 0: the whole domain)", lo=0.0)
     rcfd_tag: str = spec("x<0", doc="grains tagged at the first rCFD frame, whose volume per cell is recorded (the "
                          "real grains' tracer): AXIS OP VALUE with AXIS x, y or z, OP <, <=, > or >=, VALUE in m")
+    rcfd_grain_cells: bool = spec(True, doc="also record each grain's cell at every frame boundary (4 bytes per grain "
+                                  "per frame), so that shift operators over several frames can be built "
+                                  "(`fbed rcfd ... --lag`)")
     rcfd_fluxes: bool = spec(True, doc="also record the frame-mean gas face fluxes (read after every fluid step)")
     analysis: str = spec("none", doc="post-processing run when the run ends (and by `fbed analyze DIR`): 'boyce' "
                          "(single bubble on the slab), 'verma' (bubble statistics on the planes)",

@@ -48,7 +48,7 @@ def main(args) -> int:
                 raise ConfigError(str(err), "", "--tag") from None
         try:
             s = commands.run_paths(str(d), args.horizon, args.paths, args.seed, args.tag, args.name, args.out,
-                                   args.start, log=log, gas=args.gas)
+                                   args.start, log=log, gas=args.gas, lag=args.lag)
         except ValueError as err:
             raise ConfigError(str(err), str(d / "rcfd.h5"), "--horizon") from None
         c = s["cost"]
@@ -71,4 +71,4 @@ def main(args) -> int:
     if not (0 <= args.t0 < args.t1 < args.t2):
         raise ConfigError(f"need 0 <= t0 < t1 < t2 (got {args.t0:g}, {args.t1:g}, {args.t2:g})", "", "--t1")
     return validate(args.target, args.t0, args.t1, args.t2, args.out, args.paths, args.seed, args.continuations,
-                    args.overrides, args.arch, log=log)
+                    args.overrides, args.arch, log=log, lag=args.lag)

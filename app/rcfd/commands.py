@@ -8,6 +8,7 @@ run     -> RUN/rcfd/<name>/: mixing.csv, mixing.png, path.csv, recurrence_path.p
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import pathlib
@@ -259,8 +260,13 @@ class Engine:
         self.P = [op[0] for op in self.ops]
         self.a = state_volumes(db, self.ops)
         self.successor = db.successor()
-        period_frames = self.st["sp_eps"]["period"] / db.frame_interval
-        self.params = params or pathmod.PathParams.default(db.n_frames, period_frames)
+        lag = int(db.attrs.get("lag", 1))
+        if params is None:  # lengths in (lagged) frames from the recorded length; the window in boundaries
+            params = pathmod.PathParams.default(max(3, (db.n_frames + lag - 1) // lag))
+            period_states = self.st["sp_eps"]["period"] * lag / db.frame_interval
+            if np.isfinite(period_states):
+                params = dataclasses.replace(params, window=max(1, int(math.ceil(0.5 * period_states))))
+        self.params = params
         self.targets = pathmod.jump_targets(self.st["R"], db.b0, self.successor, self.params)
         cells = (db.open_volume > 0) | (self.a.max(0) > 0).reshape(db.shape)
         self.stitcher = Stitcher(db.shape, cells, db.h)
@@ -306,8 +312,12 @@ class Engine:
         """Move the tracer (concentration c0 per cell at ``start_state``) along ``path``; the mixing index after
         each frame, the stitches, the bounds and the conservation."""
         db = self.db
-        tr = SolidsTracer(c0 * self.a[start_state], self.a[start_state])
         jumps = {pos: (s_from, s_to) for pos, s_from, s_to, _ in path.jumps}
+        # the tag's concentration is laid onto the grains of the path's first frame (a path from the database's
+        # last state starts with a jump: stitching the segregated start would mix it before any transport)
+        first = int(db.b0[path.frames[0]])
+        tr = SolidsTracer(c0 * self.a[first], self.a[first])
+        jumps.pop(0, None)
         M = np.empty(len(path.frames) + 1)
         M[0] = tr.mixing_index()
         moved, cmin, cmax = [], 0.0, 1.0
@@ -343,11 +353,11 @@ def initial_concentration(db: Database, state: int, tag: str | None) -> np.ndarr
 
 def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | None, name: str | None = None,
               out: str | None = None, start: str = "end", engine: Engine | None = None, log=print,
-              gas: bool = False) -> dict:
+              gas: bool = False, lag: int = 1) -> dict:
     """`fbed rcfd run`: n_paths seeded Markov paths over ``horizon`` seconds from the database's last state
     (start='end') or its first (start='begin')."""
     rd = pathlib.Path(run_dir)
-    db = engine.db if engine else load(rd)
+    db = engine.db if engine else load(rd, lag)
     eng = engine or Engine(db)
     dt = db.frame_interval
     n_frames = int(math.ceil(horizon / dt - 1e-9))
@@ -420,7 +430,7 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
         "start_state": start_state, "start_time": float(db.time[start_state]), "tag": tag or db.tag,
         "tag_source": "real grains (recorded tag_now)" if (tag is None or tag.replace(" ", "") ==
                                                              db.tag.replace(" ", "")) else "cell centres",
-        "frames_per_path": n_frames, "frame_interval": dt,
+        "frames_per_path": n_frames, "frame_interval": dt, "lag": int(db.attrs.get("lag", 1)),
         "l_min": eng.params.l_min, "l_mean": eng.params.l_mean, "window": eng.params.window,
         "jumps_per_path": float(np.mean([len(p.jumps) for p in ps])), "median_R_at_jumps":
             float(np.median(R_jumps)) if R_jumps else float("nan"),

@@ -10,6 +10,9 @@ c = (i * ny + j) * nz + k):
   /boundary/solid (B, n) f4           grain volume per cell by grain centre [m^3]
   /boundary/tag_now (B, n) f4         volume of the grains that satisfy the tag expression now [m^3]
   /boundary/tagged (B, n) f4          volume of the grains tagged at the first boundary [m^3]
+  /grains_counted, /grains_volume     the grains counted (DEM indices) and their volumes [m^3]
+  /boundary/cells (B, grains) i4      each counted grain's cell (probes.rcfd_grain_cells): operators over
+                                      ``lag`` frames are built from it (load(..., lag))
   /frame/b0, /frame/b1 (N,) i4        the boundaries a frame starts and ends at (b1 = b0 + 1 unless resumed)
   /frame/offset (N+1,) i8             frame k's shift triplets are shift/*[offset[k]:offset[k+1]]
   /shift/c0, /shift/c1 i4, /shift/w f8   grain volume [m^3] that went from cell c0 to cell c1 in the frame
@@ -111,12 +114,9 @@ class Database:
         return shift_operator(self.c0[s], self.c1[s], self.w[s], self.n_cells)
 
     def successor(self) -> np.ndarray:
-        """For each frame, the frame that continues it in recorded order (-1 at the end of a recorded stretch)."""
-        nxt = np.full(self.n_frames, -1, np.int64)
-        if self.n_frames > 1:
-            ok = self.b0[1:] == self.b1[:-1]
-            nxt[:-1][ok] = np.arange(1, self.n_frames)[ok]
-        return nxt
+        """For each frame, the frame that starts where it ends (-1 at the end of a recorded stretch)."""
+        start = self.frame_starting_at()
+        return np.where(self.b1 < self.n_states, start[np.minimum(self.b1, self.n_states - 1)], -1)
 
     def frame_starting_at(self) -> np.ndarray:
         """For each boundary (state), the frame that starts there (-1: none)."""
@@ -134,8 +134,11 @@ class Database:
             return tuple(f[f"frame/flux_{a}"][k].astype(np.float64) for a in "xyz")
 
 
-def load(path) -> Database:
-    """Read rcfd.h5 (or the rcfd.h5 in a run folder)."""
+def load(path, lag: int = 1) -> Database:
+    """Read rcfd.h5 (or the rcfd.h5 in a run folder). With ``lag`` > 1 a frame spans ``lag`` recorded frames:
+    its shift is built from each grain's cell at its two ends (boundary/cells), so grain motion that reverses
+    within it does not count as dispersion; frames overlap (one starts at every boundary), and a path strides
+    ``lag`` boundaries per frame. Gas fluxes are used at lag 1 only."""
     p = pathlib.Path(path)
     if p.is_dir():
         p = p / "rcfd.h5"
@@ -160,7 +163,42 @@ def load(path) -> Database:
             b0=f["frame/b0"][:nfr].astype(np.int64), b1=b1[:nfr].astype(np.int64), offset=off,
             c0=f["shift/c0"][: off[-1]].astype(np.int64), c1=f["shift/c1"][: off[-1]].astype(np.int64),
             w=f["shift/w"][: off[-1]].astype(np.float64), has_flux="frame/flux_x" in f)
+    if lag > 1:
+        db = _lagged(db, int(lag))
     if db.n_frames < 3:
         raise ValueError(f"{p}: {db.n_frames} frames recorded; rCFD needs at least 3 (record longer, or from "
                          "earlier: probes.rcfd_from)")
     return db
+
+
+def _lagged(db: Database, lag: int) -> Database:
+    with h5py.File(db.path, "r") as f:
+        if "boundary/cells" not in f:
+            raise ValueError(f"{db.path}: --lag needs each grain's cell per boundary (record with "
+                             "probes.rcfd_grain_cells = true)")
+        cells = f["boundary/cells"][: db.n_states].astype(np.int64)
+        vol = f["grains_volume"][...].astype(np.float64)
+    succ = db.successor()
+    b0, b1, off, c0s, c1s, ws = [], [], [0], [], [], []
+    n = db.n_cells
+    for k in range(db.n_frames):
+        j, ok = k, True
+        for _ in range(lag - 1):
+            j = succ[j]
+            if j < 0:
+                ok = False
+                break
+        if not ok:
+            continue
+        s0, s1 = int(db.b0[k]), int(db.b1[j])
+        pair = cells[s0] * n + cells[s1]
+        keys, inv = np.unique(pair, return_inverse=True)
+        b0.append(s0), b1.append(s1)
+        c0s.append(keys // n), c1s.append(keys % n), ws.append(np.bincount(inv, weights=vol))
+        off.append(off[-1] + keys.size)
+    return dataclasses.replace(db, b0=np.asarray(b0, np.int64), b1=np.asarray(b1, np.int64),
+                               offset=np.asarray(off, np.int64), c0=np.concatenate(c0s).astype(np.int64),
+                               c1=np.concatenate(c1s).astype(np.int64), w=np.concatenate(ws),
+                               frame_interval=db.frame_interval * lag, has_flux=False,
+                               attrs={**db.attrs, "lag": lag})
+

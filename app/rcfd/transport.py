@@ -25,14 +25,14 @@ from scipy.optimize import linprog
 
 def mixing_index(m: np.ndarray, u: np.ndarray) -> float:
     """M = 1 - sum |c - cbar| b / (2 cbar (1 - cbar) sum b), b = m + u, c = m / b: 0 segregated, 1 mixed
-    (for a half/half split 1 - 2 sum |c - 1/2| b / sum b, the index of rCFD-PFM's fluidized-bed tutorial)."""
+    (for a half/half split 1 - 2 sum |c - 1/2| b / sum b, the index of rCFD-PFM's fluidized-bed tutorial).
+    Computed as sum |m - cbar b|, which needs no division by b."""
     b = m + u
-    tot = b.sum()
-    cbar = m.sum() / tot
+    tot = float(b.sum())
+    cbar = float(m.sum()) / tot if tot > 0 else 0.0
     if cbar <= 0 or cbar >= 1:
         return float("nan")
-    c = np.divide(m, b, out=np.zeros_like(m), where=b > 0)
-    return float(1.0 - np.sum(np.abs(c - cbar) * b) / (2.0 * cbar * (1.0 - cbar) * tot))
+    return 1.0 - float(np.abs(m - cbar * b).sum()) / (2.0 * cbar * (1.0 - cbar) * tot)
 
 
 def mixing_index_real(tagged: np.ndarray, solid: np.ndarray) -> float:
