@@ -99,3 +99,22 @@ def test_bad_input_exits_2(recorded, tmp_path):
     assert r.returncode == 2 and "--tag" in r.stderr and "Traceback" not in r.stderr
     r = fbed("run", ROOT / "presets" / "rcfd_small.toml", "--set", 'probes.rcfd_tag="q<1"', "--out", tmp_path / "o")
     assert r.returncode == 2 and "probes.rcfd_tag" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_a_run_resumed_on_a_frame_boundary_records_the_same_frames(recorded, tmp_path):
+    """Stopped at 0.34 s (a frame boundary, with its checkpoint) and resumed to 0.40 s, the recording equals the
+    straight run's: the frame open at the checkpoint goes on from the checkpoint's grains, no gap, same shifts."""
+    out = tmp_path / "resumed"
+    common = ("--set", "probes.rcfd_from=0.28", "--set", "particles.count=1500", "--arch", "cpu")
+    r = fbed("run", ROOT / "presets" / "rcfd_small.toml", "--set", "run.duration=0.34", *common, "--out", out)
+    assert r.returncode == 0, r.stderr[-3000:]
+    r = fbed("run", "--resume", out, "--set", "run.duration=0.40", "--arch", "cpu")
+    assert r.returncode == 0, r.stderr[-3000:]
+    with h5py.File(recorded / "rcfd.h5") as a, h5py.File(out / "rcfd.h5") as b:
+        assert np.array_equal(a["frame/b0"][...], b["frame/b0"][...])
+        assert np.array_equal(a["frame/b1"][...], b["frame/b1"][...])
+        assert np.allclose(a["boundary/time"][...], b["boundary/time"][...])
+        for name in ("frame/offset", "shift/c0", "shift/c1", "boundary/cells"):
+            assert np.array_equal(a[name][...], b[name][...]), name
+        assert np.allclose(a["shift/w"][...], b["shift/w"][...], rtol=1e-12)
+        assert np.allclose(a["boundary/eps"][...], b["boundary/eps"][...], atol=1e-6)

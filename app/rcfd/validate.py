@@ -148,6 +148,7 @@ def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_pa
     checks = {
         "replay_mixing_index": {"tests": "rCFD transport (same frames, same order: only the operator differs)",
                                 "max_abs_difference": rep_err, "tolerance": 0.03, "pass": rep_err <= 0.03,
+                                "rcfd_final": float(rres["M"][-1]), "full": float(M_real[-1]),
                                 "t90_rcfd": rep_t90[0], "t90_real": rep_t90[1]},
         "mean_mixing_index": {"tests": "rCFD extrapolation (paths and transport against full runs)",
                               "rcfd": float(rc_mean_idx.mean()), "rcfd_std": float(rc_mean_idx.std(ddof=1))

@@ -1,0 +1,19 @@
+#!/bin/sh
+# rCFD against fbed's own full runs on the CPU (validation/rcfd/README.md has the results).
+# Each stage is reused when the command is run again, so a run cut off by a time limit goes on.
+# About 9 minutes of wall on the shared 2-core CPU for the runs (database 0-1.5 s, three 1 s continuations),
+# then seconds per analysis. The --lag variants reuse the same runs.
+set -e
+cd "$(dirname "$0")/../.."
+OUT=${OUT:-runs}
+# 1. the design note's lateral tag (x < 0)
+python3 -m app rcfd validate presets/rcfd_small.toml --t0 0.5 --t1 1.5 --t2 2.5 --paths 20 --seed 1 \
+    --arch cpu --out "$OUT/rcfd-validate" || true
+# 2. a vertical tag (the lower half of the bed), which mixes within the 1 s horizon, at lags 1, 5, 10, 20
+for LAG in 1 5 10 20; do
+    python3 -m app rcfd validate presets/rcfd_small.toml --t0 0.5 --t1 1.5 --t2 2.5 --paths 20 --seed 1 \
+        --arch cpu --out "$OUT/rcfd-validate-z" --set 'probes.rcfd_tag="z<0.018"' --lag $LAG || true
+    cp "$OUT/rcfd-validate-z/REPORT.md" "$OUT/rcfd-validate-z/REPORT_lag$LAG.md"
+    cp "$OUT/rcfd-validate-z/validation.json" "$OUT/rcfd-validate-z/validation_lag$LAG.json"
+    cp "$OUT/rcfd-validate-z/mixing_validation.png" "$OUT/rcfd-validate-z/mixing_validation_lag$LAG.png"
+done
