@@ -383,10 +383,13 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
             for pos, k in enumerate(p.frames):
                 f.write(f"{i},{pos},{k},{db.b0[k]},{db.time[db.b0[k]]:.6g},{int(pos in jpos)}\n")
     # bed statistics along the paths: the state each frame ends at
-    heights = np.stack([db.bed_height[db.b1[p.frames]] for p in ps])
+    # every recorded boundary a path passes (a lagged frame spans several): no aliasing on the bed's period
+    visited = [np.concatenate([np.arange(db.b0[k] + 1, db.b1[k] + 1) for k in p.frames]) for p in ps]
+    heights = np.stack([db.bed_height[v] for v in visited])
     rbins, prof = radial_profiles(db)
-    path_prof = np.stack([prof[db.b1[p.frames]].mean(0) for p in ps])
-    sp = [rec.spectrum(hh, dt) for hh in heights]
+    path_prof = np.stack([prof[v].mean(0) for v in visited])
+    lag = int(db.attrs.get("lag", 1))
+    sp = [rec.spectrum(hh, dt / lag) for hh in heights]
     t50 = [crossing_time(time, r["M"], 0.5) for r in results]
     t90 = [crossing_time(time, r["M"], 0.9) for r in results]
     moved = [m for r in results for m in r["moved"]]

@@ -119,7 +119,8 @@ def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_pa
     n = int(np.sum(t_r <= min(c["t"][-1] for c in conts) + 1e-9))  # the full curves on rCFD's time grid
     Mf = np.stack([np.interp(t_r[:n], c["t"], c["M"]) for c in conts])
     tf = t_r[:n]
-    full_mean_idx = Mf.mean(1)
+    # the full runs' time mean from every boundary within the horizon (rCFD's own grid may be coarser)
+    full_mean_idx = np.array([c["M"][c["t"] <= t_r[n - 1] + 1e-9].mean() for c in conts])
     rc_mean_idx = M_paths[:, :n].mean(1)
     sig_full = float(full_mean_idx.std(ddof=1)) if n_cont > 1 else 0.0
     t50f = [commands.crossing_time(tf, m, 0.5) for m in Mf]
