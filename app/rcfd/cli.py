@@ -50,7 +50,8 @@ def main(args) -> int:
             s = commands.run_paths(str(d), args.horizon, args.paths, args.seed, args.tag, args.name, args.out,
                                    args.start, log=log, gas=args.gas, lag=args.lag)
         except ValueError as err:
-            raise ConfigError(str(err), str(d / "rcfd.h5"), "--horizon") from None
+            key = "--lag" if "--lag" in str(err) else "RUN_DIR"
+            raise ConfigError(str(err), str(d / "rcfd.h5"), key) from None
         c = s["cost"]
         print(f"mixing index at {args.horizon:g} s: {s['mixing_final_mean']:.4f} ± {s['mixing_final_std']:.4f} "
               f"({args.paths} paths); t50 {s['t50_mean']:.4g} s, t90 {s['t90_mean']:.4g} s")
