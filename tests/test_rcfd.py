@@ -219,3 +219,16 @@ def test_gas_tracer_step_response_balances_and_gives_the_gas_volume_over_the_flo
     first_moment = np.sum(1 - np.array(F)) * dt
     assert first_moment == pytest.approx(g.mass(eps) / Q, rel=1e-9)  # what went in and did not come out
     assert first_moment == pytest.approx(gas_volume / Q, rel=1e-3)  # ... and the column is full after 5 V/Q
+
+
+def test_face_void_fraction_is_the_two_cells_mean_and_the_cell_on_domain_faces():
+    from app.rcfd_probe import face_eps
+
+    eps = np.arange(24, dtype=float).reshape(2, 3, 4)
+    for a in range(3):
+        f = face_eps(eps, a)
+        assert f.shape[a] == eps.shape[a] + 1
+        inner = 0.5 * (np.take(eps, range(0, eps.shape[a] - 1), axis=a) + np.take(eps, range(1, eps.shape[a]), axis=a))
+        assert np.array_equal(np.take(f, range(1, eps.shape[a]), axis=a), inner)
+        assert np.array_equal(np.take(f, [0], axis=a), np.take(eps, [0], axis=a))
+        assert np.array_equal(np.take(f, [eps.shape[a]], axis=a), np.take(eps, [eps.shape[a] - 1], axis=a))
