@@ -9,8 +9,8 @@ OUT=${OUT:-runs}
 # 1. the design note's lateral tag (x < 0)
 python3 -m app rcfd validate presets/rcfd_small.toml --t0 0.5 --t1 1.5 --t2 2.5 --paths 20 --seed 1 \
     --arch cpu --out "$OUT/rcfd-validate" || true
-# 2. a vertical tag (the lower half of the bed), which mixes within the 1 s horizon, at lags 1, 5, 10, 20
-for LAG in 1 5 10 20; do
+# 2. a vertical tag (about the lower half of the bed) at lags 1, 10, 20 and 53 (one slug period)
+for LAG in 1 10 20 53; do
     python3 -m app rcfd validate presets/rcfd_small.toml --t0 0.5 --t1 1.5 --t2 2.5 --paths 20 --seed 1 \
         --arch cpu --out "$OUT/rcfd-validate-z" --set 'probes.rcfd_tag="z<0.018"' --lag $LAG || true
     cp "$OUT/rcfd-validate-z/REPORT.md" "$OUT/rcfd-validate-z/REPORT_lag$LAG.md"
