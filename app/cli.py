@@ -8,6 +8,9 @@
     fbed bench accuracy|stiffness [--size small|full] [--arch cpu|cuda] [--out DIR] [--resume]
                                       (error against cost; --resume goes on from the rows in --out)
     fbed sweep PRESET --set key=v1,v2,... [--set ...] [--jobs N] [--out DIR] [--plot FIGURE]
+    fbed rcfd analyze RUN_DIR         (recurrence plot, spectra, period of a run that recorded rcfd.h5)
+    fbed rcfd run RUN_DIR --horizon T --paths N --seed S [--tag "x<0"]   (rCFD mixing along Markov paths)
+    fbed rcfd validate PRESET --t0 A --t1 B --t2 C [--out DIR]   (rCFD against full continuations)
 
 Bad input (preset, key, unit, range, file) prints one clear message and exits with 2.
 """
@@ -76,6 +79,35 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--plot", dest="plot_figure", metavar="FIGURE",
                    help="plot this summary figure against the first swept key")
     w.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto")
+    rc = sub.add_parser("rcfd", help="recurrence CFD on a recorded run (fbed rcfd analyze|run|validate)",
+                        description="fbed rcfd analyze RUN_DIR: recurrence plot, spectra and period of the frames a "
+                                    "run recorded (probes.rcfd_from); fbed rcfd run RUN_DIR: a solids tracer moved "
+                                    "along seeded Markov paths through the frames; fbed rcfd validate PRESET: a "
+                                    "database run, its replay, three perturbed full continuations and the rCFD "
+                                    "ensemble against them.")
+    rc.add_argument("action", choices=("analyze", "run", "validate"))
+    rc.add_argument("target", help="analyze, run: a run folder with rcfd.h5; validate: a preset")
+    rc.add_argument("--out", help="output folder (default: RUN_DIR/rcfd/...; validate: runs/rcfd-validate-<preset>)")
+    rc.add_argument("--horizon", type=float, default=10.0, help="run: simulated time of each path [s]")
+    rc.add_argument("--paths", type=int, default=20, help="run, validate: number of paths")
+    rc.add_argument("--seed", type=int, default=1, help="run, validate: seed of the paths (path i uses (seed, i))")
+    rc.add_argument("--tag", help="run: tagged grains, e.g. 'x<0' (default: the recorded probes.rcfd_tag, from the "
+                                  "real grains)")
+    rc.add_argument("--name", help="run: name of the output folder under RUN_DIR/rcfd")
+    rc.add_argument("--start", choices=("end", "begin"), default="end",
+                    help="run: tag at the database's last state (end) or first (begin)")
+    rc.add_argument("--gas", action="store_true", help="run: also a gas tracer (step input at the inlet) on the "
+                                                        "recorded fluxes: rtd.csv, the outlet's step response")
+    rc.add_argument("--lag", type=int, default=1, help="run, validate: a frame spans LAG recorded frames, its shift "
+                                                       "built from each grain's cell at its ends (motion that "
+                                                       "reverses within it is no dispersion)")
+    rc.add_argument("--t0", type=float, help="validate: start of the database [s]")
+    rc.add_argument("--t1", type=float, help="validate: end of the database, start of the continuations [s]")
+    rc.add_argument("--t2", type=float, help="validate: end of the continuations [s]")
+    rc.add_argument("--continuations", type=int, default=3, help="validate: perturbed full continuations")
+    rc.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="validate: override a preset key of the runs")
+    rc.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto")
     return p
 
 
@@ -126,6 +158,10 @@ def main(argv: list[str] | None = None) -> int:
             from .run import analyze
 
             return analyze(args.run_dir, args.kind)
+        if args.command == "rcfd":
+            from .rcfd.cli import main as rcfd_main
+
+            return rcfd_main(args)
         if args.command == "sweep":
             from .sweep import sweep
 

@@ -436,6 +436,13 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
         from .probes import Probes
 
         Probes(cfg, flow, flow.fields.active.to_numpy()).attach(sim, runfile, guarded)
+    if coupler is not None and pr.rcfd_from >= 0:
+        from .rcfd_probe import RcfdRecorder
+
+        v = cfg.vessel
+        axis = v.center if v.shape == "cylinder" else tuple(0.5 * (a + b) for a, b in zip(cfg.domain.lo[:2],
+                                                                                         cfg.domain.hi[:2]))
+        RcfdRecorder(cfg, axis).attach(sim, out_dir, guarded, sim.time if resume else None, log)
     if o.checkpoint_interval:
         sim.add(guarded(checkpoint), o.checkpoint_interval)
     if o.checkpoint_wall_interval:

@@ -32,6 +32,17 @@ def check(cfg: Config, file: str, text: str) -> None:
     if v.floor is not None and v.lid is not None and v.lid <= v.floor:
         fail("vessel", "lid", f"the lid ({v.lid:g} m) must be above the floor ({v.floor:g} m)")
 
+    pr = cfg.probes
+    if pr.rcfd_from >= 0:
+        from ..rcfd.database import parse_tag
+
+        try:
+            parse_tag(pr.rcfd_tag)
+        except ValueError as err:
+            fail("probes", "rcfd_tag", str(err))
+        if cfg.gas is None or cfg.particles is None:
+            fail("probes", "rcfd_from", "rCFD frames need both grains and gas", "set probes.rcfd_from = -1")
+
     if cfg.particles is None and cfg.gas is None:
         raise ConfigError("nothing to simulate: the preset has neither [particles] nor [gas]", file, "particles",
                           None, "add a [particles] section (grains) and/or a [gas] section (gas flow)")

@@ -165,6 +165,20 @@ class ProbesConfig:
     planes_interval: float = spec(0.0, unit="s", doc="interval of the plane records (0: off)", lo=0.0)
     volume_interval: float = spec(0.0, unit="s", doc="interval of the full 3-D void fraction in run.h5 /porosity3d "
                                   "(0: off)", lo=0.0)
+    rcfd_from: float = spec(-1.0, unit="s", doc="record rCFD frames into rcfd.h5 from this time on (negative: "
+                            "off): void fraction at frame boundaries, frame-mean gas face fluxes, the grains' "
+                            "cell-to-cell volume shifts (`fbed rcfd`)")
+    rcfd_interval: float = spec(5.0e-3, unit="s", doc="rCFD frame interval (a whole number of run.step); checked "
+                                "against the void fraction's Taylor time, logged and in rcfd.h5", lo=0.0,
+                                lo_open=True)
+    rcfd_z_max: float = spec(0.0, unit="m", doc="record only the cells below this height (grains above it count "
+                             "in the top layer; 0: the whole domain)", lo=0.0)
+    rcfd_tag: str = spec("x<0", doc="grains tagged at the first rCFD frame, whose volume per cell is recorded (the "
+                         "real grains' tracer): AXIS OP VALUE with AXIS x, y or z, OP <, <=, > or >=, VALUE in m")
+    rcfd_grain_cells: bool = spec(True, doc="also record each grain's cell at every frame boundary (4 bytes per grain "
+                                  "per frame), so that shift operators over several frames can be built "
+                                  "(`fbed rcfd ... --lag`)")
+    rcfd_fluxes: bool = spec(True, doc="also record the frame-mean gas face fluxes (read after every fluid step)")
     analysis: str = spec("none", doc="post-processing run when the run ends (and by `fbed analyze DIR`): 'boyce' "
                          "(single bubble on the slab), 'verma' (bubble statistics on the planes)",
                          choices=("none", "boyce", "verma"))

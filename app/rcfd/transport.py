@@ -1,0 +1,250 @@
+"""Transport of a solids tracer by the recorded shift operators, and the stitch at a jump.
+
+The tracer is carried as two volumes per cell, tagged m and untagged u (both >= 0); every
+operator is column-stochastic and non-negative (each column sums to one), so
+- sum(m) and sum(u) are kept to round-off (no balance correction, which rCFD-PFM needs),
+- c = m / (m + u) stays in [0, 1] exactly, with no CFL limit.
+Frame k moves the volume by P_k (app.rcfd.database.shift_operator: the grain volume that went from
+c0 to c1 over the frame, over the volume in c0): a cell's grains all carry its mean composition
+(a well-mixed cell), the source of the numerical diffusion. For a uniform drift of a fraction f of
+a cell per frame that is D = f (1 - f) dx^2 / (2 dt) (``shift_diffusivity``).
+
+At a jump from state s to state j the carried volume (the grains' distribution a_s) must become
+a_j, the distribution P_j was recorded from. The stitch moves the least volume x distance that
+does it: a min-cost flow between face neighbours (scipy's HiGHS), whose optimal basic solution is a
+forest, applied cell by cell in topological order, each outflow carrying its cell's current
+composition. It is column-stochastic too: the stitch keeps m and u and the bounds; the volume it
+moves is reported.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.optimize import linprog
+
+
+def mixing_index(m: np.ndarray, u: np.ndarray) -> float:
+    """M = 1 - sum |c - cbar| b / (2 cbar (1 - cbar) sum b), b = m + u, c = m / b: 0 segregated, 1 mixed
+    (for a half/half split 1 - 2 sum |c - 1/2| b / sum b, the index of rCFD-PFM's fluidized-bed tutorial).
+    Computed as sum |m - cbar b|, which needs no division by b."""
+    b = m + u
+    tot = float(b.sum())
+    cbar = float(m.sum()) / tot if tot > 0 else 0.0
+    if cbar <= 0 or cbar >= 1:
+        return float("nan")
+    return 1.0 - float(np.abs(m - cbar * b).sum()) / (2.0 * cbar * (1.0 - cbar) * tot)
+
+
+def mixing_index_real(tagged: np.ndarray, solid: np.ndarray) -> float:
+    """The same index from the real grains: tagged volume and total grain volume per cell."""
+    t = np.asarray(tagged, np.float64)
+    return mixing_index(t, np.maximum(np.asarray(solid, np.float64) - t, 0.0))
+
+
+def shift_diffusivity(f: float, dx: float, dt: float) -> float:
+    """Numerical diffusivity [m^2/s] of a shift moving a fraction f of each cell one cell on per step dt."""
+    return f * (1.0 - f) * dx * dx / (2.0 * dt)
+
+
+def face_edges(shape: tuple, cells: np.ndarray) -> np.ndarray:
+    """(E, 2) flat-index pairs of face-neighbouring cells that are both in ``cells`` (bool, shape)."""
+    idx = np.arange(int(np.prod(shape))).reshape(shape)
+    out = []
+    for a in range(3):
+        lo = [slice(None)] * 3
+        hi = [slice(None)] * 3
+        lo[a], hi[a] = slice(0, -1), slice(1, None)
+        ok = cells[tuple(lo)] & cells[tuple(hi)]
+        out.append(np.stack([idx[tuple(lo)][ok], idx[tuple(hi)][ok]], 1))
+    return np.concatenate(out)
+
+
+class Stitcher:
+    """Stitch operators between grain-volume distributions over the cells of a graph (cached by key)."""
+
+    def __init__(self, shape: tuple, cells: np.ndarray, h: float):
+        self.n = int(np.prod(shape))
+        self.edges = face_edges(shape, cells)
+        self.h = h
+        E = self.edges.shape[0]
+        # node-edge incidence: flow f_e >= 0 along (a -> b) and g_e >= 0 along (b -> a); net inflow = A [f, g]
+        rows = np.concatenate([self.edges[:, 1], self.edges[:, 0], self.edges[:, 0], self.edges[:, 1]])
+        cols = np.concatenate([np.arange(E), np.arange(E), E + np.arange(E), E + np.arange(E)])
+        vals = np.concatenate([np.ones(E), -np.ones(E), np.ones(E), -np.ones(E)])
+        self.A = sp.csr_matrix((vals, (rows, cols)), shape=(self.n, 2 * E))
+        self.cache: dict = {}
+
+    def operator(self, a_from: np.ndarray, a_to: np.ndarray, key=None) -> tuple[sp.csr_matrix, dict]:
+        """(S, info): S a_from = a_to (to round-off), S column-stochastic; info: moved volume [m^3] and its
+        share of the total, volume x distance [m^4]."""
+        if key is not None and key in self.cache:
+            return self.cache[key]
+        a_from = np.asarray(a_from, np.float64)
+        a_to = np.asarray(a_to, np.float64) * (a_from.sum() / a_to.sum())  # same total to round-off
+        d = a_to - a_from
+        scale = max(float(np.abs(d).max()), 1e-300)
+        moved = 0.5 * float(np.abs(d).sum())
+        E = self.edges.shape[0]
+        if moved <= 1e-14 * a_from.sum():
+            S, flows = sp.identity(self.n, format="csr"), np.zeros(2 * E)
+        else:
+            nodes = np.nonzero(np.abs(self.A).sum(1).A1 > 0)[0]
+            if np.abs(d[np.setdiff1d(np.arange(self.n), nodes)]).max(initial=0.0) > 0:
+                raise ValueError("grain volume in a cell outside the stitch graph")
+            bd = d[nodes] / scale
+            bd[np.argmax(np.abs(bd))] -= bd.sum()
+            res = linprog(np.ones(2 * E), A_eq=self.A[nodes], b_eq=bd, bounds=(0, None), method="highs-ds")
+            if res.status != 0:
+                raise ValueError(f"the stitch's flow problem failed: {res.message}")
+            flows = np.where(res.x > 1e-12, res.x, 0.0) * scale
+            S = self._apply(a_from, flows)
+        info = {"moved_volume": moved, "moved_share": moved / float(a_from.sum()),
+                "volume_distance": float(flows.sum()) * self.h}
+        if key is not None:
+            self.cache[key] = (S, info)
+        return S, info
+
+    def _apply(self, a_from: np.ndarray, flows: np.ndarray) -> sp.csr_matrix:
+        """The operator that moves the flows cell by cell in topological order, each outflow taking its cell's
+        current mixture of origins."""
+        E = self.edges.shape[0]
+        f, g = flows[:E], flows[E:]
+        src = np.concatenate([self.edges[f > 0, 0], self.edges[g > 0, 1]])
+        dst = np.concatenate([self.edges[f > 0, 1], self.edges[g > 0, 0]])
+        vol = np.concatenate([f[f > 0], g[g > 0]])
+        out_edges: dict[int, list] = {}
+        indeg: dict[int, int] = {}
+        for s_, t_, v_ in zip(src.tolist(), dst.tolist(), vol.tolist()):
+            out_edges.setdefault(s_, []).append((t_, v_))
+            indeg[t_] = indeg.get(t_, 0) + 1
+            indeg.setdefault(s_, 0)
+        content = {c: {c: a_from[c]} for c in indeg}  # cell -> {origin: volume}
+        ready = [c for c, k in indeg.items() if k == 0]
+        done = 0
+        while ready:
+            c = ready.pop()
+            done += 1
+            mix = content[c]
+            total = sum(mix.values())
+            for t_, v_ in out_edges.get(c, []):
+                share = min(v_ / total, 1.0) if total > 0 else 0.0
+                tgt = content[t_]
+                for o, x in mix.items():
+                    tgt[o] = tgt.get(o, 0.0) + share * x
+                indeg[t_] -= 1
+                if indeg[t_] == 0:
+                    ready.append(t_)
+            out_share = min(sum(v for _, v in out_edges.get(c, [])) / total, 1.0) if total > 0 else 0.0
+            content[c] = {o: x * (1.0 - out_share) for o, x in mix.items()}
+        if done != len(indeg):
+            raise ValueError("the stitch's flow has a cycle")
+        rows, cols, vals = [], [], []
+        for c, mix in content.items():
+            for o, x in mix.items():
+                if x > 0 and a_from[o] > 0:
+                    rows.append(c), cols.append(o), vals.append(x / a_from[o])
+        touched = set(content)
+        rest = [c for c in range(self.n) if c not in touched or a_from[c] <= 0]
+        rows += rest
+        cols += rest
+        vals += [1.0] * len(rest)
+        S = sp.csr_matrix((vals, (rows, cols)), shape=(self.n, self.n))
+        # columns of cells that gave everything away to round-off: renormalise to exactly one
+        colsum = np.asarray(S.sum(0)).ravel()
+        S = S @ sp.diags(1.0 / np.where(colsum > 0, colsum, 1.0))
+        return S.tocsr()
+
+
+class SolidsTracer:
+    """Tagged (m) and untagged (u) grain volume per cell, moved by column-stochastic operators."""
+
+    def __init__(self, tagged: np.ndarray, solid: np.ndarray):
+        self.m = np.asarray(tagged, np.float64).copy()
+        self.u = np.maximum(np.asarray(solid, np.float64) - self.m, 0.0)
+        self.m0, self.u0 = self.m.sum(), self.u.sum()
+
+    def apply(self, P: sp.csr_matrix) -> None:
+        self.m = P @ self.m
+        self.u = P @ self.u
+
+    @property
+    def concentration(self) -> np.ndarray:
+        b = self.m + self.u
+        return np.divide(self.m, b, out=np.zeros_like(b), where=b > 0)
+
+    def mixing_index(self) -> float:
+        return mixing_index(self.m, self.u)
+
+    def drift(self) -> float:
+        """Largest relative change of the tagged or untagged total since the start."""
+        return max(abs(self.m.sum() - self.m0) / self.m0 if self.m0 else 0.0,
+                   abs(self.u.sum() - self.u0) / self.u0 if self.u0 else 0.0)
+
+
+class GasTracer:
+    """A gas-phase tracer c on the recorded frame-mean face fluxes: first-order upwind finite volumes,
+    (theta V eps c)^{n+1} = (theta V eps c)^n - tau sum_faces F c_upwind, with eps linear in time within the frame
+    and tau a substep keeping every cell's outflow within its gas volume (Courant number <= ``cfl``). Where the
+    recorded fluxes satisfy continuity (analyze reports the residual), c stays within its inflow bounds. The
+    bottom face takes c_in; the region's top face is the outlet (backflow takes the top cell's c); side faces are
+    walls or cut faces (their flux is zero where closed). At a jump eps switches frame and c is kept: the tracer
+    gas volume changes by sum c (eps_new - eps_old) theta V, reported as ``jump_mass``."""
+
+    def __init__(self, open_volume: np.ndarray, h: float, c0: np.ndarray | float = 0.0, cfl: float = 0.9):
+        self.V = np.asarray(open_volume, np.float64) * h ** 3
+        self.gas = self.V > 0
+        self.c = np.broadcast_to(np.asarray(c0, np.float64), self.V.shape).copy()
+        self.cfl = cfl
+        self.inflow = self.outflow = self.jump_mass = 0.0
+        self.outlet_flow = 0.0
+        self.outlet_c = 0.0
+        self.substeps = 0
+
+    def mass(self, eps: np.ndarray) -> float:
+        return float(np.sum(self.V * eps * self.c))
+
+    @staticmethod
+    def _upwind(c: np.ndarray, F: np.ndarray, axis: int, lo_ghost: np.ndarray) -> np.ndarray:
+        """c on the faces normal to ``axis`` from the side the flux comes from (ghosts outside)."""
+        hi = np.take(c, [c.shape[axis] - 1], axis=axis)
+        ext = np.concatenate([lo_ghost, c, hi], axis=axis)
+        n = ext.shape[axis]
+        left = np.take(ext, range(0, n - 1), axis=axis)
+        right = np.take(ext, range(1, n), axis=axis)
+        return np.where(F > 0, left, right)
+
+    def frame(self, fluxes, eps0: np.ndarray, eps1: np.ndarray, dt: float, c_in: float) -> None:
+        fx, fy, fz = fluxes
+        out = (np.maximum(fx[1:], 0) + np.maximum(-fx[:-1], 0) + np.maximum(fy[:, 1:], 0) + np.maximum(-fy[:, :-1], 0)
+               + np.maximum(fz[:, :, 1:], 0) + np.maximum(-fz[:, :, :-1], 0))
+        gv = self.V * np.minimum(eps0, eps1)
+        ratio = np.where(self.gas & (gv > 0), out * dt / np.maximum(gv, 1e-300), 0.0)
+        n = max(1, int(np.ceil(ratio.max() / self.cfl)))
+        tau = dt / n
+        self.substeps += n
+        for s in range(n):
+            ea = eps0 + (eps1 - eps0) * (s / n)
+            eb = eps0 + (eps1 - eps0) * ((s + 1) / n)
+            c = self.c
+            ghosts = [np.take(c, [0], axis=0), np.take(c, [0], axis=1), np.full(c[:, :, :1].shape, c_in)]
+            div = np.zeros_like(c)
+            for a, F in enumerate((fx, fy, fz)):
+                q = F * self._upwind(c, F, a, ghosts[a])
+                div += np.diff(q, axis=a)
+            self.inflow += tau * c_in * float(np.maximum(fz[:, :, 0], 0).sum())
+            top = fz[:, :, -1] * c[:, :, -1]  # out at the top cell's c; backflow takes it too
+            self.outflow += tau * float(top.sum())
+            self.outlet_flow += tau * float(np.maximum(fz[:, :, -1], 0).sum())
+            self.outlet_c += tau * float((np.maximum(fz[:, :, -1], 0) * c[:, :, -1]).sum())
+            mass = self.V * ea * c - tau * div
+            gas_b = self.V * eb
+            self.c = np.where(self.gas & (gas_b > 0), mass / np.maximum(gas_b, 1e-300), 0.0)
+
+    def jump(self, eps_old: np.ndarray, eps_new: np.ndarray) -> None:
+        self.jump_mass += float(np.sum(self.V * (eps_new - eps_old) * self.c))
+
+    def take_outlet(self) -> float:
+        """Flow-weighted mean c through the outlet since the last call (the mixing-cup value)."""
+        v = self.outlet_c / self.outlet_flow if self.outlet_flow > 0 else float("nan")
+        self.outlet_c = self.outlet_flow = 0.0
+        return v

@@ -1,0 +1,309 @@
+"""The rCFD recording probe: frames of a coupled run written to rcfd.h5 beside run.h5.
+
+From ``probes.rcfd_from`` on, every ``probes.rcfd_interval`` (a frame): the void fraction at the frame
+boundaries, the gas face fluxes averaged over the frame (sampled after every fluid step), and the
+grains' cell-to-cell volume shifts over the frame (each grain's cell by its centre at the frame's start
+and end, weighted by its volume, summed per (c0, c1) pair), over the cells below ``probes.rcfd_z_max``
+(a grain above it counts in the top layer). The layout is app/rcfd/database.py's. The frame interval
+is checked against the field's own time scale sqrt(<g^2>/<dg/dt^2>) (g = eps - its mean, differenced at
+the fluid step, summed over the recorded cells): written to the file's attributes and logged when
+the frame is longer.
+
+Cost: one read of the void fraction and the face velocities per fluid step while recording (a host
+round trip; the probe is meant for a database run, not a production one), one of the grain positions
+per frame. The solvers are read through ``read_solvers`` only.
+"""
+from __future__ import annotations
+
+import math
+import pathlib
+import time
+
+import h5py
+import numpy as np
+
+from .rcfd.database import tag_mask
+
+
+# ---------------------------------------------------------------- adapter: the one place that reads the solvers
+def read_solvers(sim, what: str):
+    """What the probe reads from the gas solver and the DEM, by name:
+    'geometry' -> (shape, h [m], origin [m], open volume fraction, apertures (3 face arrays));
+    'eps' -> the gas void fraction (nx, ny, nz); 'face_velocity' -> the 3 MAC face-velocity arrays [m/s];
+    'grains' -> (positions (n, 3) [m], radii [m], alive (n,) bool); 'bed_height' -> [m]."""
+    flow, dem = sim.flow, sim.dem
+    if what == "geometry":
+        return (tuple(flow.shape), float(flow.h), np.asarray(flow.config.grid.origin, float),
+                np.asarray(flow.cut.volume, float), tuple(np.asarray(a, float) for a in flow.cut.apertures))
+    if what == "eps":
+        return flow.fields.eps.to_numpy()
+    if what == "face_velocity":
+        return flow.face_velocities()
+    if what == "grains":
+        return dem.state.x.to_numpy(), dem.radii(), dem.state.alive.to_numpy().astype(bool)
+    if what == "bed_height":
+        return float(sim.diagnostics()["bed_height"])
+    raise KeyError(what)
+
+
+def face_eps(eps: np.ndarray, axis: int) -> np.ndarray:
+    """eps on the faces normal to ``axis``: the mean of the two cells inside, the cell's own value on the
+    domain faces (as the gas solver's boundary flux uses it)."""
+    lo = np.take(eps, [0], axis=axis)
+    hi = np.take(eps, [eps.shape[axis] - 1], axis=axis)
+    ext = np.concatenate([lo, eps, hi], axis=axis)
+    n = ext.shape[axis]
+    return 0.5 * (np.take(ext, range(0, n - 1), axis=axis) + np.take(ext, range(1, n), axis=axis))
+
+
+class RcfdRecorder:
+    """Writes the frames; ``attach(sim, out_dir, guarded, resume_time, log)``."""
+
+    def __init__(self, cfg, axis_xy):
+        p = cfg.probes
+        self.t0 = p.rcfd_from
+        self.interval = p.rcfd_interval
+        self.z_max = p.rcfd_z_max
+        self.tag = p.rcfd_tag
+        self.fluxes = p.rcfd_fluxes
+        self.grain_cells = p.rcfd_grain_cells
+        self.step = cfg.run.step
+        self.axis = np.asarray(axis_xy, float)
+        self.f = None
+        self.log = None
+
+    # -- set-up
+    def attach(self, sim, out_dir, guarded, resume_time, log) -> None:
+        self.log = log
+        self.spf = max(1, int(round(self.interval / self.step)))
+        if abs(self.spf * self.step - self.interval) > 1e-9 * self.interval:
+            log(f"fbed: probes.rcfd_interval = {self.interval:g} s is not a whole number of run.step = "
+                f"{self.step:g} s: frames are {self.spf * self.step:g} s")
+        self.s0 = int(math.ceil(self.t0 / self.step - 1e-9))
+        shape, h, origin, vol, aps = read_solvers(sim, "geometry")
+        nz = shape[2]
+        if self.z_max > 0:
+            nz = min(nz, max(1, int(math.ceil((self.z_max - origin[2]) / h - 1e-9))))
+        self.shape = (shape[0], shape[1], nz)
+        self.n = int(np.prod(self.shape))
+        self.h, self.origin = h, origin
+        self.apertures = (aps[0][:, :, :nz], aps[1][:, :, :nz], aps[2][:, :, :nz + 1])
+        self.path = pathlib.Path(out_dir) / "rcfd.h5"
+        self._open(vol[:, :, :nz], resume_time)
+        self.open_frame = None  # (start boundary index, start cells, step count at start)
+        self.flux_sum = None
+        self.flux_time = 0.0
+        self.eps_sum = np.zeros(self.shape)
+        self.eps_sq = np.zeros(self.shape)
+        self.rate_sq = 0.0
+        self.rate_sq_frame = 0.0
+        self.samples = 0
+        self.rate_samples = 0
+        self.rate_samples_frame = 0
+        self.prev_eps = None
+        self.prev_boundary_eps = None
+        self._flushed = time.perf_counter()
+        if sim.step_count >= self.s0:  # resumed, or continued from a checkpoint, past the start
+            times = self.f["boundary/time"][...]
+            if times.size and abs(times[-1] - sim.time) < 1e-9 * max(1.0, sim.time) and self.counted is not None:
+                # resumed on a frame boundary: its grains are the checkpoint's, so the frame goes on
+                cells = self.cells_of(read_solvers(sim, "grains")[0][self.counted])
+                self.open_frame, self.last_cells = (times.size - 1, cells), cells
+                self.prev_boundary_eps = read_solvers(sim, "eps")[:, :, :nz].astype(np.float64)
+                if self.fluxes:
+                    self.flux_sum = [np.zeros(a.shape) for a in self.apertures]
+            else:
+                self(sim)
+        sim.add(guarded(self), self.step, finish=self.finish)
+
+    def _open(self, vol, resume_time) -> None:
+        resume = resume_time is not None and self.path.exists()
+        self.f = h5py.File(self.path, "a" if resume else "w")
+        f = self.f
+        if resume:
+            self._truncate(resume_time)
+            self.tagged_ids = f["grains_tagged"][...] if "grains_tagged" in f else None
+            self.counted = f["grains_counted"][...] if "grains_counted" in f else None
+            self.last_cells = None
+            return
+        f.attrs.update(h=self.h, origin=self.origin, shape=self.shape, frame_interval=self.spf * self.step,
+                       step=self.step, axis=self.axis, tag=self.tag, rcfd_from=self.t0)
+        f.create_dataset("geometry/open_volume", data=vol.astype(np.float32))
+        n, sh = self.n, self.shape
+
+        def app(name, shape, dtype, chunk=None):
+            f.create_dataset(name, shape=(0,) + shape, maxshape=(None,) + shape, dtype=dtype,
+                             chunks=chunk or ((max(1, min(64, (1 << 20) // max(1, 4 * int(np.prod(shape) or 1)))),)
+                                              + shape), compression="gzip" if np.prod(shape or (1,)) > 4096 else None)
+
+        app("boundary/time", (), "f8", (1024,))
+        app("boundary/eps", sh, "f4")
+        app("boundary/bed_height", (), "f8", (1024,))
+        for k in ("solid", "tag_now", "tagged"):
+            app(f"boundary/{k}", (n,), "f4")
+        app("frame/b0", (), "i4", (1024,))
+        app("frame/b1", (), "i4", (1024,))
+        f.create_dataset("frame/offset", data=np.zeros(1, np.int64), maxshape=(None,), chunks=(1024,))
+        app("shift/c0", (), "i4", (65536,))
+        app("shift/c1", (), "i4", (65536,))
+        app("shift/w", (), "f8", (65536,))
+        if self.fluxes:
+            fs = [(sh[0] + 1, sh[1], sh[2]), (sh[0], sh[1] + 1, sh[2]), (sh[0], sh[1], sh[2] + 1)]
+            for a, s in zip("xyz", fs):
+                app(f"frame/flux_{a}", s, "f4")
+        self.tagged_ids = None
+        self.counted = None
+        self.last_cells = None
+
+    def _truncate(self, t: float) -> None:
+        """Drop what was written after the checkpoint the run resumes from; the frame open then is lost, the
+        next one starts at the next frame boundary (its b0 then differs from the last frame's b1)."""
+        f = self.f
+        nb = int(np.searchsorted(f["boundary/time"][...], t + 1e-9, side="right"))
+        for k in ("time", "eps", "bed_height", "solid", "tag_now", "tagged", "cells"):
+            if f"boundary/{k}" not in f:
+                continue
+            ds = f[f"boundary/{k}"]
+            ds.resize((nb,) + ds.shape[1:])
+        nf = int(np.sum(f["frame/b1"][...] < nb))
+        for k in ("b0", "b1") + (("flux_x", "flux_y", "flux_z") if "frame/flux_x" in f else ()):
+            ds = f[f"frame/{k}"]
+            ds.resize((nf,) + ds.shape[1:])
+        f["frame/offset"].resize((nf + 1,))
+        ns = int(f["frame/offset"][nf])
+        for k in ("c0", "c1", "w"):
+            f[f"shift/{k}"].resize((ns,))
+
+    @staticmethod
+    def _append(ds, data) -> None:
+        """Append one item (shape ds.shape[1:]) or, to a 1-D dataset, an array of items."""
+        data = np.asarray(data)
+        if data.shape == ds.shape[1:]:
+            data = data[None]
+        n = ds.shape[0]
+        ds.resize((n + data.shape[0],) + ds.shape[1:])
+        ds[n:] = data
+
+    def cells_of(self, x: np.ndarray) -> np.ndarray:
+        q = np.floor((x - self.origin) / self.h).astype(np.int64)
+        for a in range(3):
+            np.clip(q[:, a], 0, self.shape[a] - 1, out=q[:, a])
+        return (q[:, 0] * self.shape[1] + q[:, 1]) * self.shape[2] + q[:, 2]
+
+    # -- every fluid step
+    def __call__(self, sim) -> None:
+        s = sim.step_count
+        if s < self.s0:
+            return
+        full = read_solvers(sim, "eps").astype(np.float64)
+        nz = self.shape[2]
+        eps = full[:, :, :nz]
+        self._taylor(eps)
+        if self.open_frame is not None and self.fluxes:
+            vel = read_solvers(sim, "face_velocity")
+            for a in range(3):
+                top = nz + 1 if a == 2 else nz
+                q = vel[a][:, :, :top] * face_eps(full, a)[:, :, :top]
+                self.flux_sum[a] += q * self.apertures[a] * self.h ** 2 * self.step
+            self.flux_time += self.step
+        if (s - self.s0) % self.spf == 0:
+            self._boundary(sim, eps)
+
+    def _taylor(self, eps: np.ndarray) -> None:
+        self.samples += 1
+        self.eps_sum += eps
+        self.eps_sq += eps * eps
+        if self.prev_eps is not None:
+            self.rate_sq += float(np.sum(((eps - self.prev_eps) / self.step) ** 2))
+            self.rate_samples += 1
+        self.prev_eps = eps
+
+    def _boundary(self, sim, eps: np.ndarray) -> None:
+        f = self.f
+        x, r, alive = read_solvers(sim, "grains")
+        if self.counted is None:  # the grains counted from the first boundary on
+            self.counted = np.nonzero(alive)[0]
+            self.tagged_ids = self.counted[tag_mask(self.tag, x[self.counted])]
+            f.create_dataset("grains_counted", data=self.counted)
+            f.create_dataset("grains_tagged", data=self.tagged_ids)
+            f.attrs["grains"] = int(self.counted.size)
+            if self.grain_cells:
+                n = int(self.counted.size)
+                f.create_dataset("grains_volume", data=4.0 / 3.0 * np.pi * r[self.counted] ** 3)
+                f.create_dataset("boundary/cells", shape=(0, n), maxshape=(None, n), dtype="i4",
+                                 chunks=(max(1, min(64, (1 << 20) // (4 * n))), n), compression="gzip")
+        ids = self.counted
+        xi = x[ids]
+        if self.last_cells is not None:  # a grain that left the domain stays in its last cell
+            gone = ~alive[ids]
+            cells = self.cells_of(xi)
+            cells[gone] = self.last_cells[gone]
+        else:
+            cells = self.cells_of(xi)
+        vol = 4.0 / 3.0 * np.pi * r[ids] ** 3
+        tagged = np.isin(ids, self.tagged_ids)
+        now = tag_mask(self.tag, xi)
+        b = f["boundary/time"].shape[0]
+        self._append(f["boundary/time"], sim.time)
+        self._append(f["boundary/eps"], eps.astype(np.float32))
+        self._append(f["boundary/bed_height"], read_solvers(sim, "bed_height"))
+        if "boundary/cells" in f:
+            self._append(f["boundary/cells"], cells.astype(np.int32))
+        for name, sel in (("solid", None), ("tag_now", now), ("tagged", tagged)):
+            w = vol if sel is None else vol * sel
+            self._append(f[f"boundary/{name}"], np.bincount(cells, weights=w, minlength=self.n).astype(np.float32))
+        if self.open_frame is not None:
+            b_start, c_start = self.open_frame
+            pair = c_start * self.n + cells
+            keys, inv = np.unique(pair, return_inverse=True)
+            w = np.bincount(inv, weights=vol)
+            off = f["frame/offset"]
+            self._append(f["shift/c0"], (keys // self.n).astype(np.int32))
+            self._append(f["shift/c1"], (keys % self.n).astype(np.int32))
+            self._append(f["shift/w"], w)
+            self._append(f["frame/b0"], b_start)
+            self._append(f["frame/b1"], b)
+            self._append(off, off[off.shape[0] - 1] + keys.size)
+            if self.fluxes:
+                for a in range(3):
+                    self._append(f[f"frame/flux_{'xyz'[a]}"],
+                                 (self.flux_sum[a] / max(self.flux_time, 1e-300)).astype(np.float32))
+        self.open_frame = (b, cells)
+        self.last_cells = cells
+        if self.fluxes:
+            self.flux_sum = [np.zeros(a.shape) for a in self.apertures]
+            self.flux_time = 0.0
+        if self.prev_boundary_eps is not None:
+            self.rate_sq_frame += float(np.sum(((eps - self.prev_boundary_eps) / (self.spf * self.step)) ** 2))
+            self.rate_samples_frame += 1
+        self.prev_boundary_eps = eps
+        now_wall = time.perf_counter()
+        if now_wall - self._flushed > 10.0:  # a crash loses at most ~10 s of frames
+            f.flush()
+            self._flushed = now_wall
+
+    def frame_check(self) -> dict:
+        """The Taylor time scale of eps from the samples so far, at the fluid step and at the frame interval."""
+        n = max(self.samples, 1)
+        var = float(np.sum(self.eps_sq / n - (self.eps_sum / n) ** 2))
+        lam = math.sqrt(var / (self.rate_sq / self.rate_samples)) if self.rate_samples and self.rate_sq > 0 \
+            else float("inf")
+        lam_f = math.sqrt(var / (self.rate_sq_frame / self.rate_samples_frame)) \
+            if self.rate_samples_frame and self.rate_sq_frame > 0 else float("inf")
+        dt_f = self.spf * self.step
+        ok = dt_f <= lam
+        msg = "ok" if ok else (f"the frame interval {dt_f:g} s is longer than the void fraction's Taylor time "
+                               f"{lam:.3g} s (sqrt(<g^2>/<dg/dt^2>)): frames do not resolve the field's changes; "
+                               "lower probes.rcfd_interval")
+        return {"taylor_time": lam, "taylor_time_frame": lam_f, "taylor_samples": self.samples, "frame_check": msg}
+
+    def finish(self, sim, reason) -> None:
+        if self.f is None:
+            return
+        if self.samples > 1:
+            chk = self.frame_check()
+            self.f.attrs.update(chk)
+            if chk["frame_check"] != "ok" and self.log:
+                self.log(f"fbed: rcfd: {chk['frame_check']}")
+        self.f.close()
+        self.f = None

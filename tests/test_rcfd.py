@@ -1,0 +1,234 @@
+"""rCFD's numerics on synthetic data (fast, no Taichi): the period, the recurrence matrix, the paths,
+the shift operators, conservation and bounds, the shift's numerical diffusion, the stitch."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from app.rcfd import paths as pm
+from app.rcfd import recurrence as rec
+from app.rcfd.database import parse_tag, shift_operator, tag_mask
+from app.rcfd.transport import SolidsTracer, Stitcher, mixing_index, shift_diffusivity
+
+
+def synthetic_field(n=400, dt=5e-3, period=0.27, shape=(6, 6, 10), noise=0.02, seed=3):
+    """eps(x, t) = 0.6 + 0.1 sin(2 pi t / T + phase(x)) + noise: a pseudo-periodic bed."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt
+    phase = rng.uniform(0, 2 * np.pi, shape)
+    amp = rng.uniform(0.5, 1.0, shape)
+    eps = 0.6 + 0.1 * amp[None] * np.sin(2 * np.pi * t[:, None, None, None] / period + phase[None])
+    return t, eps + noise * rng.standard_normal(eps.shape)
+
+
+@pytest.mark.parametrize("period", [0.27, 0.41, 0.123])
+def test_period_of_a_synthetic_field_within_one_bin(period):
+    dt = 5e-3
+    t, eps = synthetic_field(period=period, dt=dt)
+    sig = eps[:, 2, 3, 4]
+    s = rec.spectrum(sig, dt)
+    assert abs(s["peak_frequency"] - 1 / period) <= s["df"]
+    # the recurrence matrix's mean distance has its first minimum at one period (within a frame either side)
+    X = rec.state_matrix(eps, np.ones(eps.shape[1:], bool))
+    R, _ = rec.recurrence_matrix(X)
+    lag = rec.first_recurrence(rec.mean_distance_by_lag(R))
+    assert abs(lag * dt - period) <= dt * 1.01
+
+
+def test_recurrence_matrix_is_the_brute_force_sum():
+    t, eps = synthetic_field(n=60)
+    mask = np.zeros(eps.shape[1:], bool)
+    mask[:, :, :7] = True
+    vol = np.random.default_rng(0).uniform(0.3, 1.0, eps.shape[1:])
+    X = rec.state_matrix(eps, mask, vol)
+    R, norm = rec.recurrence_matrix(X, chunk=37)  # several chunks
+    e = eps[:, mask].astype(np.float64)
+    v = vol[mask]
+    D = np.array([[np.sum(v * (e[i] - e[j]) ** 2) for j in range(len(e))] for i in range(len(e))])
+    assert np.allclose(R * norm, D, rtol=1e-5, atol=1e-6 * D.max())  # X in float32: 1e-7 per entry
+    assert np.all(np.diag(R) == 0) and R.max() == pytest.approx(1.0)
+
+
+def test_similarity_curve_levels_off_for_a_periodic_field():
+    t, eps = synthetic_field(n=300, noise=0.0)
+    X = rec.state_matrix(eps, np.ones(eps.shape[1:], bool))
+    R, _ = rec.recurrence_matrix(X)
+    best = rec.best_recurrence(R, window=27)
+    assert rec.levelled_off(best)["levelled_off"]
+    assert np.nanmin(best[54:]) > 0.999  # an exact period of 54 frames: every later state recurs
+    # a database of 1.1 periods (60 frames): its states are still finding better recurrences at the end
+    R3, _ = rec.recurrence_matrix(rec.state_matrix(eps[:60], np.ones(eps.shape[1:], bool)))
+    assert not rec.levelled_off(rec.best_recurrence(R3, 27))["levelled_off"]
+
+
+def linear_database(n_frames, breaks=()):
+    b0 = np.arange(n_frames)
+    b1 = b0 + 1
+    for k in breaks:  # a resumed recording: the frame after k starts one boundary later
+        b0[k + 1:] += 1
+        b1[k + 1:] += 1
+    succ = np.full(n_frames, -1)
+    ok = b0[1:] == b1[:-1]
+    succ[:-1][ok] = np.arange(1, n_frames)[ok]
+    return b0, b1, succ
+
+
+def test_paths_respect_their_bounds_and_reproduce_from_the_seed():
+    n = 200
+    b0, b1, succ = linear_database(n, breaks=(120,))
+    rng = np.random.default_rng(1)
+    states = int(b1.max()) + 1
+    A = rng.random((states, states))
+    R = (A + A.T) / 2
+    np.fill_diagonal(R, 0)
+    par = pm.PathParams(l_min=10, l_mean=20, window=13)
+    p = pm.markov_path(3000, states - 1, R, b0, b1, succ, par, (7, 0))
+    q = pm.markov_path(3000, states - 1, R, b0, b1, succ, par, (7, 0))
+    r = pm.markov_path(3000, states - 1, R, b0, b1, succ, par, (7, 1))
+    assert np.array_equal(p.frames, q.frames) and p.jumps == q.jumps
+    assert not np.array_equal(p.frames, r.frames)
+    runs = pm.run_lengths(succ)
+    starts = np.nonzero(runs >= par.l_min)[0]
+    lengths = []
+    for (pos, s_from, s_to, val), nxt in zip(p.jumps, p.jumps[1:] + [(len(p.frames),)]):
+        assert abs(s_to - s_from) >= par.window
+        allowed = starts[np.abs(b0[starts] - s_from) >= par.window]
+        assert val == pytest.approx(R[s_from, b0[allowed]].min()) and b0[p.frames[pos]] == s_to
+        seq = p.frames[pos:nxt[0]]
+        assert np.all(succ[seq[:-1]] == seq[1:])  # recorded order within a sequence
+        lengths.append(len(seq))
+    assert min(lengths[:-1]) >= par.l_min
+    # lengths: l_min + geometric (cut where a recorded stretch ends): the mean is at most l_mean, and near it
+    L = np.array(lengths[:-1])
+    assert par.l_min < L.mean() <= par.l_mean + 3 * L.std() / np.sqrt(L.size)
+
+
+def test_shift_operator_columns_sum_to_one_and_move_the_volume():
+    rng = np.random.default_rng(2)
+    n = 50
+    c0 = rng.integers(0, 40, 500)  # cells 40..49 hold no grains
+    c1 = np.clip(c0 + rng.integers(-2, 3, 500), 0, n - 1)
+    w = rng.uniform(1e-9, 5e-9, 500)
+    P, a = shift_operator(c0, c1, w, n)
+    assert np.allclose(np.asarray(P.sum(0)).ravel(), 1.0, rtol=0, atol=1e-15)
+    assert P.min() >= 0
+    assert np.allclose(P @ a, np.bincount(c1, weights=w, minlength=n), rtol=1e-14)
+
+
+def random_shift(rng, n, grains=2000):
+    c0 = rng.integers(0, n, grains)
+    c1 = np.clip(c0 + rng.integers(-3, 4, grains), 0, n - 1)
+    return c0, c1, rng.uniform(0.5e-9, 2e-9, grains)
+
+
+def test_tracer_is_conserved_and_bounded_through_shifts_and_stitches():
+    rng = np.random.default_rng(4)
+    shape = (4, 4, 6)
+    n = int(np.prod(shape))
+    st = Stitcher(shape, np.ones(shape, bool), 5e-3)
+    c0, c1, w = random_shift(rng, n)
+    P, a = shift_operator(c0, c1, w, n)
+    tr = SolidsTracer(a * (np.arange(n) < n // 2), a)
+    for k in range(300):
+        if k % 25 == 24:  # a jump: stitch from the carried distribution to another frame's
+            c0, c1, w = random_shift(rng, n)
+            P, a_to = shift_operator(c0, c1, w, n)
+            S, info = st.operator(tr.m + tr.u, a_to)
+            assert np.allclose(S @ (tr.m + tr.u), a_to * (tr.m + tr.u).sum() / a_to.sum(), rtol=1e-9,
+                               atol=1e-12 * a_to.sum())
+            tr.apply(S)
+            tr.apply(P)
+        else:
+            tr.apply(shift_operator(*random_shift(rng, n), n)[0])
+        c = tr.concentration
+        assert c.min() >= 0 and c.max() <= 1
+    assert tr.drift() <= 1e-12
+    assert 0 < tr.mixing_index() <= 1
+
+
+def test_shift_numerical_diffusion_matches_its_formula():
+    """A uniform drift by a fraction f of a cell per frame spreads a pulse with D = f (1 - f) dx^2 / (2 dt)."""
+    n, dx, dt, steps = 400, 5e-3, 5e-3, 150
+    for f in (0.1, 0.35, 0.5, 0.8):
+        cells = np.arange(n - 1)
+        c0 = np.concatenate([cells, cells])
+        c1 = np.concatenate([cells, cells + 1])
+        w = np.concatenate([np.full(n - 1, 1 - f), np.full(n - 1, f)])
+        P, _ = shift_operator(c0, c1, w, n)
+        m = np.zeros(n)
+        m[50] = 1.0
+        x = np.arange(n) * dx
+        var0 = 0.0
+        for _ in range(steps):
+            m = P @ m
+        mean = np.sum(x * m)
+        var = np.sum((x - mean) ** 2 * m)
+        D = (var - var0) / (2 * steps * dt)
+        assert D == pytest.approx(shift_diffusivity(f, dx, dt), rel=1e-9)
+        assert mean - x[50] == pytest.approx(steps * f * dx, rel=1e-9)  # and it drifts f cells per frame
+
+
+def test_stitch_moves_the_least_volume_and_carries_composition():
+    shape = (1, 1, 5)
+    st = Stitcher(shape, np.ones(shape, bool), 1.0)
+    a_from = np.array([2.0, 1.0, 1.0, 1.0, 0.0])
+    a_to = np.array([1.0, 1.0, 1.0, 1.0, 1.0])
+    S, info = st.operator(a_from, a_to)
+    assert np.allclose(S @ a_from, a_to, atol=1e-12)
+    assert info["moved_volume"] == pytest.approx(1.0)
+    assert info["volume_distance"] == pytest.approx(4.0)  # one unit over four faces: the least there is
+    assert np.allclose(np.asarray(S.sum(0)).ravel(), 1.0)
+    tr = SolidsTracer(np.array([2.0, 0, 0, 0, 0]), a_from)  # cell 0 tagged
+    tr.apply(S)
+    assert tr.m.sum() == pytest.approx(2.0) and tr.concentration.max() <= 1.0
+
+
+def test_mixing_index_ends():
+    b = np.ones(10)
+    seg = (np.arange(10) < 5).astype(float)
+    assert mixing_index(seg, b - seg) == pytest.approx(0.0)
+    assert mixing_index(0.5 * b, 0.5 * b) == pytest.approx(1.0)
+
+
+def test_tag_expressions():
+    pts = np.array([[-1.0, 0, 0], [1.0, 0, 0], [0.0, 0, 0.04]])
+    assert tag_mask("x<0", pts).tolist() == [True, False, False]
+    assert tag_mask(" z >= 0.04 ", pts).tolist() == [False, False, True]
+    for bad in ("x<", "w<0", "x=0", "x<0 and y>0"):
+        with pytest.raises(ValueError, match="AXIS OP VALUE"):
+            parse_tag(bad)
+
+
+def test_gas_tracer_step_response_balances_and_gives_the_gas_volume_over_the_flow():
+    """A step input through a column with varying eps (continuity holds: eps constant in time, flux uniform):
+    c stays in [0, 1], the tracer balance closes to round-off, and the step response's first moment
+    sum (1 - F) dt equals the gas volume over the flow (mass balance of a filled column)."""
+    from app.rcfd.transport import GasTracer
+
+    nz, h, Q, dt = 12, 0.01, 2e-5, 5e-3  # gas volume / Q = 0.42 s; 2 s simulated
+    open_v = np.ones((1, 1, nz))
+    eps = np.linspace(0.45, 0.95, nz).reshape(1, 1, nz)
+    fl = (np.zeros((2, 1, nz)), np.zeros((1, 2, nz)), np.full((1, 1, nz + 1), Q))
+    g = GasTracer(open_v, h, 0.0)
+    F = []
+    for _ in range(400):
+        g.frame(fl, eps, eps, dt, 1.0)
+        F.append(g.take_outlet())
+        assert g.c.min() >= 0 and g.c.max() <= 1 + 1e-12
+    assert abs(g.mass(eps) - (g.inflow - g.outflow)) <= 1e-12 * g.inflow
+    gas_volume = float(np.sum(eps)) * h ** 3
+    first_moment = np.sum(1 - np.array(F)) * dt
+    assert first_moment == pytest.approx(g.mass(eps) / Q, rel=1e-9)  # what went in and did not come out
+    assert first_moment == pytest.approx(gas_volume / Q, rel=1e-3)  # ... and the column is full after 5 V/Q
+
+
+def test_face_void_fraction_is_the_two_cells_mean_and_the_cell_on_domain_faces():
+    from app.rcfd_probe import face_eps
+
+    eps = np.arange(24, dtype=float).reshape(2, 3, 4)
+    for a in range(3):
+        f = face_eps(eps, a)
+        assert f.shape[a] == eps.shape[a] + 1
+        inner = 0.5 * (np.take(eps, range(0, eps.shape[a] - 1), axis=a) + np.take(eps, range(1, eps.shape[a]), axis=a))
+        assert np.array_equal(np.take(f, range(1, eps.shape[a]), axis=a), inner)
+        assert np.array_equal(np.take(f, [0], axis=a), np.take(eps, [0], axis=a))
+        assert np.array_equal(np.take(f, [eps.shape[a]], axis=a), np.take(eps, [eps.shape[a] - 1], axis=a))
