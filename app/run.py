@@ -432,7 +432,7 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
         sim.add(guarded(gas_fields), cfg.gas.fields_interval, at_start=True) if cfg.gas.fields_interval else \
             sim.add(guarded(gas_fields), at_start=True)
     pr = cfg.probes
-    if flow is not None and (pr.slab_interval or pr.planes_interval or pr.volume_interval):
+    if flow is not None and (pr.slab_interval or pr.planes_interval or pr.volume_interval or pr.mri_interval):
         from .probes import Probes
 
         Probes(cfg, flow, flow.fields.active.to_numpy()).attach(sim, runfile, guarded)
