@@ -128,3 +128,29 @@ def test_bootstrap_interval_covers_the_mean_and_ks_and_threshold_choice():
     assert k == 2 and fails[1] == "gradient" and fails[3] == "cv"
     k, fails = mri.choose_threshold([dict(rows[0], mean=1.2)], velocity=True)
     assert fails == ["velocity_range"]
+
+
+def test_umf_read_off_a_fluidization_curve():
+    """A curve with an Ergun fixed-bed branch dp = a U + b U^2 up to U_mf and the weight W above it, sampled
+    as the holds of an inlet schedule with noise: U_mf from the fixed-bed fit within 2%."""
+    from app.analysis import umf
+
+    a, b, weight = 4000.0, 2000.0, 1200.0
+    u_mf = (-a + math.sqrt(a * a + 4 * b * weight)) / (2 * b)
+    levels = [0.6, 0.5, 0.45, 0.4, 0.35, 0.3, 0.25, 0.2, 0.15, 0.1]
+    sched, t = [[0.0, 0.0], [0.1, 0.6], [0.2, 0.6]], 0.2
+    for u in levels[1:]:
+        sched += [[t + 0.002, u], [t + 0.04, u]]
+        t += 0.04
+    stretches = umf.holds(sched, 1.0)
+    assert [round(s[2], 6) for s in stretches] == levels
+    time = np.arange(0.0, t + 1e-9, 1e-3)
+    rng = np.random.default_rng(0)
+    dp = np.zeros_like(time)
+    for t0, t1, u in stretches:
+        sel = (time >= t0 - 1e-9) & (time <= t1 + 1e-9)
+        dp[sel] = min(a * u + b * u * u, weight) + rng.normal(0, 10.0, sel.sum())
+    rows = umf.curve(time, dp, stretches)
+    fit = umf.umf(rows, weight)
+    assert fit["umf"] == pytest.approx(u_mf, rel=0.02)
+    assert fit["fixed_bed_points"] == sum(a * u + b * u * u < 0.8 * weight for u in levels)

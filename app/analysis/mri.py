@@ -466,8 +466,9 @@ SOURCES = (("mri", "synthetic MRI (grain volume on the MRI pixels)"),
 
 
 def summarize(run_dir) -> dict:
-    """The pipeline on a finished run's /mri and /slab records; tables and figures under analysis/<source>;
-    returns key figures (SI) prefixed mri_ and slab_ for summary.json."""
+    """The pipeline on a finished run's /mri and /slab records from output.average_from on (negative: the second
+    half); tables and figures under analysis/<source>; returns key figures (SI) prefixed mri_ and slab_ for
+    summary.json."""
     from .. import config as cfgmod
 
     run_dir = pathlib.Path(run_dir)
@@ -481,6 +482,11 @@ def summarize(run_dir) -> dict:
             continue
         found = True
         void, times, dx, dz, origin, mask = img
+        t0 = cfg.output.average_from if cfg.output.average_from >= 0 else 0.5 * (times[0] + times[-1])
+        keep = times >= t0 - 1e-9  # the analysed window: output.average_from on (the transient before it is not)
+        if keep.sum() < 2:
+            raise ValueError(f"fewer than 2 /{source} frames after output.average_from = {t0:g} s")
+        void, times = void[keep], times[keep]
         if abs(origin[1] - floor) > 1e-9:
             raise ValueError(f"/{source} images start at z = {origin[1]} m, not at the floor {floor} m")
         if source == "slab":

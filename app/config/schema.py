@@ -177,8 +177,9 @@ class ProbesConfig:
                                     lo=0.0, lo_open=True)
     analysis: str = spec("none", doc="post-processing run when the run ends (and by `fbed analyze DIR`): 'boyce' "
                          "(single bubble on the slab), 'verma' (bubble statistics on the planes), 'mri' (the MRI "
-                         "study's bubble, bed-height and radial statistics on /mri and /slab)",
-                         choices=("none", "boyce", "verma", "mri"))
+                         "study's bubble, bed-height and radial statistics on /mri and /slab), 'umf' (the pressure drop of "
+                         "each hold of the inlet schedule and the U_mf read off it)",
+                         choices=("none", "boyce", "verma", "mri", "umf"))
 
 
 @dataclass(frozen=True)
