@@ -154,3 +154,24 @@ def test_umf_read_off_a_fluidization_curve():
     fit = umf.umf(rows, weight)
     assert fit["umf"] == pytest.approx(u_mf, rel=0.02)
     assert fit["fixed_bed_points"] == sum(a * u + b * u * u < 0.8 * weight for u in levels)
+
+
+def test_sweep_cases_side_by_side(tmp_path):
+    """`fbed analyze SWEEP_DIR` for mri cases: one row per case with its swept value and figures."""
+    import csv
+    import json
+
+    with open(tmp_path / "sweep.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["case", "coupling.drag", "status", "exit_code", "steps"])
+        w.writerow(["case-000", "koch_hill", "finished", 0, 10])
+        w.writerow(["case-001", "gidaspow", "finished", 0, 10])
+    for case, h in (("case-000", 0.17), ("case-001", 0.19)):
+        (tmp_path / case / "analysis").mkdir(parents=True)
+        (tmp_path / case / "analysis" / "mri.json").write_text(json.dumps(
+            {"mri_bed_height_mean": h, "slab_bed_height_mean": h + 0.001, "mri_bubble_diameter_max": 0.05}))
+    md = mri.compare(tmp_path).read_text()
+    rows = [line for line in md.splitlines() if line.startswith("| case-")]
+    assert rows[0].startswith("| case-000 | koch_hill | finished | 0.17 | 0.05 | 0.171 |")
+    assert rows[1].startswith("| case-001 | gidaspow | finished | 0.19 |")
+    assert (tmp_path / "mri_compare.png").exists() and (tmp_path / "mri_compare.csv").exists()
