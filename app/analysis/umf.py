@@ -6,7 +6,10 @@ stretch of the schedule between two points of equal fraction; its pressure drop 
 series' ``pressure_drop`` over the hold's second half (the first half lets the bed rearrange). U_mf is
 the classical graphical reading: the fixed-bed branch, dp = a U + b U^2 (Ergun's form, through the
 origin) fitted to the holds whose pressure drop is below FIXED_BED of the bed's buoyant weight per area
-(clearly off the plateau), meets the weight per area W. Plain numpy/matplotlib, no Taichi.
+(clearly off the plateau), meets the weight per area W. The branch is the contiguous run of such holds up
+from the lowest velocity: in a narrow column with rough walls a fluidized, slugging bed can also read below
+0.8 W (the walls carry part of its weight: measured in presets/mri_umf.toml at 0.5 and 0.6 m/s), and those
+holds are not a fixed bed. Plain numpy/matplotlib, no Taichi.
 """
 from __future__ import annotations
 
@@ -43,7 +46,11 @@ def curve(time: np.ndarray, dp: np.ndarray, stretches) -> list[dict]:
 
 def umf(rows: list[dict], weight: float) -> dict:
     """U_mf [m/s] where the fixed-bed fit a U + b U^2 reaches ``weight`` [Pa], and the fit's coefficients."""
-    fixed = [r for r in rows if r["pressure_drop"] < FIXED_BED * weight]
+    fixed = []
+    for r in sorted(rows, key=lambda r: r["velocity"]):  # the contiguous run up from the lowest velocity
+        if r["pressure_drop"] >= FIXED_BED * weight:
+            break
+        fixed.append(r)
     out = {"fixed_bed_points": len(fixed)}
     if len(fixed) < 2:
         return out
