@@ -340,7 +340,8 @@ def analyse(void: np.ndarray, times: np.ndarray, dx: float, dz: float, mask: np.
                 aspect_stats=bootstrap(per[chosen["aspect_ratio"]]["aspect"], n_boot),
                 velocity_stats=bootstrap(per[vthr]["velocity"], n_boot),
                 x=xc, radial_whole=pw, radial_static=ps, diameter_height=dvh, velocity_classes=vcl,
-                mid_void=mid, freq=f, power=p, f_peak=f_peak, static_height=static_height,
+                mid_void=mid, freq=f, power=p, f_peak=f_peak, f_resolution=1.0 / (nt * frame_dt),
+                static_height=static_height,
                 bubbles_at_diameter_threshold=db, times=times)
 
 
@@ -405,7 +406,8 @@ def write(res: dict, out: pathlib.Path, title: str = "") -> dict:
           "## Metrics at their chosen thresholds (lengths in m, velocities in m/s, 95% bootstrap intervals)\n",
           _md(summary, skeys),
           f"Expansion ratio: mean {res['expansion_ratio']:.4g}, max {res['expansion_ratio_max']:.4g}. "
-          f"Dominant frequency of the void fraction below the static height: {res['f_peak']:.4g} Hz.\n",
+          f"Dominant frequency of the void fraction below the static height: {res['f_peak']:.4g} Hz (resolution "
+          f"{res['f_resolution']:.3g} Hz: the record's length sets it).\n",
           "## Every threshold\n", _md(res["table"], tkeys),
           "## Velocity per bubble size class (m, m/s)\n",
           _md(res["velocity_classes"], ["d_lo", "d_hi", "n", "mean", "mean_lo", "mean_hi", "std"]),
