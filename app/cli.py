@@ -4,7 +4,7 @@
     fbed run PRESET --video [FILE]    (also write an mp4 of the run; [video] in the preset sets its look)
     fbed view PRESET [--set ...]      (the run in a window with live controls)
     fbed analyze RUN_DIR              (the preset's bubble analysis on a finished run; on a sweep folder
-                                      of mri runs, the cases side by side)
+                                      of mri or umf runs, the cases side by side)
     fbed bench stress [--out DIR]     (hostile scenes: finish clean or stop with a clear message)
     fbed bench accuracy|stiffness [--size small|full] [--arch cpu|cuda] [--out DIR] [--resume]
                                       (error against cost; --resume goes on from the rows in --out)
@@ -45,11 +45,10 @@ def build_parser() -> argparse.ArgumentParser:
     a = sub.add_parser("analyze", help="post-process a finished run (the preset's probes.analysis)",
                        description="Run the analysis named by the run's probes.analysis (boyce: the bubble on "
                                    "the central slab; verma: bubble statistics on the planes; mri: the MRI study's "
-                                   "statistics on /mri "
-                                   "and /slab) on RUN_DIR's files; on a sweep folder of mri runs, the cases side "
-                                   "by side (mri_compare.csv/md/png); "
-                                   "writes RUN_DIR/analysis and updates summary.json.")
-    a.add_argument("run_dir", help="output folder of a run, or of a sweep (mri: its cases side by side)")
+                                   "statistics on /mri and /slab; umf: the fluidization curve) on RUN_DIR's files; "
+                                   "writes RUN_DIR/analysis and updates summary.json. On a sweep folder of mri or "
+                                   "umf runs: the cases side by side (mri_compare.*, umf_compare.*).")
+    a.add_argument("run_dir", help="output folder of a run, or of a sweep (mri, umf: its cases side by side)")
     a.add_argument("--kind", choices=("boyce", "verma", "mri", "umf"), help="override the run's probes.analysis")
     b = sub.add_parser("bench", help="stress scenes, accuracy against cost, contact stiffness "
                                      "(fbed bench stress|accuracy|stiffness)",
