@@ -3,7 +3,8 @@
     fbed run PRESET [--set section.key=value]... [--out DIR] [--arch auto|cpu|cuda] [--resume DIR]
     fbed run PRESET --video [FILE]    (also write an mp4 of the run; [video] in the preset sets its look)
     fbed view PRESET [--set ...]      (the run in a window with live controls)
-    fbed analyze RUN_DIR              (the preset's bubble analysis on a finished run)
+    fbed analyze RUN_DIR              (the preset's bubble analysis on a finished run; on a sweep folder
+                                      of mri or umf runs, the cases side by side)
     fbed bench stress [--out DIR]     (hostile scenes: finish clean or stop with a clear message)
     fbed bench accuracy|stiffness [--size small|full] [--arch cpu|cuda] [--out DIR] [--resume]
                                       (error against cost; --resume goes on from the rows in --out)
@@ -46,10 +47,12 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto")
     a = sub.add_parser("analyze", help="post-process a finished run (the preset's probes.analysis)",
                        description="Run the analysis named by the run's probes.analysis (boyce: the bubble on "
-                                   "the central slab; verma: bubble statistics on the planes) on RUN_DIR's files; "
-                                   "writes RUN_DIR/analysis and updates summary.json.")
-    a.add_argument("run_dir", help="output folder of a run")
-    a.add_argument("--kind", choices=("boyce", "verma"), help="override the run's probes.analysis")
+                                   "the central slab; verma: bubble statistics on the planes; mri: the MRI study's "
+                                   "statistics on /mri and /slab; umf: the fluidization curve) on RUN_DIR's files; "
+                                   "writes RUN_DIR/analysis and updates summary.json. On a sweep folder of mri or "
+                                   "umf runs: the cases side by side (mri_compare.*, umf_compare.*).")
+    a.add_argument("run_dir", help="output folder of a run, or of a sweep (mri, umf: its cases side by side)")
+    a.add_argument("--kind", choices=("boyce", "verma", "mri", "umf"), help="override the run's probes.analysis")
     b = sub.add_parser("bench", help="stress scenes, accuracy against cost, contact stiffness "
                                      "(fbed bench stress|accuracy|stiffness)",
                        description="fbed bench stress: hostile scenes that must finish clean or stop with a clear "

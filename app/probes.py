@@ -11,6 +11,7 @@ smoothed eps the gas solver sees) and appended to run.h5:
   (consecutive heights form (lower, upper) pairs, as the X-ray planes of Verma et al.);
   ``/planes/mask`` marks the vessel's open cells.
 - ``/porosity3d``: the full 3-D eps; attrs ``h``, ``origin``.
+- ``/mri``: the synthetic MRI, from the grains rather than the grid (``app.probes_mri``).
 Cells outside the vessel hold eps = 1 on the grid; the masks say which cells count.
 Plain numpy over the solver's host API: no Taichi here.
 """
@@ -47,6 +48,7 @@ class Probes:
 
     def __init__(self, cfg, flow, walls_active: np.ndarray):
         self.cfg = cfg.probes
+        self.config = cfg
         self.flow = flow
         d = cfg.domain
         self.h = cfg.gas.cell_size
@@ -77,7 +79,8 @@ class Probes:
         if c.slab_interval:
             attrs = {"h": self.h, "origin": (self.lo[0], self.lo[2]), "y_cells": self.y_cells,
                      "mask": self.active[:, self.y_cells, :].any(1).astype(np.uint8)}
-            sim.add(guarded(lambda s: runfile.frame("slab", s.time, self.slab(), attrs)), c.slab_interval)
+            # attrs bound now: the name is reused below for the other records' attributes
+            sim.add(guarded(lambda s, a=attrs: runfile.frame("slab", s.time, self.slab(), a)), c.slab_interval)
         if c.planes and c.planes_interval:
             k0 = self.planes[0][2][0]
             runfile.put("planes/mask", self.active[:, :, k0].astype(np.uint8))
@@ -93,4 +96,8 @@ class Probes:
             sim.add(guarded(record), c.planes_interval)
         if c.volume_interval:
             attrs = {"h": self.h, "origin": tuple(self.lo)}
-            sim.add(guarded(lambda s: runfile.frame("porosity3d", s.time, self._eps(), attrs)), c.volume_interval)
+            sim.add(guarded(lambda s, a=attrs: runfile.frame("porosity3d", s.time, self._eps(), a)), c.volume_interval)
+        if c.mri_interval:  # the synthetic MRI bins the grains (app/probes_mri.py)
+            from .probes_mri import MriProbe
+
+            MriProbe(self.config).attach(sim, runfile, guarded)

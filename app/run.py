@@ -220,6 +220,8 @@ def analyze(run_dir: str, kind: str | None = None) -> int:
     import json
 
     d = pathlib.Path(run_dir)
+    if (d / "sweep.csv").exists() and not (d / "run.h5").exists():
+        return analyze_sweep(d, kind)
     if not (d / "run.h5").exists() or not (d / "config.toml").exists():
         raise ConfigError("not a run folder (no run.h5 / config.toml)", str(d), "RUN_DIR",
                           hint="give the output folder of an fbed run")
@@ -236,6 +238,32 @@ def analyze(run_dir: str, kind: str | None = None) -> int:
     for k, v in figures.items():
         print(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}")
     return EXIT_OK if "analysis_error" not in figures else EXIT_INPUT
+
+
+def analyze_sweep(d: pathlib.Path, kind: str | None = None) -> int:
+    """`fbed analyze SWEEP_DIR`: each case's analysis where it is missing, then the cases side by side
+    (SWEEP_DIR/mri_compare.{csv,md,png} or umf_compare.{md,png})."""
+    import csv
+
+    with open(d / "sweep.csv", newline="") as f:
+        cases = [r["case"] for r in csv.DictReader(f)]
+    kinds = set()
+    for c in cases:
+        cd = d / c
+        if (cd / "config.toml").exists():
+            kinds.add(kind or cfgmod.load(cd / "config.toml").probes.analysis)
+    if len(kinds) != 1 or next(iter(kinds)) not in ("mri", "umf"):
+        raise ConfigError(f"side-by-side comparison is written for the mri and umf analyses, not {sorted(kinds)}",
+                          str(d), "probes.analysis", hint="analyze each case folder on its own: fbed analyze DIR/case-000")
+    which = next(iter(kinds))
+    for c in cases:
+        cd = d / c
+        if (cd / "run.h5").exists() and not (cd / "analysis" / f"{which}.json").exists():
+            analyze(str(cd), which)
+    import importlib
+
+    print(importlib.import_module(f".analysis.{which}", __package__).compare(d).read_text())
+    return EXIT_OK
 
 
 def make_renderer(cfg, scene, dem, flow, name: str, show_window: bool = False):
@@ -432,7 +460,7 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
         sim.add(guarded(gas_fields), cfg.gas.fields_interval, at_start=True) if cfg.gas.fields_interval else \
             sim.add(guarded(gas_fields), at_start=True)
     pr = cfg.probes
-    if flow is not None and (pr.slab_interval or pr.planes_interval or pr.volume_interval):
+    if flow is not None and (pr.slab_interval or pr.planes_interval or pr.volume_interval or pr.mri_interval):
         from .probes import Probes
 
         Probes(cfg, flow, flow.fields.active.to_numpy()).attach(sim, runfile, guarded)

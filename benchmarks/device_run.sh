@@ -8,6 +8,12 @@
 # wait (poll the background run until it ends or LIMIT_wait), accuracy / stiffness (the full-size benches).
 # Before a call that runs the cavity or the Verma analysis: `mkdir -p runs && cp -r ../shared/reference runs/`
 # here, and carry [".devkit", "runs/reference"] (../shared is not copied to the device).
+# MRI poppy-seed bed (issue 19; validation/mri/README.md): mri_prepare (fill and settle the 1e6 grains, then pack
+# the bed into $OUT/mri_bed.h5, ~12 MB, for later sessions to carry as runs/mri_bed.h5), mri_law (one drag law,
+# MRI_LAW=koch_hill|di_felice|gidaspow|beetstra, from runs/mri_bed.h5 when present; MRI_SET adds --set overrides,
+# e.g. "--set run.duration=0.6" for a cost measurement), mri_sweep_start (the four laws in the background, like
+# verma_start; poll with mri_wait), mri_compare (fbed analyze of the sweep: the laws side by side), mri_umf (the
+# U_mf curves of the four laws in the 24 mm column).
 # Keep LIMIT_<stage> at least 40 s under the call's timeout: the packing below needs the time.
 # The accuracy and stiffness stages resume (--resume): to go on from rows already committed, copy them first,
 # e.g. `mkdir -p runs/accuracy_full && cp benchmarks/accuracy/full_gpu/accuracy.csv runs/accuracy_full/`, and
@@ -52,6 +58,35 @@ for stage in "$@"; do
         ${ACC_CASES:+--cases $ACC_CASES} ;;
     stiffness)
       $T python3 -m app bench stiffness --size full --arch cuda --out runs/stiffness_full --resume ;;
+    mri_prepare)
+      $T python3 -m app run presets/mri_poppy_prepare.toml --arch cuda --out runs/mri_prepare --overwrite \
+        && python3 validation/mri/pack_bed.py runs/mri_prepare/bed.h5 runs/mri_bed.h5 && cp runs/mri_bed.h5 "$OUT/" ;;
+    mri_law|mri_sweep_start)
+      # from a carried bed: no preparation stage, the clock starts at 0 (inlet ramp 0-0.1 s, steady from 1.1 s,
+      # 2 s recorded); else mri_poppy.toml's own start_from (prepared here, cached in runs/prepared)
+      FROM=()
+      [ -f runs/mri_bed.h5 ] && FROM=(--set 'run.start_from=""' --set "particles.initial_state=\"$PWD/runs/mri_bed.h5\"" \
+        --set particles.bed_height=0.0 --set 'boundary.bottom.schedule=[[0.0,0.0],[0.1,1.0]]' \
+        --set run.duration=3.1 --set output.average_from=1.1)
+      if [ "$stage" = mri_law ]; then
+        law=${MRI_LAW:-koch_hill}
+        $T python3 -m app run presets/mri_poppy.toml --arch cuda --out runs/mri_$law --overwrite \
+          --set coupling.drag=$law "${FROM[@]}" ${MRI_SET:-}
+      else
+        setsid nohup python3 -m app sweep presets/mri_poppy.toml --arch cuda --out runs/mri_poppy-sweep \
+          --set coupling.drag=koch_hill,di_felice,gidaspow,beetstra "${FROM[@]}" ${MRI_SET:-} \
+          > "$L/mri_sweep.log" 2>&1 < /dev/null &
+        echo $! > runs/mri.pid; sleep 20; tail -3 "$L/mri_sweep.log"
+      fi ;;
+    mri_wait)
+      end=$(( $(date +%s) + lim - 15 ))
+      while kill -0 "$(cat runs/mri.pid)" 2>/dev/null && [ "$(date +%s)" -lt "$end" ]; do sleep 5; done
+      tail -5 runs/mri_poppy-sweep/case-*/log.txt ;;
+    mri_compare)
+      $T python3 -m app analyze runs/mri_poppy-sweep ;;
+    mri_umf)
+      $T python3 -m app sweep presets/mri_umf.toml --arch cuda --out runs/mri_umf-sweep \
+        --set coupling.drag=koch_hill,di_felice,gidaspow,beetstra && python3 -m app analyze runs/mri_umf-sweep ;;
     sweep)
       $T python3 -m app sweep presets/boyce.toml --arch cuda --out runs/boyce-sweep --plot bubble_peak_diameter \
         --set boundary.bottom.jet_duration=0.1542,0.0667,0.0514,0.025 --set video.enabled=false ;;

@@ -137,12 +137,21 @@ def check(cfg: Config, file: str, text: str) -> None:
     if (pr.slab_interval or pr.planes_interval or pr.volume_interval) and cfg.gas is None:
         fail("probes", "slab_interval" if pr.slab_interval else "planes_interval" if pr.planes_interval
              else "volume_interval", "void-fraction probes need a [gas] section (the grid they sample)")
+    if pr.mri_interval:
+        if cfg.gas is None or cfg.particles is None:
+            fail("probes", "mri_interval", "the synthetic MRI is recorded in coupled scenes: it needs [particles] "
+                 "and [gas]")
+        if any(not isinstance(v, float) or v <= 0 for v in pr.mri_pixel):
+            fail("probes", "mri_pixel", "pixel sizes must be numbers > 0 (m)", "e.g. mri_pixel = [0.004, 0.008]")
+    if pr.analysis == "mri" and not (pr.mri_interval or pr.slab_interval):
+        fail("probes", "analysis", "the mri analysis reads /mri or /slab images",
+             "set probes.mri_interval and/or probes.slab_interval (the MRI's 4 ms: 0.004)")
     if pr.planes:
         if any(not isinstance(z, float) for z in pr.planes) or not all(d.lo[2] < z < d.hi[2] for z in pr.planes):
             fail("probes", "planes", f"plane heights must be numbers inside the domain ({d.lo[2]:g}..{d.hi[2]:g} m)")
         if not pr.planes_interval:
             fail("probes", "planes_interval", "planes are given but planes_interval = 0", "set it, e.g. 2e-3 s")
-    for key in ("slab_interval", "planes_interval", "volume_interval"):
+    for key in ("slab_interval", "planes_interval", "volume_interval", "mri_interval"):
         v = getattr(pr, key)
         if v and v < cfg.run.step * (1 - 1e-9):
             fail("probes", key, f"shorter than run.step ({cfg.run.step:g} s)")

@@ -179,9 +179,21 @@ class ProbesConfig:
                                   "per frame), so that shift operators over several frames can be built "
                                   "(`fbed rcfd ... --lag`)")
     rcfd_fluxes: bool = spec(True, doc="also record the frame-mean gas face fluxes (read after every fluid step)")
+    mri_interval: float = spec(0.0, unit="s", doc="interval of the synthetic MRI in run.h5 /mri: the grains' volume "
+                               "within the central slab (slab_width thick, through the vessel's axis, normal to y) "
+                               "binned by centre onto mri_pixel pixels, as void fraction (0: off; the MRI's 4 ms: 0.004)",
+                               lo=0.0)
+    mri_pixel: tuple[float, float] = spec((0.004, 0.008), unit="m", doc="synthetic MRI pixel (horizontal x, "
+                                          "vertical z): the MRI's 4 mm x 8 mm; finer pixels resolve smaller bubbles",
+                                          length=2)
+    mri_static_height: float = spec(0.130, unit="m", doc="static bed height of the MRI analysis (expansion ratio, "
+                                    "the radial profile below the static bed, the void-fraction spectrum)",
+                                    lo=0.0, lo_open=True)
     analysis: str = spec("none", doc="post-processing run when the run ends (and by `fbed analyze DIR`): 'boyce' "
-                         "(single bubble on the slab), 'verma' (bubble statistics on the planes)",
-                         choices=("none", "boyce", "verma"))
+                         "(single bubble on the slab), 'verma' (bubble statistics on the planes), 'mri' (the MRI "
+                         "study's bubble, bed-height and radial statistics on /mri and /slab), 'umf' (the pressure drop of "
+                         "each hold of the inlet schedule and the U_mf read off it)",
+                         choices=("none", "boyce", "verma", "mri", "umf"))
 
 
 @dataclass(frozen=True)

@@ -72,7 +72,7 @@ def read_state(path: pathlib.Path) -> tuple[dict, dict]:
     return grains, meta
 
 
-FRAME_GROUPS = ("slab", "planes", "porosity3d")  # groups of appendable frames (probes)
+FRAME_GROUPS = ("slab", "planes", "porosity3d", "mri")  # groups of appendable frames (probes)
 
 
 # Series rows and probe frames are held in memory and written in batches: an HDF5 resize, write and flush per

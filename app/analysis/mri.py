@@ -1,0 +1,552 @@
+"""The MRI post-processing of the poppy-seed bed study, on a series of slab images.
+
+Owns: the source study's pipeline (seed 002, its Section 3.3) applied to images of the solid
+fraction on the 10 mm vertical slab through the bed's axis, either the synthetic MRI
+(run.h5 ``/mri``: the grains' volume binned onto the MRI's pixels, ``app.probes_mri``) or the
+gas grid's own solid fraction on the same slab (run.h5 ``/slab``, ``app.probes``), which is
+what the study post-processed. Plain numpy/scipy/matplotlib, no Taichi.
+
+The steps, each a function below:
+- binarisation at solid-fraction thresholds 0.15 ... 0.40: solid where alpha_s >= threshold;
+- bubbles: connected gas regions (8-connected, holes filled: the outer contours of the study's
+  ``RETR_EXTERNAL``) of at least 4 mm^2, without those that reach the image's top row (the
+  freeboard), the bed surface row or the bottom row (the inlet); equivalent diameter
+  2 sqrt(A / pi) with A the pixel area, aspect ratio width / height of the bounding rectangle,
+  centroid;
+- tracking: each bubble is matched to the nearest centroid of the next frame within a maximum
+  displacement (greedy, nearest pairs first, one partner each); a track needs at least two frames
+  and its velocity is the least-squares slope of its centroid against time;
+- bed height: the centre of the top-most row whose particle occupancy (solid pixels over the
+  vessel's pixels in that row) exceeds 10%, from the floor; expansion ratio over the static
+  height (130 mm);
+- statistics: mean, maximum and standard deviation with 95% bootstrap intervals (10,000
+  resamples with replacement, percentile intervals, as the study) and two-sample KS tests between
+  neighbouring thresholds;
+- the threshold per metric from the study's criteria only (CV < 30%, interval width < 30% of the
+  mean, KS p > 0.01 against the neighbouring thresholds, gradient quality > 0.3, bubble velocity
+  within 5-80 cm/s), never from data: ``choose_threshold`` says how ties are broken;
+- radial solid-fraction profiles (continuous alpha_s, eq. 26) over the whole bed (below each
+  frame's bed height) and below the static height; diameter against height; velocity per bubble
+  size class; the spectrum of the void fraction of the slab below the static height.
+
+Units: images in m (pixel sizes, origin), times in s; tables in mm and m/s as their headers say.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import pathlib
+
+import numpy as np
+from scipy import ndimage, signal, stats
+
+THRESHOLDS = (0.15, 0.20, 0.25, 0.30, 0.35, 0.40)  # solid-fraction thresholds of the study (Step 4)
+MIN_AREA = 4.0e-6         # m^2: smallest bubble (the study's 4 mm^2)
+OCCUPANCY = 0.10          # a row with more solid pixels than this fraction is inside the bed
+STATIC_HEIGHT = 0.130     # m: the static bed of the study
+N_BOOT = 10_000           # bootstrap resamples
+V_RANGE = (0.05, 0.80)    # m/s: the expected bubble velocities (Pigford, 1968), the study's criterion
+CV_MAX = 30.0             # %: the study's acceptance criteria (3.3.7)
+CI_MAX = 30.0             # % of the mean
+KS_MIN = 0.01
+GRADIENT_MIN = 0.3
+SIZE_CLASSES = (0.0, 0.010, 0.020, 0.030, 0.040, 0.060, 1.0)  # m: bubble-diameter classes for the velocities
+HEIGHT_BIN = 0.020        # m: bins of bubble centroid height for diameter against height
+EIGHT = np.ones((3, 3), bool)
+
+
+# ---------------------------------------------------------------- one frame
+def binarise(alpha: np.ndarray, threshold: float) -> np.ndarray:
+    """Eq. 14: True (solid-rich) where alpha_s >= threshold."""
+    return np.asarray(alpha) >= threshold
+
+
+def bed_height(solid: np.ndarray, dz: float, mask: np.ndarray | None = None) -> float:
+    """Height [m above the image's bottom edge] of the centre of the top-most row whose particle occupancy
+    exceeds OCCUPANCY; 0 when no row does. ``solid`` is (nx, nz), z the second axis."""
+    m = np.ones(solid.shape, bool) if mask is None else mask
+    n = m.sum(0)
+    occ = (solid & m).sum(0) / np.maximum(n, 1)
+    rows = np.nonzero((occ > OCCUPANCY) & (n > 0))[0]
+    return float((rows[-1] + 0.5) * dz) if rows.size else 0.0
+
+
+def bubbles(solid: np.ndarray, dx: float, dz: float, mask: np.ndarray | None = None,
+            surface: float | None = None, min_area: float = MIN_AREA) -> list[dict]:
+    """The bubbles of one binary frame: dicts of area [m^2], diameter [m], aspect (w/h), width, height,
+    x, z (centroid, m from the image's lower-left corner)."""
+    m = np.ones(solid.shape, bool) if mask is None else mask
+    gas = ~solid & m
+    labels, n = ndimage.label(gas, structure=EIGHT)
+    if n == 0:
+        return []
+    nz = solid.shape[1]
+    top_row = nz - 1 if surface is None else min(nz - 1, int(math.floor(surface / dz)))
+    out = []
+    for k, sl in enumerate(ndimage.find_objects(labels), start=1):
+        if sl is None:
+            continue
+        reg = ndimage.binary_fill_holes(labels[sl] == k)
+        z0, z1 = sl[1].start, sl[1].stop - 1
+        if z0 == 0 or z1 >= top_row or z1 == nz - 1:
+            continue  # the inlet row, the bed surface or the freeboard
+        area = float(reg.sum()) * dx * dz
+        if area < min_area:
+            continue
+        ii, kk = np.nonzero(reg)
+        w, h = (sl[0].stop - sl[0].start) * dx, (z1 - z0 + 1) * dz
+        out.append(dict(area=area, diameter=2.0 * math.sqrt(area / math.pi), aspect=w / h, width=w, height=h,
+                        x=float((ii.mean() + sl[0].start + 0.5) * dx), z=float((kk.mean() + z0 + 0.5) * dz)))
+    return out
+
+
+# ---------------------------------------------------------------- tracking
+def track(frames: list[list[dict]], times: np.ndarray, max_disp: float) -> list[dict]:
+    """Nearest-centroid tracks over consecutive frames (greedy: the nearest pairs are linked first, each bubble
+    at most once). Returns tracks of >= 2 frames: dicts with frames, times, x, z, diameters, and the
+    least-squares velocities vx, vz, speed [m/s]."""
+    open_tracks: dict[int, dict] = {}
+    done = []
+    for f, bs in enumerate(frames):
+        new_open = {}
+        prev = list(open_tracks.items())
+        if prev and bs:
+            px = np.array([[t["x"][-1], t["z"][-1]] for _, t in prev])
+            cx = np.array([[b["x"], b["z"]] for b in bs])
+            d = np.hypot(px[:, None, 0] - cx[None, :, 0], px[:, None, 1] - cx[None, :, 1])
+            pairs = sorted(zip(*np.nonzero(d <= max_disp)), key=lambda ij: d[ij])
+            used_p, used_c = set(), set()
+            for i, j in pairs:
+                if i in used_p or j in used_c:
+                    continue
+                used_p.add(i)
+                used_c.add(j)
+                t = prev[i][1]
+                b = bs[j]
+                t["frames"].append(f)
+                t["x"].append(b["x"])
+                t["z"].append(b["z"])
+                t["diameter"].append(b["diameter"])
+                new_open[j] = t
+            for i, (_, t) in enumerate(prev):
+                if i not in used_p:
+                    done.append(t)
+        else:
+            done += [t for _, t in prev]
+        for j, b in enumerate(bs):
+            if j not in new_open:
+                new_open[j] = dict(frames=[f], x=[b["x"]], z=[b["z"]], diameter=[b["diameter"]])
+        open_tracks = new_open
+    done += list(open_tracks.values())
+    out = []
+    for t in done:
+        if len(t["frames"]) < 2:
+            continue
+        tt = np.asarray(times)[t["frames"]]
+        vx = float(np.polyfit(tt, t["x"], 1)[0])
+        vz = float(np.polyfit(tt, t["z"], 1)[0])
+        out.append(dict(t, times=tt, vx=vx, vz=vz, speed=math.hypot(vx, vz),
+                        mean_diameter=float(np.mean(t["diameter"]))))
+    return out
+
+
+def max_displacement(frame_dt: float, dx: float, dz: float, v_max: float = V_RANGE[1]) -> float:
+    """Largest centroid step between frames [m]: the fastest expected bubble (0.8 m/s) over one frame interval,
+    plus a pixel diagonal for the centroid's jitter as the bubble's outline changes pixels."""
+    return v_max * frame_dt + math.hypot(dx, dz)
+
+
+# ---------------------------------------------------------------- statistics
+def bootstrap(values, n_boot: int = N_BOOT, seed: int = 0) -> dict:
+    """Mean, median, max, std (n - 1), CV [%] of ``values`` and the 95% percentile intervals of the mean and the
+    median over n_boot resamples with replacement."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    out = dict(n=int(v.size))
+    if v.size == 0:
+        return out | dict(mean=math.nan, median=math.nan, max=math.nan, std=math.nan, cv=math.nan,
+                          mean_lo=math.nan, mean_hi=math.nan, median_lo=math.nan, median_hi=math.nan)
+    rng = np.random.default_rng(seed)
+    means, medians = np.empty(n_boot), np.empty(n_boot)
+    chunk = max(1, int(2e6 // max(v.size, 1)))
+    for a in range(0, n_boot, chunk):
+        b = min(n_boot, a + chunk)
+        s = v[rng.integers(0, v.size, size=(b - a, v.size))]
+        means[a:b] = s.mean(1)
+        medians[a:b] = np.median(s, 1)
+    mean = float(v.mean())
+    std = float(v.std(ddof=1)) if v.size > 1 else 0.0
+    return out | dict(mean=mean, median=float(np.median(v)), max=float(v.max()), std=std,
+                      cv=100.0 * std / abs(mean) if mean else math.inf,
+                      mean_lo=float(np.percentile(means, 2.5)), mean_hi=float(np.percentile(means, 97.5)),
+                      median_lo=float(np.percentile(medians, 2.5)), median_hi=float(np.percentile(medians, 97.5)))
+
+
+def gradient_quality(values: list[float], thresholds=THRESHOLDS) -> list[float]:
+    """fbed's reading of the study's 'gradient quality score' (it names no formula): the sensitivity
+    S = dM/d(alpha_s) (eq. 16; central differences, one-sided at the ends) scored as
+    min(|S|, S_med) / max(|S|, S_med), S_med the median |S| over the thresholds: 1 at the median sensitivity,
+    towards 0 for excessive or insufficient sensitivity; > 0.3 is within a factor 3.3 of the median."""
+    m = np.asarray(values, float)
+    a = np.asarray(thresholds, float)
+    if m.size < 2 or not np.all(np.isfinite(m)):
+        return [math.nan] * m.size
+    s = np.abs(np.gradient(m, a))
+    med = float(np.median(s))
+    if med == 0.0:
+        return [1.0 if x == 0.0 else 0.0 for x in s]
+    return [float(min(x, med) / max(x, med)) if x > 0 else 0.0 for x in s]
+
+
+def choose_threshold(rows: list[dict], velocity: bool = False) -> tuple[int, list[str]]:
+    """Index of the threshold chosen for one metric from its per-threshold rows (keys cv, ci_width_pct, ks_p,
+    gradient_quality, mean) and the criteria each row fails. Of the thresholds that pass every criterion the
+    one with the narrowest interval (the study's 'measurement precision') is chosen; with none passing, the one
+    failing fewest, then the narrowest. No measured value enters."""
+    fails = []
+    for r in rows:
+        f = []
+        if not (r["cv"] < CV_MAX):
+            f.append("cv")
+        if not (r["ci_width_pct"] < CI_MAX):
+            f.append("ci_width")
+        if not (r["ks_p"] > KS_MIN):
+            f.append("ks")
+        if not (r["gradient_quality"] > GRADIENT_MIN):
+            f.append("gradient")
+        if velocity and not (V_RANGE[0] <= r["mean"] <= V_RANGE[1]):
+            f.append("velocity_range")
+        if r["n"] < 2:
+            f.append("too_few")
+        fails.append(f)
+    key = [(len(f), r["ci_width_pct"] if np.isfinite(r["ci_width_pct"]) else math.inf) for f, r in zip(fails, rows)]
+    return int(min(range(len(rows)), key=lambda i: key[i])), [";".join(f) for f in fails]
+
+
+# ---------------------------------------------------------------- the image series
+def solid_images(void: np.ndarray) -> np.ndarray:
+    return 1.0 - np.asarray(void, float)
+
+
+def radial_profiles(alpha: np.ndarray, heights: np.ndarray, dz: float, static_height: float,
+                    mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 26 per image column: the time-mean solid fraction over the rows below each frame's bed height
+    (whole bed) and over the rows below the static height. alpha (nt, nx, nz), heights (nt,) [m]."""
+    nt, nx, nz = alpha.shape
+    zc = (np.arange(nz) + 0.5) * dz
+    m = np.ones((nx, nz), bool) if mask is None else mask
+    whole = (zc[None, :] <= heights[:, None] + 1e-9 * dz)[:, None, :] & m[None]
+    static = np.broadcast_to((zc < static_height)[None, None, :] & m[None], alpha.shape)
+    with np.errstate(invalid="ignore"):
+        pw = (alpha * whole).sum((0, 2)) / whole.sum((0, 2))
+        ps = (alpha * static).sum((0, 2)) / static.sum((0, 2))
+    return pw, ps
+
+
+def spectrum(series: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """(frequencies [Hz], power, the dominant frequency [Hz]) of a time series: the periodogram of the series
+    minus its linear trend with a Hann window; the peak (above the lowest bin) refined by a parabola through
+    the log power of its neighbours."""
+    x = np.asarray(series, float)
+    f, p = signal.periodogram(x, fs=1.0 / dt, window="hann", detrend="linear")
+    if p.size < 3:
+        return f, p, math.nan
+    k = 1 + int(np.argmax(p[1:]))
+    if 1 <= k < p.size - 1 and np.all(p[k - 1:k + 2] > 0):
+        a, b, c = np.log(p[k - 1:k + 2])
+        den = a - 2 * b + c
+        shift = 0.5 * (a - c) / den if den != 0 else 0.0
+        return f, p, float(f[k] + shift * (f[1] - f[0]))
+    return f, p, float(f[k])
+
+
+def analyse(void: np.ndarray, times: np.ndarray, dx: float, dz: float, mask: np.ndarray | None = None,
+            static_height: float = STATIC_HEIGHT, thresholds=THRESHOLDS, n_boot: int = N_BOOT,
+            axis: float | None = None) -> dict:
+    """The whole pipeline on one image series of void fraction (nt, nx, nz) (z the second image axis, from the
+    floor; x from the image's left edge; ``axis`` [m from that edge] is the vessel's axis, default the image's
+    centre). Returns per-threshold statistics, the chosen threshold per metric,
+    and the final metrics at it (see the module doc)."""
+    alpha = solid_images(void)
+    times = np.asarray(times, float)
+    nt, nx, nz = alpha.shape
+    frame_dt = float(np.median(np.diff(times))) if nt > 1 else 1.0
+    max_disp = max_displacement(frame_dt, dx, dz)
+    per = {}
+    for thr in thresholds:
+        solid = binarise(alpha, thr)
+        h = np.array([bed_height(solid[t], dz, mask) for t in range(nt)])
+        frames = [bubbles(solid[t], dx, dz, mask, surface=h[t]) for t in range(nt)]
+        tracks = track(frames, times, max_disp)
+        per[thr] = dict(height=h, frames=frames, tracks=tracks,
+                        diameter=np.array([b["diameter"] for bs in frames for b in bs]),
+                        aspect=np.array([b["aspect"] for bs in frames for b in bs]),
+                        velocity=np.array([t["vz"] for t in tracks]))
+    metrics = {"bed_height": "height", "bubble_diameter": "diameter", "aspect_ratio": "aspect",
+               "bubble_velocity": "velocity"}
+    table, chosen = [], {}
+    for name, key in metrics.items():
+        rows = []
+        for i, thr in enumerate(thresholds):
+            b = bootstrap(per[thr][key], n_boot, seed=i)
+            ks = []
+            for j in (i - 1, i + 1):
+                if 0 <= j < len(thresholds) and b["n"] and per[thresholds[j]][key].size:
+                    ks.append(float(stats.ks_2samp(per[thr][key], per[thresholds[j]][key]).pvalue))
+            width = 100.0 * (b.get("mean_hi", math.nan) - b.get("mean_lo", math.nan)) / abs(b["mean"]) \
+                if b["n"] and b["mean"] else math.nan
+            rows.append(dict(metric=name, threshold=thr, **b, ci_width_pct=width,
+                             ks_p=min(ks) if ks else math.nan))
+        for r, q in zip(rows, gradient_quality([r["mean"] for r in rows], thresholds)):
+            r["gradient_quality"] = q
+        k, fails = choose_threshold(rows, velocity=(name == "bubble_velocity"))
+        for r, f in zip(rows, fails):
+            r["fails"] = f
+            r["chosen"] = r is rows[k]
+        chosen[name] = thresholds[k]
+        table += rows
+    # the final metrics, each at its own threshold
+    hb = per[chosen["bed_height"]]["height"]
+    dthr = chosen["bubble_diameter"]
+    vthr = chosen["bubble_velocity"]
+    pw, ps = radial_profiles(alpha, hb, dz, static_height, mask)
+    xc = (np.arange(nx) + 0.5) * dx - (0.5 * nx * dx if axis is None else axis)
+    zc = (np.arange(nz) + 0.5) * dz
+    below = zc < static_height
+    m = np.ones((nx, nz), bool) if mask is None else mask
+    mid = np.where(m[None] & below[None, None, :], 1.0 - alpha, 0.0).sum((1, 2)) / max(1, (m & below[None]).sum())
+    f, p, f_peak = spectrum(mid, frame_dt)
+    db = [b for bs in per[dthr]["frames"] for b in bs]
+    edges = np.arange(0.0, nz * dz + HEIGHT_BIN, HEIGHT_BIN)
+    dvh = []
+    for a, b_ in zip(edges[:-1], edges[1:]):
+        sel = [x["diameter"] for x in db if a <= x["z"] < b_]
+        if sel:
+            dvh.append(dict(z_lo=a, z_hi=b_, n=len(sel), mean=float(np.mean(sel)), max=float(np.max(sel)),
+                            std=float(np.std(sel, ddof=1)) if len(sel) > 1 else 0.0))
+    vcl = []
+    trs = per[vthr]["tracks"]
+    for a, b_ in zip(SIZE_CLASSES[:-1], SIZE_CLASSES[1:]):
+        sel = [t["vz"] for t in trs if a <= t["mean_diameter"] < b_]
+        if sel:
+            bs = bootstrap(sel, n_boot)
+            vcl.append(dict(d_lo=a, d_hi=b_, **bs))
+    hstat = bootstrap(hb, n_boot)
+    return dict(table=table, chosen=chosen, frame_dt=frame_dt, max_disp=max_disp,
+                height=hb, height_stats=hstat, expansion_ratio=hstat["mean"] / static_height,
+                expansion_ratio_max=hstat["max"] / static_height,
+                diameter_stats=bootstrap(per[dthr]["diameter"], n_boot),
+                aspect_stats=bootstrap(per[chosen["aspect_ratio"]]["aspect"], n_boot),
+                velocity_stats=bootstrap(per[vthr]["velocity"], n_boot),
+                x=xc, radial_whole=pw, radial_static=ps, diameter_height=dvh, velocity_classes=vcl,
+                mid_void=mid, freq=f, power=p, f_peak=f_peak, f_resolution=1.0 / (nt * frame_dt),
+                static_height=static_height,
+                bubbles_at_diameter_threshold=db, times=times)
+
+
+# ---------------------------------------------------------------- run files, tables, figures
+def read_images(run_dir: pathlib.Path, source: str):
+    """(void (nt, nx, nz), times, dx, dz, origin (x0, z0), mask) of run.h5 /mri or /slab."""
+    import h5py
+
+    with h5py.File(pathlib.Path(run_dir) / "run.h5", "r") as f:
+        if source not in f:
+            return None
+        g = f[source]
+        void = g["porosity"][...].astype(float)
+        times = g["time"][...]
+        if "pixel" in g.attrs:
+            dx, dz = (float(v) for v in g.attrs["pixel"])
+        else:
+            dx = dz = float(g.attrs["h"])
+        mask = g.attrs["mask"].astype(bool) if "mask" in g.attrs else None
+        return void, times, dx, dz, tuple(float(v) for v in g.attrs["origin"]), mask
+
+
+def _write_csv(path, rows: list[dict], keys: list[str]) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(keys)
+        for r in rows:
+            w.writerow([(f"{r[k]:.6g}" if isinstance(r.get(k), float) else r.get(k, "")) for k in keys])
+
+
+def _md(rows: list[dict], keys: list[str]) -> str:
+    out = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    for r in rows:
+        out.append("| " + " | ".join(f"{r[k]:.4g}" if isinstance(r.get(k), float) else str(r.get(k, ""))
+                                     for k in keys) + " |")
+    return "\n".join(out) + "\n"
+
+
+def write(res: dict, out: pathlib.Path, title: str = "") -> dict:
+    """Tables (CSV + markdown) and figures (PNG) of one analysed series into ``out``; returns key figures."""
+    out.mkdir(parents=True, exist_ok=True)
+    tkeys = ["metric", "threshold", "n", "mean", "median", "max", "std", "cv", "mean_lo", "mean_hi",
+             "ci_width_pct", "ks_p", "gradient_quality", "fails", "chosen"]
+    _write_csv(out / "thresholds.csv", res["table"], tkeys)
+    summary = []
+    for name, st in (("bed_height [m]", res["height_stats"]), ("bubble_diameter [m]", res["diameter_stats"]),
+                     ("aspect_ratio [-]", res["aspect_stats"]), ("bubble_velocity [m/s]", res["velocity_stats"])):
+        summary.append(dict(metric=name, threshold=res["chosen"][name.split(" ")[0]], **st))
+    skeys = ["metric", "threshold", "n", "mean", "mean_lo", "mean_hi", "max", "std", "cv"]
+    _write_csv(out / "metrics.csv", summary, skeys)
+    radial = [dict(x=float(x), r=float(abs(x)), whole_bed=float(a), static_bed=float(b))
+              for x, a, b in zip(res["x"], res["radial_whole"], res["radial_static"])]
+    _write_csv(out / "radial.csv", radial, ["x", "r", "whole_bed", "static_bed"])
+    _write_csv(out / "diameter_height.csv", res["diameter_height"], ["z_lo", "z_hi", "n", "mean", "max", "std"])
+    _write_csv(out / "velocity_classes.csv", res["velocity_classes"],
+               ["d_lo", "d_hi", "n", "mean", "mean_lo", "mean_hi", "std"])
+    _write_csv(out / "spectrum.csv", [dict(f=float(a), power=float(b)) for a, b in zip(res["freq"], res["power"])],
+               ["f", "power"])
+    md = [f"# MRI-style analysis{': ' + title if title else ''}\n",
+          f"Frames: {len(res['times'])} at {1e3 * res['frame_dt']:.3g} ms; max displacement for tracking "
+          f"{1e3 * res['max_disp']:.3g} mm; static height {1e3 * res['static_height']:.0f} mm.\n",
+          "## Metrics at their chosen thresholds (lengths in m, velocities in m/s, 95% bootstrap intervals)\n",
+          _md(summary, skeys),
+          f"Expansion ratio: mean {res['expansion_ratio']:.4g}, max {res['expansion_ratio_max']:.4g}. "
+          f"Dominant frequency of the void fraction below the static height: {res['f_peak']:.4g} Hz (resolution "
+          f"{res['f_resolution']:.3g} Hz: the record's length sets it).\n",
+          "## Every threshold\n", _md(res["table"], tkeys),
+          "## Velocity per bubble size class (m, m/s)\n",
+          _md(res["velocity_classes"], ["d_lo", "d_hi", "n", "mean", "mean_lo", "mean_hi", "std"]),
+          "## Diameter against height (m)\n", _md(res["diameter_height"], ["z_lo", "z_hi", "n", "mean", "max"])]
+    (out / "tables.md").write_text("\n".join(md))
+    plot(res, out, title)
+    hs, ds, vs = res["height_stats"], res["diameter_stats"], res["velocity_stats"]
+    return dict(bed_height_mean=hs["mean"], bed_height_mean_lo=hs["mean_lo"], bed_height_mean_hi=hs["mean_hi"],
+                bed_height_max=hs["max"], bed_height_std=hs["std"], expansion_ratio=res["expansion_ratio"],
+                bubble_diameter_mean=ds["mean"], bubble_diameter_mean_lo=ds["mean_lo"],
+                bubble_diameter_mean_hi=ds["mean_hi"], bubble_diameter_max=ds["max"], bubble_count=ds["n"],
+                bubble_velocity_mean=vs["mean"], bubble_tracks=vs["n"], aspect_ratio_mean=res["aspect_stats"]["mean"],
+                void_frequency=res["f_peak"])
+
+
+def plot(res: dict, out: pathlib.Path, title: str = "") -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(2, 3, figsize=(14, 8))
+    t = res["times"]
+    ax[0, 0].plot(t, 1e3 * res["height"], "k-", lw=0.8)
+    ax[0, 0].axhline(1e3 * res["static_height"], color="0.5", ls="--", label="static")
+    ax[0, 0].set(xlabel="t [s]", ylabel="bed height [mm]", title=f"bed height (threshold {res['chosen']['bed_height']})")
+    ax[0, 0].legend(fontsize=8)
+    d = np.array([b["diameter"] for b in res["bubbles_at_diameter_threshold"]])
+    if d.size:
+        ax[0, 1].hist(1e3 * d, bins=20, color="tab:blue")
+    ax[0, 1].set(xlabel="equivalent diameter [mm]", ylabel="bubbles",
+                 title=f"bubble diameters (threshold {res['chosen']['bubble_diameter']})")
+    dh = res["diameter_height"]
+    if dh:
+        ax[0, 2].errorbar([1e3 * r["mean"] for r in dh], [0.5e3 * (r["z_lo"] + r["z_hi"]) for r in dh],
+                          xerr=[1e3 * r["std"] for r in dh], fmt="o-")
+    ax[0, 2].set(xlabel="mean diameter [mm]", ylabel="height [mm]", title="diameter against height")
+    x = 1e3 * res["x"]
+    ax[1, 0].plot(x, res["radial_whole"], "o-", label="whole bed")
+    ax[1, 0].plot(x, res["radial_static"], "s-", label="below static height")
+    ax[1, 0].set(xlabel="x [mm]", ylabel="solid fraction", title="radial profile")
+    ax[1, 0].legend(fontsize=8)
+    vc = res["velocity_classes"]
+    if vc:
+        ax[1, 1].bar([f"{1e3 * r['d_lo']:.0f}-{1e3 * r['d_hi']:.0f}" for r in vc], [r["mean"] for r in vc],
+                     yerr=[[r["mean"] - r["mean_lo"] for r in vc], [r["mean_hi"] - r["mean"] for r in vc]])
+    ax[1, 1].set(xlabel="bubble diameter class [mm]", ylabel="rise velocity [m/s]", title="velocity per size class")
+    ax[1, 2].semilogy(res["freq"][1:], res["power"][1:] + 1e-30, "k-")
+    ax[1, 2].set(xlabel="f [Hz]", ylabel="power", title=f"void fraction below static height: {res['f_peak']:.3g} Hz")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(out / "mri.png", dpi=100)
+    plt.close(fig)
+
+
+SOURCES = (("mri", "synthetic MRI (grain volume on the MRI pixels)"),
+           ("slab", "gas grid solid fraction on the slab"))
+
+
+def summarize(run_dir) -> dict:
+    """The pipeline on a finished run's /mri and /slab records from output.average_from on (negative: the second
+    half); tables and figures under analysis/<source>; returns key figures (SI) prefixed mri_ and slab_ for
+    summary.json."""
+    from .. import config as cfgmod
+
+    run_dir = pathlib.Path(run_dir)
+    cfg = cfgmod.load(run_dir / "config.toml")
+    static = cfg.probes.mri_static_height or STATIC_HEIGHT
+    floor = cfg.vessel.floor if cfg.vessel.floor is not None else cfg.domain.lo[2]
+    figures, found = {}, False
+    for source, label in SOURCES:
+        img = read_images(run_dir, source)
+        if img is None:
+            continue
+        found = True
+        void, times, dx, dz, origin, mask = img
+        t0 = cfg.output.average_from if cfg.output.average_from >= 0 else 0.5 * (times[0] + times[-1])
+        keep = times >= t0 - 1e-9  # the analysed window: output.average_from on (the transient before it is not)
+        if keep.sum() < 2:
+            raise ValueError(f"fewer than 2 /{source} frames after output.average_from = {t0:g} s")
+        void, times = void[keep], times[keep]
+        if abs(origin[1] - floor) > 1e-9:
+            raise ValueError(f"/{source} images start at z = {origin[1]} m, not at the floor {floor} m")
+        if source == "slab":
+            void = np.where(mask[None], void, 1.0) if mask is not None else void
+        res = analyse(void, times, dx, dz, mask, static, axis=cfg.vessel.center[0] - origin[0])
+        figs = write(res, run_dir / "analysis" / source, f"{cfg.run.name or run_dir.name}: {label}")
+        figures.update({f"{source}_{k}": v for k, v in figs.items()})
+    if not found:
+        raise ValueError("run.h5 holds neither /mri nor /slab: set probes.mri_interval or probes.slab_interval")
+    (run_dir / "analysis" / "mri.json").write_text(json.dumps(figures, indent=2) + "\n")
+    return figures
+
+
+COMPARE_KEYS = ("bed_height_mean", "bed_height_mean_lo", "bed_height_mean_hi", "bed_height_max", "expansion_ratio",
+                "bubble_diameter_mean", "bubble_diameter_max", "bubble_velocity_mean", "bubble_count",
+                "void_frequency")
+
+
+def compare(sweep_dir) -> pathlib.Path:
+    """Side-by-side table and figure of the MRI figures of a sweep's cases (from sweep.csv and each case's
+    analysis/mri.json) into SWEEP_DIR/mri_compare.{csv,md,png}."""
+    d = pathlib.Path(sweep_dir)
+    with open(d / "sweep.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    cols = list(rows[0]) if rows else []
+    swept = cols[1:cols.index("status")] if "status" in cols else []  # sweep.csv: case, the swept keys, status
+    table = []
+    for r in rows:
+        j = d / r["case"] / "analysis" / "mri.json"
+        fig = json.loads(j.read_text()) if j.exists() else {}
+        row = {"case": r["case"], **{k: r[k] for k in swept}, "status": r.get("status", "")}
+        for src, _ in SOURCES:
+            for k in COMPARE_KEYS:
+                if f"{src}_{k}" in fig:
+                    row[f"{src}_{k}"] = fig[f"{src}_{k}"]
+        table.append(row)
+    keys = list(dict.fromkeys(k for r in table for k in r))
+    _write_csv(d / "mri_compare.csv", table, keys)
+    (d / "mri_compare.md").write_text("# MRI figures of the sweep's cases (m, m/s, Hz)\n\n" + _md(table, keys))
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = [" ".join(str(r[k]) for k in swept) or r["case"] for r in table]
+    panels = [("bed_height_mean", "mean bed height [mm]", 1e3), ("bed_height_max", "max bed height [mm]", 1e3),
+              ("bubble_diameter_mean", "mean bubble diameter [mm]", 1e3),
+              ("bubble_diameter_max", "max bubble diameter [mm]", 1e3),
+              ("bubble_velocity_mean", "mean bubble velocity [m/s]", 1.0), ("void_frequency", "frequency [Hz]", 1.0)]
+    fig, axs = plt.subplots(2, 3, figsize=(14, 7))
+    xs = np.arange(len(table))
+    for ax, (k, lab, s) in zip(axs.flat, panels):
+        for off, (src, _) in zip((-0.2, 0.2), SOURCES):
+            ax.bar(xs + off, [s * float(r.get(f"{src}_{k}", math.nan)) for r in table], 0.4, label=src)
+        ax.set_xticks(xs, labels, rotation=20, fontsize=8)
+        ax.set_ylabel(lab)
+    axs[0, 0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(d / "mri_compare.png", dpi=100)
+    plt.close(fig)
+    return d / "mri_compare.md"

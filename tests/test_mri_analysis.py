@@ -1,0 +1,183 @@
+"""The MRI pipeline (app/analysis/mri.py) on synthetic slab images whose bubbles, bed height, radial profile
+and period are known by construction. Images are rendered with each pixel's partial coverage (8 x 8
+sub-samples), so a pixel is gas at threshold 0.30 when more than half of it lies in a bubble of an emulsion
+at solid fraction 0.60: the digitised area is then an unbiased estimate of the disc's."""
+import math
+
+import numpy as np
+import pytest
+
+from app.analysis import mri
+
+EMULSION = 0.60
+SUB = 8
+
+
+def coverage(nx, nz, dx, dz, inside):
+    """Fraction of each pixel for which inside(x, z) holds (SUB x SUB sub-samples)."""
+    xs = (np.arange(nx * SUB) + 0.5) * dx / SUB
+    zs = (np.arange(nz * SUB) + 0.5) * dz / SUB
+    X, Z = np.meshgrid(xs, zs, indexing="ij")
+    return inside(X, Z).reshape(nx, SUB, nz, SUB).mean((1, 3))
+
+
+def frame(nx, nz, dx, dz, height, discs=(), profile=None):
+    """Solid fraction: the emulsion (or profile(x)) below ``height``, nothing above, discs (xc, zc, d) empty."""
+    bed = coverage(nx, nz, dx, dz, lambda X, Z: Z < height)
+    base = EMULSION if profile is None else profile((np.arange(nx) + 0.5) * dx)[:, None]
+    gas = np.zeros((nx, nz))
+    for xc, zc, d in discs:
+        gas = np.maximum(gas, coverage(nx, nz, dx, dz, lambda X, Z: (X - xc) ** 2 + (Z - zc) ** 2 < 0.25 * d * d))
+    return base * bed * (1.0 - gas)
+
+
+@pytest.mark.parametrize("dx,dz,d", [(0.002, 0.002, 0.020), (0.002, 0.002, 0.035), (0.004, 0.008, 0.060),
+                                     (0.001, 0.001, 0.010)])
+def test_bubble_diameter_and_aspect_of_known_discs_and_ellipse(dx, dz, d):
+    nx, nz = int(0.096 / dx), int(0.3 / dz)
+    alpha = frame(nx, nz, dx, dz, 0.2, [(0.048, 0.09, d)])
+    bs = mri.bubbles(mri.binarise(alpha, 0.30), dx, dz, surface=mri.bed_height(alpha >= 0.30, dz))
+    assert len(bs) == 1
+    assert bs[0]["diameter"] == pytest.approx(d, rel=0.03)
+    assert bs[0]["x"] == pytest.approx(0.048, abs=0.5 * dx) and bs[0]["z"] == pytest.approx(0.09, abs=0.5 * dz)
+    # the bounding rectangle of a disc is a square to within one pixel each way
+    assert bs[0]["aspect"] == pytest.approx(1.0, abs=dx / d + dz / d)
+
+
+def test_bubbles_touching_the_surface_or_inlet_or_below_4mm2_are_left_out():
+    dx = dz = 0.001
+    nx, nz = 96, 300
+    alpha = frame(nx, nz, dx, dz, 0.15, [(0.02, 0.145, 0.02),   # breaks the surface: freeboard
+                                          (0.05, 0.004, 0.012),  # sits on the inlet
+                                          (0.08, 0.0805, 0.0015),  # 1.8 mm^2 < 4 mm^2
+                                          (0.05, 0.07, 0.015)])  # the one bubble
+    solid = mri.binarise(alpha, 0.3)
+    bs = mri.bubbles(solid, dx, dz, surface=mri.bed_height(solid, dz))
+    assert [round(b["diameter"], 3) for b in bs] == [0.015]
+
+
+def test_bubble_velocities_from_tracks():
+    dx = dz = 0.002
+    nx, nz = 48, 150
+    dt = 0.004
+    times = np.arange(60) * dt
+    v1, v2 = 0.30, 0.55
+    frames = [frame(nx, nz, dx, dz, 0.25, [(0.025, 0.03 + v1 * t, 0.018), (0.07, 0.02 + v2 * t, 0.026)])
+              for t in times]
+    solid = [mri.binarise(a, 0.3) for a in frames]
+    found = [mri.bubbles(s, dx, dz, surface=mri.bed_height(s, dz)) for s in solid]
+    tracks = mri.track(found, times, mri.max_displacement(dt, dx, dz))
+    assert len(tracks) == 2
+    got = sorted(t["vz"] for t in tracks)
+    assert got[0] == pytest.approx(v1, rel=0.05) and got[1] == pytest.approx(v2, rel=0.05)
+    assert all(abs(t["vx"]) < 0.02 for t in tracks)
+
+
+def test_bed_height_within_one_pixel():
+    dx, dz = 0.004, 0.008
+    nx, nz = 24, 75
+    for h in (0.130, 0.1537, 0.2012, 0.171):
+        alpha = frame(nx, nz, dx, dz, h, [(0.05, 0.06, 0.03)])
+        for thr in mri.THRESHOLDS:
+            assert abs(mri.bed_height(mri.binarise(alpha, thr), dz) - h) <= dz
+
+
+def test_radial_profile_and_period_through_the_whole_pipeline():
+    dx, dz = 0.004, 0.008
+    nx, nz = 24, 75
+    dt, f0 = 0.004, 4.0
+    times = np.arange(500) * dt
+    R = 0.048
+
+    def profile(x):
+        return 0.45 + 0.15 * (1.0 - ((x - R) / R) ** 2)
+
+    heights = 0.16 + 0.024 * np.sin(2 * math.pi * f0 * times)
+    rows = np.floor(heights / dz) * dz  # on row edges: the whole-bed average has no partial row
+    void = np.stack([1.0 - frame(nx, nz, dx, dz, h, profile=lambda x, t=t: profile(x) *
+                                 (1.0 - 0.1 * np.sin(2 * math.pi * f0 * t)))
+                     for h, t in zip(rows, times)])
+    res = mri.analyse(void, times, dx, dz, n_boot=200)
+    xc = (np.arange(nx) + 0.5) * dx
+    # time mean of profile * (1 - 0.1 sin) over whole periods is the profile itself
+    assert res["radial_static"] == pytest.approx(profile(xc), abs=1e-3)
+    # over the whole bed each frame weighs by its rows, and the rows rise and fall with the modulation
+    n_rows, mod = np.round(rows / dz), 1.0 - 0.1 * np.sin(2 * math.pi * f0 * times)
+    assert res["radial_whole"] == pytest.approx(profile(xc) * np.sum(n_rows * mod) / np.sum(n_rows), abs=1e-6)
+    assert res["x"] == pytest.approx(xc - R)
+    assert res["f_peak"] == pytest.approx(f0, rel=0.02)
+    assert np.max(np.abs(res["height"] - (rows - 0.5 * dz))) < 1e-12  # the centre of the top row
+    assert res["height_stats"]["mean"] == pytest.approx(np.mean(rows) - 0.5 * dz)
+
+
+def test_bootstrap_interval_covers_the_mean_and_ks_and_threshold_choice():
+    rng = np.random.default_rng(1)
+    v = rng.normal(10.0, 2.0, 400)
+    b = mri.bootstrap(v, 10_000)
+    assert b["mean_lo"] < 10.0 < b["mean_hi"]
+    # the interval's half-width is 1.96 sigma / sqrt(n) to within 10%
+    assert 0.5 * (b["mean_hi"] - b["mean_lo"]) == pytest.approx(1.96 * 2.0 / 20.0, rel=0.1)
+    assert b["cv"] == pytest.approx(20.0, rel=0.1)
+    # a metric that is flat then jumps: the jump's neighbours have excessive sensitivity
+    q = mri.gradient_quality([1.0, 1.1, 1.2, 1.3, 3.0, 3.1])
+    assert q[3] < 0.3 and q[4] < 0.3 and q[0] == pytest.approx(1.0)
+    rows = [dict(cv=10.0, ci_width_pct=w, ks_p=0.5, gradient_quality=g, mean=1.0, n=50)
+            for w, g in ((12.0, 0.9), (5.0, 0.1), (8.0, 0.8), (4.0, 0.95))]
+    rows[3]["cv"] = 45.0
+    k, fails = mri.choose_threshold(rows)
+    assert k == 2 and fails[1] == "gradient" and fails[3] == "cv"
+    k, fails = mri.choose_threshold([dict(rows[0], mean=1.2)], velocity=True)
+    assert fails == ["velocity_range"]
+
+
+def test_umf_read_off_a_fluidization_curve():
+    """A curve with an Ergun fixed-bed branch dp = a U + b U^2 up to U_mf and the weight W above it, sampled
+    as the holds of an inlet schedule with noise: U_mf from the fixed-bed fit within 2%."""
+    from app.analysis import umf
+
+    a, b, weight = 4000.0, 2000.0, 1200.0
+    u_mf = (-a + math.sqrt(a * a + 4 * b * weight)) / (2 * b)
+    levels = [0.6, 0.5, 0.45, 0.4, 0.35, 0.3, 0.25, 0.2, 0.15, 0.1]
+    sched, t = [[0.0, 0.0], [0.1, 0.6], [0.2, 0.6]], 0.2
+    for u in levels[1:]:
+        sched += [[t + 0.002, u], [t + 0.04, u]]
+        t += 0.04
+    stretches = umf.holds(sched, 1.0)
+    assert [round(s[2], 6) for s in stretches] == levels
+    time = np.arange(0.0, t + 1e-9, 1e-3)
+    rng = np.random.default_rng(0)
+    dp = np.zeros_like(time)
+    for t0, t1, u in stretches:
+        sel = (time >= t0 - 1e-9) & (time <= t1 + 1e-9)
+        dp[sel] = min(a * u + b * u * u, weight) + rng.normal(0, 10.0, sel.sum())
+    rows = umf.curve(time, dp, stretches)
+    fit = umf.umf(rows, weight)
+    assert fit["umf"] == pytest.approx(u_mf, rel=0.02)
+    assert fit["fixed_bed_points"] == sum(a * u + b * u * u < 0.8 * weight for u in levels)
+    # fluidized holds that read below 0.8 W (a slugging bed partly carried by rough walls) stay off the branch
+    for r in rows:
+        if r["velocity"] >= 0.5:
+            r["pressure_drop"] = 0.7 * weight
+    again = umf.umf(rows, weight)
+    assert again["fixed_bed_points"] == fit["fixed_bed_points"] and again["umf"] == pytest.approx(fit["umf"])
+
+
+def test_sweep_cases_side_by_side(tmp_path):
+    """`fbed analyze SWEEP_DIR` for mri cases: one row per case with its swept value and figures."""
+    import csv
+    import json
+
+    with open(tmp_path / "sweep.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["case", "coupling.drag", "status", "exit_code", "steps"])
+        w.writerow(["case-000", "koch_hill", "finished", 0, 10])
+        w.writerow(["case-001", "gidaspow", "finished", 0, 10])
+    for case, h in (("case-000", 0.17), ("case-001", 0.19)):
+        (tmp_path / case / "analysis").mkdir(parents=True)
+        (tmp_path / case / "analysis" / "mri.json").write_text(json.dumps(
+            {"mri_bed_height_mean": h, "slab_bed_height_mean": h + 0.001, "mri_bubble_diameter_max": 0.05}))
+    md = mri.compare(tmp_path).read_text()
+    rows = [line for line in md.splitlines() if line.startswith("| case-")]
+    assert rows[0].startswith("| case-000 | koch_hill | finished | 0.17 | 0.05 | 0.171 |")
+    assert rows[1].startswith("| case-001 | gidaspow | finished | 0.19 |")
+    assert (tmp_path / "mri_compare.png").exists() and (tmp_path / "mri_compare.csv").exists()
