@@ -23,7 +23,9 @@ fbed / LIGGGHTS in particle-substeps per second is the median of the pair-by-pai
 (grain pairs + floor + cylinder, overlap > 0) are counted from each code's positions by one numpy
 helper (``benchmarks_common.count_contacts``), at the start and after the timed block; LIGGGHTS's own
 pair count (``compute contact/atom``) is printed as a check of the helper. The 1-minute load average
-is recorded before every block.
+is recorded before every block, and each code's CPU time over the timed block (fbed: the process's;
+LIGGGHTS: from /proc/PID/stat around its timed run): the core share (CPU / wall) is below 1 when the
+load took the core away, and the ratio in CPU seconds is given beside the wall-time one.
 
     python3 benchmarks/dem_throughput.py --arch cpu --liggghts --sizes 10000 50000 125000 --precision float32 float64
     python3 benchmarks/dem_throughput.py --arch cuda --sizes 10000 100000 1000000
@@ -156,10 +158,12 @@ class FbedRun:
         self.reset()
         ti.sync()
         b0 = self.builds()
+        c0 = time.process_time()
         t0 = time.perf_counter()
         self.dem.advance(substeps)
         ti.sync()
         dt = time.perf_counter() - t0
+        self.cpu = time.process_time() - c0
         self.last_builds = None if b0 is None else self.builds() - b0
         d = self.dem.diagnostics()
         if d["grains_removed"] or d["non_finite"]:
@@ -197,38 +201,42 @@ def fair_size(n, precision, threads, arch, substeps, repeats, skin_d, log=print)
     c0_f = _contacts(f.positions(), R)           # fbed's own (rounded) start
     c0_l = _contacts(b["position"], R)            # LIGGGHTS reads it at full precision
     top_z = float(b["position"][:, 2].max()) + 4 * D
-    t_f, t_l, loads, ends = [], [], [], {}
+    t_f, t_l, loads, ends, cpu_f, cpu_l = [], [], [], {}, [], []
     for k, code in interleaved("fbed", "liggghts", repeats):
         loads.append(os.getloadavg()[0])
         if code == "fbed":
             t = f.block(substeps)
             t_f.append(t)
+            cpu_f.append(f.cpu)
             if k == 0:
                 ends["fbed"] = _contacts(f.positions(), R)
                 ends["fbed_builds"] = f.last_builds
-            log(f"  [{k}] fbed      {t:8.3f} s  {n * substeps / t:.3g} p-substeps/s  load {loads[-1]:.2f}")
+            log(f"  [{k}] fbed      {t:8.3f} s  {n * substeps / t:.3g} p-substeps/s  load {loads[-1]:.2f}  "
+                f"core share {cpu_f[-1] / t:.2f}")
         else:
             r = run_pour(b["position"], D, RHO, E, NU, REST, MU, R, top_z=top_z, dt=DT, steps=substeps,
                          skin=skin, velocities=b["velocity"], omegas=b["omega"], check_overlap=False)
             if r["atoms_final"] != n:
                 raise RuntimeError(f"LIGGGHTS lost {n - r['atoms_final']} grains at N = {n}")
             t_l.append(r["loop_time_s"])
+            cpu_l.append(r["loop_cpu_s"])
             if k == 0:
                 ends["liggghts"] = _contacts(r["final_positions"], R)
                 ends["liggghts_own_pairs"] = r["contacts_final"]
                 ends["liggghts_builds"] = r["neighbor_builds"]
                 ends["version"] = r["version"]
             log(f"  [{k}] LIGGGHTS  {t_l[-1]:8.3f} s  {n * substeps / t_l[-1]:.3g} p-steps/s     "
-                f"load {loads[-1]:.2f}")
+                f"load {loads[-1]:.2f}  core share {cpu_l[-1] / t_l[-1]:.2f}")
     # pss ratio fbed / LIGGGHTS = t_LIGGGHTS / t_fbed, pair by pair
     q, qmin, qmax = median_ratio(t_l, t_f)
+    qc = median_ratio(cpu_l, cpu_f)[0]  # the same in CPU seconds: what the load's preemption leaves out
     mf, ml = statistics.median(t_f), statistics.median(t_l)
     cf, cl = ends["fbed"], ends["liggghts"]
     log(f"  contacts (pairs + walls) at the start: fbed {c0_f['pairs']} + {c0_f['walls']}, LIGGGHTS "
         f"{c0_l['pairs']} + {c0_l['walls']} ({_pct(c0_f['total'], c0_l['total'])}); after {substeps} steps: "
         f"fbed {cf['pairs']} + {cf['walls']}, LIGGGHTS {cl['pairs']} + {cl['walls']} "
         f"({_pct(cf['total'], cl['total'])}; LIGGGHTS's own pair count {ends['liggghts_own_pairs']})")
-    log(f"  fbed / LIGGGHTS = {q:.2f} (pairs {qmin:.2f}-{qmax:.2f})")
+    log(f"  fbed / LIGGGHTS = {q:.2f} (pairs {qmin:.2f}-{qmax:.2f}); in CPU time {qc:.2f}")
     return {"N": n, "precision": precision,
             "fbed ms/substep": f"{1e3 * mf / substeps:.3f}",
             "fbed p-substeps/s": f"{n * substeps / mf:.3g}",
@@ -240,6 +248,8 @@ def fair_size(n, precision, threads, arch, substeps, repeats, skin_d, log=print)
             "LIGGGHTS own pairs (end)": ends["liggghts_own_pairs"],
             "list builds fbed / LIGGGHTS": f"{ends['fbed_builds']} / {ends['liggghts_builds']}",
             "bytes/grain": f"{f.bytes:.0f}",
+            "in CPU time": f"{qc:.2f}",
+            "core share fbed / LIGGGHTS": f"{median_ratio(cpu_f, t_f)[0]:.2f} / {median_ratio(cpu_l, t_l)[0]:.2f}",
             "load (median, min-max)": f"{statistics.median(loads):.2f} ({min(loads):.2f}-{max(loads):.2f})",
             "_version": ends["version"]}
 

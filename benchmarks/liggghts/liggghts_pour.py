@@ -233,7 +233,10 @@ thermo_style    custom step atoms ke c_rke c_zmax c_zavg
 thermo          {thermo_every}
 thermo_modify   lost ignore norm no
 
+# the process's CPU time (utime, stime in /proc/PID/stat) around the timed loop
+shell           "cat /proc/$PPID/stat > stat.before"
 run             {steps}
+shell           "cat /proc/$PPID/stat > stat.after"
 
 # ---- final state, outside the timed loop ----
 compute ca all contact/atom
@@ -285,6 +288,13 @@ def _thermo_blocks(text):
     return blocks
 
 
+def _cpu_seconds(stat_path):
+    """user + system CPU seconds from a copy of /proc/PID/stat (fields 14 and 15, clock ticks)."""
+    with open(stat_path) as f:
+        fields = f.read().rsplit(")", 1)[1].split()  # after "pid (comm)": field 3 is fields[0]
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _parse_dump(path):
     with open(path) as f:
         lines = f.read().splitlines()
@@ -295,7 +305,10 @@ def _parse_dump(path):
 
 
 def _run_binary(binary, wd, timeout):
-    """Run ``in.pour`` in ``wd`` on one process; return (log text, stdout text, wall seconds)."""
+    """Run ``in.pour`` in ``wd`` on one process; return (log text, stdout text, wall seconds, CPU seconds)."""
+    import resource
+
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     for stale in ("log.liggghts", "final.dump"):
         p = os.path.join(wd, stale)
         if os.path.exists(p):
@@ -314,6 +327,8 @@ def _run_binary(binary, wd, timeout):
         proc.communicate()
         raise RuntimeError(f"LIGGGHTS exceeded timeout of {timeout} s (killed)")
     wall_total = time.perf_counter() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu_total = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
     out = out.decode(errors="replace")
     log_path = os.path.join(wd, "log.liggghts")
     log = open(log_path).read() if os.path.exists(log_path) else ""
@@ -321,7 +336,7 @@ def _run_binary(binary, wd, timeout):
         err = [l for l in (log + "\n" + out).splitlines() if "ERROR" in l or "rror" in l]
         raise RuntimeError(f"LIGGGHTS failed (rc={proc.returncode}) in {wd}: "
                            + ("; ".join(err[-5:]) or out[-2000:]))
-    return log, out, wall_total
+    return log, out, wall_total, cpu_total
 
 
 # --------------------------------------------------------------------------
@@ -350,12 +365,12 @@ def run_pour(positions: np.ndarray,
     and angular velocities (default zero); a settled bed (grains overlap their
     neighbours and the walls) needs ``check_overlap=False``.
 
-    Returned dict keys: version, binary, atoms, steps, dt, loop_time_s,
+    Returned dict keys: version, binary, atoms, steps, dt, loop_time_s, loop_cpu_s (its CPU time),
     particle_steps_per_s, atoms_final, zmax_initial, zmax_final,
     zmean_initial, zmean_final, ke_final, contacts_final (pair contacts),
     neighbor_builds, dangerous_builds, final_positions (atoms_final,3, by id),
     final_velocities, final_omegas, thermo (list of dict rows of the timed run),
-    wall_time_total_s (process incl. start-up), workdir (None if temporary).
+    wall_time_total_s (process incl. start-up), cpu_time_total_s (its user + system CPU time), workdir (None if temporary).
     """
     binary = find_binary()
     if binary is None:
@@ -398,7 +413,7 @@ def run_pour(positions: np.ndarray,
                           e=float(restitution), mu=float(friction),
                           g=float(gravity), floor_z=float(floor_z), R=R,
                           cx=cx, cy=cy, thermo_every=int(thermo_every)))
-        log, out, wall_total = _run_binary(binary, wd, timeout)
+        log, out, wall_total, cpu_total = _run_binary(binary, wd, timeout)
         m_ver = re.search(r"LIGGGHTS \(Version ([^)]*)\)", log + out)
         version = m_ver.group(1) if m_ver else "unknown"
         loops = [(float(a), int(b), int(c), int(dd)) for a, b, c, dd in _LOOP_RE.findall(log)]
@@ -419,6 +434,7 @@ def run_pour(positions: np.ndarray,
         fvel = data[:, [ci["vx"], ci["vy"], ci["vz"]]]
         fomg = data[:, [ci["omegax"], ci["omegay"], ci["omegaz"]]]
 
+        loop_cpu = _cpu_seconds(os.path.join(wd, "stat.after")) - _cpu_seconds(os.path.join(wd, "stat.before"))
         return {
             "version": version,
             "binary": binary,
@@ -427,6 +443,7 @@ def run_pour(positions: np.ndarray,
             "steps": nsteps,
             "dt": float(dt),
             "loop_time_s": loop_time,
+            "loop_cpu_s": loop_cpu,
             "particle_steps_per_s": natoms * nsteps / loop_time if loop_time > 0 else float("inf"),
             "atoms_final": int(final.get("Atoms", fpos.shape[0])),
             "zmax_initial": float(pos[:, 2].max()),
@@ -442,6 +459,7 @@ def run_pour(positions: np.ndarray,
             "final_omegas": fomg,
             "thermo": thermo,
             "wall_time_total_s": wall_total,
+            "cpu_time_total_s": cpu_total,
             "workdir": None if tmp else wd,
         }
     finally:
@@ -586,7 +604,7 @@ def pour_bed(n: int, diameter: float, density: float, youngs_modulus: float, poi
                                e=float(restitution), mu=float(friction), g=float(gravity), floor_z=0.0, R=R,
                                cx=0.0, cy=0.0, fall_steps=fall_steps, chunk=chunk, max_chunks=max_chunks,
                                ke_max=ke_max, gamma=mass / 0.05))
-        log, out, wall = _run_binary(binary, wd, timeout)
+        log, out, wall, _ = _run_binary(binary, wd, timeout)
         blocks = _thermo_blocks(log)
         final = dict(zip(blocks[-1][0], blocks[-1][1][-1]))
         steps = int(final["Step"])
