@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import argparse
 import inspect
-import math
 import os
 import pathlib
 import statistics
@@ -194,6 +193,8 @@ def fair_size(n, precision, threads, arch, substeps, repeats, skin_d, log=print)
         f"{b['simulated_time']:.3f} s simulated, poured in {b['pour_wall_s']:.0f} s)")
     skin = skin_d * D
     f = FbedRun(n, b, R, precision, threads, arch, skin)
+    if not f.with_omega:
+        log("  note: this fbed's set_grains takes no omega: fbed starts without the bed's angular velocities")
     t0 = time.perf_counter()
     f.block(min(substeps, 20))  # compiles the kernels; not timed
     log(f"  fbed compiled and warmed up in {time.perf_counter() - t0:.1f} s")

@@ -25,6 +25,9 @@ same material, atom type 1):
     else Ft = -mu|Fn| shear/|shear| and shear := Ft/(-kt)  (no damping term)
     torque lever arm = R - dn/2.
 
+``pour_bed`` pours and settles a random bed (cached by its parameters): the
+common start of the fair fbed / LIGGGHTS benchmark, benchmarks/dem_throughput.py.
+
 Run ``python benchmarks/liggghts/liggghts_pour.py --n 10000`` for the
 benchmark table.  See README.md next to this file.
 """
