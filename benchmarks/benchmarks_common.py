@@ -65,3 +65,48 @@ def append_results(title: str, rows: list[dict], arch: str, dry: bool = False) -
         with RESULTS.open("a") as f:
             f.write(text)
     return text
+
+
+def count_contacts(position, radius, cylinder_radius: float | None = None, center=(0.0, 0.0),
+                   floor_z: float | None = None) -> dict:
+    """Contacts with an overlap > 0, counted from positions alone (the same count for any code).
+
+    ``position`` (N,3) [m], ``radius`` [m] (one value or N); float32 positions are widened to float64
+    exactly, so a code's rounding shows in its count. Pairs: centre distance < r_i + r_j (cKDTree).
+    Walls, each when given: the floor z = ``floor_z`` (z - r < floor_z) and a z-cylinder of radius
+    ``cylinder_radius`` [m] about ``center`` (r_xy + r > R). Returns pairs, floor, cylinder, walls, total.
+    """
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    pos = np.asarray(position, dtype=np.float64).reshape(-1, 3)
+    r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(pos),))
+    pairs = 0
+    if len(pos) > 1:
+        ij = cKDTree(pos).query_pairs(2.0 * float(r.max()), output_type="ndarray")
+        dx = pos[ij[:, 0]] - pos[ij[:, 1]]
+        reach = r[ij[:, 0]] + r[ij[:, 1]]
+        pairs = int(np.count_nonzero(np.einsum("ij,ij->i", dx, dx) < reach * reach))
+    floor = int(np.count_nonzero(pos[:, 2] - r < floor_z)) if floor_z is not None else 0
+    cylinder = 0
+    if cylinder_radius is not None:
+        rxy = np.hypot(pos[:, 0] - center[0], pos[:, 1] - center[1])
+        cylinder = int(np.count_nonzero(rxy + r > cylinder_radius))
+    return {"pairs": pairs, "floor": floor, "cylinder": cylinder, "walls": floor + cylinder,
+            "total": pairs + floor + cylinder}
+
+
+def interleaved(first: str, second: str, repeats: int) -> list[tuple[int, str]]:
+    """The order in which a side-by-side benchmark runs two codes: (repeat, code) pairs, A B A B ...
+    so that a drift in the machine's speed (load from others) falls on both alike."""
+    return [(k, code) for k in range(repeats) for code in (first, second)]
+
+
+def median_ratio(a: list[float], b: list[float]) -> tuple[float, float, float]:
+    """Median, min and max of the pair-by-pair ratios a[k] / b[k] (pairs run next to each other)."""
+    import statistics
+
+    if len(a) != len(b) or not a:
+        raise ValueError("need as many timings of each code, at least one")
+    q = [x / y for x, y in zip(a, b)]
+    return statistics.median(q), min(q), max(q)

@@ -25,6 +25,9 @@ same material, atom type 1):
     else Ft = -mu|Fn| shear/|shear| and shear := Ft/(-kt)  (no damping term)
     torque lever arm = R - dn/2.
 
+``pour_bed`` pours and settles a random bed (cached by its parameters): the
+common start of the fair fbed / LIGGGHTS benchmark, benchmarks/dem_throughput.py.
+
 Run ``python benchmarks/liggghts/liggghts_pour.py --n 10000`` for the
 benchmark table.  See README.md next to this file.
 """
@@ -167,7 +170,7 @@ def _check_positions(pos, diameter, cylinder_radius, center, floor_z, top_z):
 # deck / data file
 # --------------------------------------------------------------------------
 
-def _write_data(path, pos, diameter, density, box):
+def _write_data(path, pos, diameter, density, box, velocities=None, omegas=None):
     n = pos.shape[0]
     (xlo, xhi), (ylo, yhi), (zlo, zhi) = box
     with open(path, "w") as f:
@@ -183,10 +186,13 @@ def _write_data(path, pos, diameter, density, box):
                                  np.full(n, density), pos])
         np.savetxt(f, table, fmt=["%d", "%d", "%.17g", "%.17g",
                                   "%.17g", "%.17g", "%.17g"])
-        # zero initial translational and angular velocity (explicit)
+        # translational and angular velocity (zero unless given): atom-ID vx vy vz wx wy wz
         f.write("\nVelocities\n\n")
-        vel = np.column_stack([ids, np.zeros((n, 6))])
-        np.savetxt(f, vel, fmt=["%d"] + ["%g"] * 6)
+        v = np.zeros((n, 3)) if velocities is None else np.asarray(velocities, np.float64)
+        w = np.zeros((n, 3)) if omegas is None else np.asarray(omegas, np.float64)
+        if v.shape != (n, 3) or w.shape != (n, 3):
+            raise ValueError("velocities and omegas must be (N,3) like positions")
+        np.savetxt(f, np.column_stack([ids, v, w]), fmt=["%d"] + ["%.17g"] * 6)
 
 
 def _deck(*, dt, steps, skin, E, nu, e, mu, g, floor_z, R, cx, cy, thermo_every):
@@ -230,17 +236,25 @@ thermo_style    custom step atoms ke c_rke c_zmax c_zavg
 thermo          {thermo_every}
 thermo_modify   lost ignore norm no
 
+# the process's CPU time (utime, stime in /proc/PID/stat) around the timed loop
+shell           "cat /proc/$PPID/stat > stat.before"
 run             {steps}
+shell           "cat /proc/$PPID/stat > stat.after"
 
 # ---- final state, outside the timed loop ----
 compute ca all contact/atom
 compute ncont all reduce sum c_ca
 thermo_style    custom step atoms ke c_zmax c_zavg c_ncont
 thermo_modify   lost ignore norm no
-dump final all custom 1 final.dump id x y z vx vy vz
-dump_modify final sort id
+dump final all custom 1 final.dump id x y z vx vy vz omegax omegay omegaz
+dump_modify final sort id format "{_DUMP_FORMAT}"
 run             0 post no
 """
+
+
+# every column at full double precision (the default %g keeps 6 digits: 0.1 um at 0.1 m,
+# as large as the overlaps of a settled bed's top layer)
+_DUMP_FORMAT = "%d" + " %.17g" * 9
 
 
 # --------------------------------------------------------------------------
@@ -277,6 +291,13 @@ def _thermo_blocks(text):
     return blocks
 
 
+def _cpu_seconds(stat_path):
+    """user + system CPU seconds from a copy of /proc/PID/stat (fields 14 and 15, clock ticks)."""
+    with open(stat_path) as f:
+        fields = f.read().rsplit(")", 1)[1].split()  # after "pid (comm)": field 3 is fields[0]
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _parse_dump(path):
     with open(path) as f:
         lines = f.read().splitlines()
@@ -284,6 +305,41 @@ def _parse_dump(path):
     cols = lines[k].split()[2:]
     data = np.loadtxt(lines[k + 1:], ndmin=2) if len(lines) > k + 1 else np.zeros((0, len(cols)))
     return cols, data
+
+
+def _run_binary(binary, wd, timeout):
+    """Run ``in.pour`` in ``wd`` on one process; return (log text, stdout text, wall seconds, CPU seconds)."""
+    import resource
+
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    for stale in ("log.liggghts", "final.dump"):
+        p = os.path.join(wd, stale)
+        if os.path.exists(p):
+            os.remove(p)
+    env = dict(os.environ)
+    env["OMP_NUM_THREADS"] = "1"
+    cmd = [binary, "-in", "in.pour", "-log", "log.liggghts",
+           "-echo", "none", "-screen", "none"]
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, cwd=wd, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        raise RuntimeError(f"LIGGGHTS exceeded timeout of {timeout} s (killed)")
+    wall_total = time.perf_counter() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu_total = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+    out = out.decode(errors="replace")
+    log_path = os.path.join(wd, "log.liggghts")
+    log = open(log_path).read() if os.path.exists(log_path) else ""
+    if proc.returncode != 0 or "ERROR" in log:
+        err = [l for l in (log + "\n" + out).splitlines() if "ERROR" in l or "rror" in l]
+        raise RuntimeError(f"LIGGGHTS failed (rc={proc.returncode}) in {wd}: "
+                           + ("; ".join(err[-5:]) or out[-2000:]))
+    return log, out, wall_total, cpu_total
 
 
 # --------------------------------------------------------------------------
@@ -299,7 +355,8 @@ def run_pour(positions: np.ndarray,
              *, dt: float, steps: int, gravity: float = 9.81,
              workdir: str | None = None,
              skin: float | None = None, thermo_every: int | None = None,
-             timeout: float = 900.0, check_overlap: bool = True) -> dict:
+             timeout: float = 900.0, check_overlap: bool = True,
+             velocities: np.ndarray | None = None, omegas: np.ndarray | None = None) -> dict:
     """Run a LIGGGHTS pour on one core and return timing + final-state info.
 
     top_z is the (open) top of the non-periodic simulation box; default
@@ -307,14 +364,16 @@ def run_pour(positions: np.ndarray,
     and show up as ``atoms_final < atoms``.  ``skin`` defaults to
     0.1*diameter [m].  If ``workdir`` is None a temporary directory is used
     and removed afterwards; otherwise deck, data, log and final.dump stay
-    there.
+    there.  ``velocities`` and ``omegas`` (N,3) set the initial translational
+    and angular velocities (default zero); a settled bed (grains overlap their
+    neighbours and the walls) needs ``check_overlap=False``.
 
-    Returned dict keys: version, binary, atoms, steps, dt, loop_time_s,
+    Returned dict keys: version, binary, atoms, steps, dt, loop_time_s, loop_cpu_s (its CPU time),
     particle_steps_per_s, atoms_final, zmax_initial, zmax_final,
     zmean_initial, zmean_final, ke_final, contacts_final (pair contacts),
     neighbor_builds, dangerous_builds, final_positions (atoms_final,3, by id),
-    final_velocities, thermo (list of dict rows of the timed run),
-    wall_time_total_s (process incl. start-up), workdir (None if temporary).
+    final_velocities, final_omegas, thermo (list of dict rows of the timed run),
+    wall_time_total_s (process incl. start-up), cpu_time_total_s (its user + system CPU time), workdir (None if temporary).
     """
     binary = find_binary()
     if binary is None:
@@ -350,41 +409,15 @@ def run_pour(positions: np.ndarray,
         wd = os.path.abspath(workdir)
         os.makedirs(wd, exist_ok=True)
     try:
-        _write_data(os.path.join(wd, "data.pour"), pos, d, float(density), box)
+        _write_data(os.path.join(wd, "data.pour"), pos, d, float(density), box, velocities, omegas)
         with open(os.path.join(wd, "in.pour"), "w") as f:
             f.write(_deck(dt=float(dt), steps=steps, skin=float(skin),
                           E=float(youngs_modulus), nu=float(poisson_ratio),
                           e=float(restitution), mu=float(friction),
                           g=float(gravity), floor_z=float(floor_z), R=R,
                           cx=cx, cy=cy, thermo_every=int(thermo_every)))
-        for stale in ("log.liggghts", "final.dump"):
-            p = os.path.join(wd, stale)
-            if os.path.exists(p):
-                os.remove(p)
-
-        env = dict(os.environ)
-        env["OMP_NUM_THREADS"] = "1"
-        cmd = [binary, "-in", "in.pour", "-log", "log.liggghts",
-               "-echo", "none", "-screen", "none"]
-        t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, cwd=wd, env=env, stdout=subprocess.PIPE,
-                                stderr=subprocess.STDOUT, start_new_session=True)
-        try:
-            out, _ = proc.communicate(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.communicate()
-            raise RuntimeError(f"LIGGGHTS exceeded timeout of {timeout} s (killed)")
-        wall_total = time.perf_counter() - t0
-        log_path = os.path.join(wd, "log.liggghts")
-        log = open(log_path).read() if os.path.exists(log_path) else ""
-        if proc.returncode != 0 or "ERROR" in log:
-            err = [l for l in (log + "\n" + out.decode(errors="replace")).splitlines()
-                   if "ERROR" in l or "rror" in l]
-            raise RuntimeError(f"LIGGGHTS failed (rc={proc.returncode}): "
-                               + ("; ".join(err[-5:]) or out.decode(errors="replace")[-2000:]))
-
-        m_ver = re.search(r"LIGGGHTS \(Version ([^)]*)\)", log + out.decode(errors="replace"))
+        log, out, wall_total, cpu_total = _run_binary(binary, wd, timeout)
+        m_ver = re.search(r"LIGGGHTS \(Version ([^)]*)\)", log + out)
         version = m_ver.group(1) if m_ver else "unknown"
         loops = [(float(a), int(b), int(c), int(dd)) for a, b, c, dd in _LOOP_RE.findall(log)]
         main = next((l for l in loops if l[2] == steps), None)
@@ -402,7 +435,9 @@ def run_pour(positions: np.ndarray,
         ci = {c: i for i, c in enumerate(cols)}
         fpos = data[:, [ci["x"], ci["y"], ci["z"]]]
         fvel = data[:, [ci["vx"], ci["vy"], ci["vz"]]]
+        fomg = data[:, [ci["omegax"], ci["omegay"], ci["omegaz"]]]
 
+        loop_cpu = _cpu_seconds(os.path.join(wd, "stat.after")) - _cpu_seconds(os.path.join(wd, "stat.before"))
         return {
             "version": version,
             "binary": binary,
@@ -411,6 +446,7 @@ def run_pour(positions: np.ndarray,
             "steps": nsteps,
             "dt": float(dt),
             "loop_time_s": loop_time,
+            "loop_cpu_s": loop_cpu,
             "particle_steps_per_s": natoms * nsteps / loop_time if loop_time > 0 else float("inf"),
             "atoms_final": int(final.get("Atoms", fpos.shape[0])),
             "zmax_initial": float(pos[:, 2].max()),
@@ -423,13 +459,182 @@ def run_pour(positions: np.ndarray,
             "dangerous_builds": int(db[0]) if db else None,
             "final_positions": fpos,
             "final_velocities": fvel,
+            "final_omegas": fomg,
             "thermo": thermo,
             "wall_time_total_s": wall_total,
+            "cpu_time_total_s": cpu_total,
             "workdir": None if tmp else wd,
         }
     finally:
         if tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+# --------------------------------------------------------------------------
+# settled random beds (the start of the fair fbed / LIGGGHTS benchmark)
+# --------------------------------------------------------------------------
+
+POUR_VERSION = 1  # bump when the pour changes, so cached beds are made again
+
+
+def settled_radius(n: int, diameter: float, solid_fraction: float = 0.6, aspect: float = 2.0) -> float:
+    """Cylinder radius [m] in which ``n`` grains settle (at ``solid_fraction``) to a bed ``aspect`` x R tall."""
+    volume = n * math.pi / 6.0 * diameter ** 3 / solid_fraction
+    return (volume / (math.pi * aspect)) ** (1.0 / 3.0)
+
+
+def make_loose(n: int, diameter: float, cylinder_radius: float, spacing: float = 1.3,
+               jitter: float = 0.14, seed: int = 0) -> np.ndarray:
+    """Loose random start for a pour: a lattice of pitch ``spacing`` d, every site shifted by
+    U(-jitter, jitter) d in x, y and z (so no two grains touch: jitter < (spacing-1)/2)."""
+    pos, _ = make_lattice(n, diameter, spacing, cylinder_radius, jitter=jitter, seed=seed)
+    rng = np.random.default_rng(seed + 1)
+    pos[:, 2] += rng.uniform(-jitter, jitter, size=n) * diameter
+    return pos
+
+
+def _pour_deck(*, dt, skin, E, nu, e, mu, g, floor_z, R, cx, cy, fall_steps, chunk, max_chunks, ke_max, gamma):
+    soft = "soft_particles   yes\n" if E < 5e6 else ""
+    return f"""# fbed settled bed -- generated by benchmarks/liggghts/liggghts_pour.py (pour_bed)
+units           si
+atom_style      granular
+atom_modify     map array
+boundary        f f f
+newton          off
+communicate     single vel yes
+processors      1 1 1
+{soft}
+read_data       data.pour
+neighbor        {skin:.17g} bin
+neigh_modify    delay 0
+
+fix m1 all property/global youngsModulus peratomtype {E:.17g}
+fix m2 all property/global poissonsRatio peratomtype {nu:.17g}
+fix m3 all property/global coefficientRestitution peratomtypepair 1 {e:.17g}
+fix m4 all property/global coefficientFriction peratomtypepair 1 {mu:.17g}
+pair_style      gran model hertz tangential history
+pair_coeff      * *
+timestep        {dt:.17g}
+fix gravi all gravity {g:.17g} vector 0.0 0.0 -1.0
+fix floor all wall/gran model hertz tangential history primitive type 1 zplane {floor_z:.17g}
+fix side  all wall/gran model hertz tangential history primitive type 1 zcylinder {R:.17g} {cx:.17g} {cy:.17g}
+fix integr all nve/sphere
+
+compute rke all erotate/sphere
+thermo_style    custom step atoms ke c_rke
+thermo          {chunk}
+thermo_modify   lost ignore norm no
+
+# the fall, then chunks until the kinetic energy (translational + rotational) is below ke_max [J]
+run             {fall_steps}
+# settling: a drag F = -gamma v (time m/gamma = 0.05 s) stops grains rolling on the surface
+fix visc all viscous {gamma:.6g}
+variable kk equal ke
+variable rk equal c_rke
+variable a loop {max_chunks}
+label settle
+run             {chunk}
+if "$(v_kk + v_rk) < {ke_max:.6g}" then "jump SELF settled"
+next a
+jump SELF settle
+label settled
+
+compute ca all contact/atom
+compute ncont all reduce sum c_ca
+thermo_style    custom step atoms ke c_rke c_ncont
+thermo_modify   lost ignore norm no
+dump final all custom 1 final.dump id x y z vx vy vz omegax omegay omegaz
+dump_modify final sort id format "{_DUMP_FORMAT}"
+run             0 post no
+"""
+
+
+def pour_bed(n: int, diameter: float, density: float, youngs_modulus: float, poisson_ratio: float,
+             restitution: float, friction: float, *, cylinder_radius: float | None = None,
+             dt: float = 2e-5, seed: int = 0, spacing: float = 1.3, jitter: float = 0.14,
+             settle_speed: float = 1e-3, max_time: float = 3.0, gravity: float = 9.81,
+             cache_dir: str | None = None, timeout: float = 3600.0) -> dict:
+    """Pour ``n`` random grains into a z-cylinder (floor at z = 0) in LIGGGHTS and let them settle.
+
+    The grains start loose (:func:`make_loose`, solid fraction ~0.24) and fall under gravity
+    with the given contact law at step ``dt`` (a pour: a longer step and a lower restitution than
+    the benchmark's are fine, the result is only a start); then the run goes on in chunks of 0.01 s
+    with a viscous drag on every grain (time m/gamma = 0.05 s, so grains rolling on the surface
+    stop too) until the kinetic energy (translational + rotational) is below that of every grain moving at
+    ``settle_speed`` [m/s]; RuntimeError if that takes more than ``max_time`` [s] simulated.
+
+    With ``cache_dir`` the settled state is kept there as ``bed_n<N>_<key>.npz`` (key: a hash of
+    every parameter and POUR_VERSION) and read back on the next call instead of pouring again.
+    Returns a dict: position, velocity, omega (N,3 by id), cylinder_radius, floor_z, key, cached,
+    simulated_time, pour_wall_s, contacts (LIGGGHTS's pair count), path.
+    """
+    import hashlib
+    import json
+
+    d = float(diameter)
+    R = float(cylinder_radius) if cylinder_radius else settled_radius(n, d)
+    params = dict(version=POUR_VERSION, n=int(n), d=d, rho=float(density), E=float(youngs_modulus),
+                  nu=float(poisson_ratio), e=float(restitution), mu=float(friction), R=R, dt=float(dt),
+                  seed=int(seed), spacing=float(spacing), jitter=float(jitter),
+                  settle_speed=float(settle_speed), g=float(gravity))
+    key = hashlib.sha1(json.dumps(params, sort_keys=True).encode()).hexdigest()[:12]
+    path = os.path.join(cache_dir, f"bed_n{n}_{key}.npz") if cache_dir else None
+    if path and os.path.exists(path):
+        z = np.load(path)
+        return {"position": z["position"], "velocity": z["velocity"], "omega": z["omega"],
+                "cylinder_radius": float(z["cylinder_radius"]), "floor_z": 0.0, "key": key, "cached": True,
+                "simulated_time": float(z["simulated_time"]), "pour_wall_s": float(z["pour_wall_s"]),
+                "contacts": int(z["contacts"]), "path": path, "params": params}
+
+    binary = find_binary()
+    if binary is None:
+        raise RuntimeError("LIGGGHTS binary not found (apt-get install -y liggghts)")
+    pos = make_loose(n, d, R, spacing, jitter, seed)
+    h0 = float(pos[:, 2].max())
+    h1 = 2.0 * R  # about the settled height
+    fall_steps = max(1, int(math.sqrt(2.0 * max(h0 - h1, d) / gravity) / dt))
+    chunk = max(1, int(round(0.01 / dt)))
+    max_chunks = max(1, int((max_time - fall_steps * dt) / (chunk * dt)))
+    mass = density * math.pi / 6.0 * d ** 3
+    ke_max = 0.5 * n * mass * settle_speed ** 2
+    margin = 2.0 * d
+    box = ((-R - margin, R + margin), (-R - margin, R + margin), (-margin, h0 + 2.0 * d))
+    wd = tempfile.mkdtemp(prefix="liggghts_bed_")
+    try:
+        _write_data(os.path.join(wd, "data.pour"), pos, d, float(density), box)
+        with open(os.path.join(wd, "in.pour"), "w") as f:
+            f.write(_pour_deck(dt=float(dt), skin=0.1 * d, E=float(youngs_modulus), nu=float(poisson_ratio),
+                               e=float(restitution), mu=float(friction), g=float(gravity), floor_z=0.0, R=R,
+                               cx=0.0, cy=0.0, fall_steps=fall_steps, chunk=chunk, max_chunks=max_chunks,
+                               ke_max=ke_max, gamma=mass / 0.05))
+        log, out, wall, _ = _run_binary(binary, wd, timeout)
+        blocks = _thermo_blocks(log)
+        final = dict(zip(blocks[-1][0], blocks[-1][1][-1]))
+        steps = int(final["Step"])
+        ke = final["KinEng"] + final["rke"]
+        if ke >= ke_max:
+            raise RuntimeError(f"the {n}-grain pour did not settle in {max_time} s simulated "
+                               f"(kinetic energy {ke:.3g} J > {ke_max:.3g} J): raise max_time")
+        if int(final["Atoms"]) != n:
+            raise RuntimeError(f"the pour lost {n - int(final['Atoms'])} grains")
+        cols, data = _parse_dump(os.path.join(wd, "final.dump"))
+        ci = {c: i for i, c in enumerate(cols)}
+        res = {"position": data[:, [ci["x"], ci["y"], ci["z"]]],
+               "velocity": data[:, [ci["vx"], ci["vy"], ci["vz"]]],
+               "omega": data[:, [ci["omegax"], ci["omegay"], ci["omegaz"]]],
+               "cylinder_radius": R, "floor_z": 0.0, "key": key, "cached": False,
+               "simulated_time": steps * dt, "pour_wall_s": wall,
+               "contacts": int(round(final["ncont"] / 2)), "path": path, "params": params}
+    finally:
+        shutil.rmtree(wd, ignore_errors=True)
+    if path:
+        os.makedirs(cache_dir, exist_ok=True)
+        tmp = path + ".tmp.npz"
+        np.savez(tmp, **{k: res[k] for k in ("position", "velocity", "omega", "cylinder_radius",
+                                             "simulated_time", "pour_wall_s", "contacts")},
+                 params=json.dumps(params))
+        os.replace(tmp, path)
+    return res
 
 
 # --------------------------------------------------------------------------
