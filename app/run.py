@@ -336,8 +336,8 @@ def _flat(cfg) -> dict:
         free = RESUME_FREE.get(name, set())
         if free is None:
             continue
+        out[f"[{name}]"] = "absent" if section is None else "present"
         if section is None:
-            out[f"[{name}]"] = "absent"
             continue
         for f in dataclasses.fields(section):
             if f.name in free:
@@ -353,13 +353,15 @@ def check_same_scene(cfg, run_cfg, preset_path: pathlib.Path, out_dir: pathlib.P
     """Refuse to resume a run with a preset (or --set) whose scene differs from the run's config.toml."""
     a, b = _flat(cfg), _flat(run_cfg)
     diff = [k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+    whole = {k[1:-1] for k in diff if k.startswith("[")}  # a section one side lacks: named once, not key by key
+    diff = [k for k in diff if k.startswith("[") or k.split(".")[0] not in whole]
     if diff:
-        shown = ", ".join(f"{k} ({a.get(k, 'absent')!s:.30} here, {b.get(k, 'absent')!s:.30} in the run)"
-                          for k in diff[:4])
-        raise ConfigError(f"this preset's scene differs from the run's in {len(diff)} key(s): {shown}"
-                          f"{', ...' if len(diff) > 4 else ''}", str(preset_path), "--resume",
-                          hint=f"resume with the run's own settings (fbed run --resume {out_dir}); a resume may "
-                               "change only run.duration, [output], [video], [guard], [probes] and [boundary]")
+        names = ", ".join(diff[:12]) + (f" and {len(diff) - 12} more" if len(diff) > 12 else "")
+        values = "; ".join(f"{k}: {a.get(k, 'absent')!s:.30} here, {b.get(k, 'absent')!s:.30} in the run"
+                           for k in diff[:3])
+        raise ConfigError(f"this preset's scene differs from the run's in {names} ({values})", str(preset_path),
+                          "--resume", hint=f"resume with the run's own settings (fbed run --resume {out_dir}); a "
+                          "resume may change only run.duration, [output], [video], [guard], [probes] and [boundary]")
 
 
 def check_readable(out_dir: pathlib.Path) -> None:
@@ -553,6 +555,7 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
                                   hint="resume with the run's own config.toml")
             restore_gas(flow, coupler, gas_arrays)
         sim.step_count = int(meta["step"])
+        sim.fresh = False  # its start was recorded by the run it continues (even one stopped at step 0)
         if sim.step_count >= sim.total_steps:
             log(f"{out_dir}: already at t = {sim.time:g} s >= run.duration; extend it with --set run.duration=...")
     schedule = None

@@ -244,11 +244,14 @@ class RunFile:
             self.f.create_dataset("particle_id", data=grain_ids(len(radius)))
         k = len(self.particles)
         g = self.particles.create_group(str(k))
-        g["time"] = time
-        g.create_dataset("position", data=np.asarray(position, np.float32), compression="gzip", compression_opts=1)
-        g.create_dataset("velocity", data=np.asarray(velocity, np.float32), compression="gzip", compression_opts=1)
-        g.create_dataset("radius", data=np.asarray(radius, np.float32), compression="gzip", compression_opts=1)
-        self.f.flush()
+        try:
+            g["time"] = time
+            for name, arr in (("position", position), ("velocity", velocity), ("radius", radius)):
+                g.create_dataset(name, data=np.asarray(arr, np.float32), compression="gzip", compression_opts=1)
+            self.f.flush()
+        except BaseException:  # no half-written snapshot is left in the file
+            del self.particles[str(k)]
+            raise
         return k
 
     def gas_fields(self, time: float, gas_velocity, pressure, void_fraction) -> int:
@@ -259,10 +262,15 @@ class RunFile:
         fields = self.f.require_group("fields")
         k = len(fields)
         g = fields.create_group(str(k))
-        g["time"] = time
-        for name, arr in (("gas_velocity", gas_velocity), ("pressure", pressure), ("void_fraction", void_fraction)):
-            g.create_dataset(name, data=np.asarray(arr, np.float32), compression="gzip", compression_opts=1)
-        self.f.flush()
+        try:
+            g["time"] = time
+            for name, arr in (("gas_velocity", gas_velocity), ("pressure", pressure),
+                              ("void_fraction", void_fraction)):
+                g.create_dataset(name, data=np.asarray(arr, np.float32), compression="gzip", compression_opts=1)
+            self.f.flush()
+        except BaseException:  # no half-written snapshot is left in the file
+            del fields[str(k)]
+            raise
         return k
 
     def _frame_groups(self, name: str):
