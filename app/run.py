@@ -91,6 +91,17 @@ def prepared_state(cfg, preset_path: pathlib.Path, arch: str, chain: tuple = ())
         text += str(prepared_state(prep_cfg, prep, arch, chain + (prep.resolve(),)))
     key = hashlib.sha1(text.encode()).hexdigest()[:10]
     cache = pathlib.Path("runs") / "prepared" / f"{prep.stem}-{key}"
+    # one process prepares at a time (sweep cases start together): the others wait for it, then reuse its result
+    import fcntl
+
+    locks = cache.parent / ".locks"
+    locks.mkdir(parents=True, exist_ok=True)
+    with open(locks / (cache.name + ".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        return _prepare(prep, cache, arch)
+
+
+def _prepare(prep: pathlib.Path, cache: pathlib.Path, arch: str) -> pathlib.Path:
     summary = cache / "summary.json"
     status = None  # of the cached preparation: None when there is none to go on from
     if (cache / "checkpoint.h5").exists() and (cache / "config.toml").exists():
@@ -235,7 +246,8 @@ class Progress:
             if s.flow is not None:
                 gas = f"  gas {s.diagnostics()['gas_max_speed']:.3g} m/s{_fastest_cell(s.gas_fastest_cell())}"
             eta_text = f"ETA {_duration(eta)}" if eta is not None else "ETA ..."
-            log(f"t {s.time:.4g}/{s.duration:g} s  step {s.step_count}/{s.total_steps}  {rate:.3g} st/s  "
+            rate_text = f"{rate:.3g} st/s" if rate > 0 else "... st/s"
+            log(f"t {s.time:.4g}/{s.duration:g} s  step {s.step_count}/{s.total_steps}  {rate_text}  "
                 f"{eta_text}{gas}")
 
     def finish(self, sim, reason):
@@ -398,7 +410,7 @@ def cpu_estimate_note(preset_path: pathlib.Path, n: int, substeps: int, steps: i
     small = preset_path.with_name(preset_path.stem + "_small.toml")
     alt = f"; its small variant runs in minutes: fbed run {small}" if small.exists() else ""
     return (f"fbed: note: this is a GPU-sized scene ({n:,} grains): on the CPU it takes roughly "
-            f"{_duration(est)} (estimated at 2 cores){alt}")
+            f"{_duration(est)} (estimated from verma_small's rate on 2 cores){alt}")
 
 
 class WallCheckpoints:

@@ -250,7 +250,7 @@ def test_an_interrupted_preparation_resumes(tmp_path):
     _, err = p.communicate(timeout=300)
     err = head + err
     assert "Traceback" not in err, err[-2000:]
-    cache = next(tmp_path.glob("runs/prepared/*"))
+    (cache,) = [d for d in tmp_path.glob("runs/prepared/prep-*") if d.is_dir()]
     assert json.loads((cache / "summary.json").read_text())["status"] == "interrupted", err[-2000:]
     t_stop = checkpoint_time(cache / "checkpoint.h5")
     r = fbed("run", main, "--arch", "cpu", "--set", "run.threads=1", "--set", "run.duration=0.31", cwd=tmp_path)
