@@ -1,7 +1,9 @@
 """`fbed run`: build a scene, attach writers, progress, checkpoints and the guard, run it.
 
-Owns: the output folder (config.toml, run.h5, checkpoint.h5, bed.h5, summary.json), the
-resume logic, and signal handling (Ctrl-C / SIGTERM stop cleanly with a checkpoint).
+Owns: the output folder (config.toml, run.h5, checkpoint.h5, bed.h5, summary.json, the .xdmf indexes),
+its protection (RUN_OUTPUTS), the resume logic and its checks (same scene, readable files), signal
+handling (Ctrl-C / SIGTERM stop cleanly with a checkpoint; a second one waits for it) and the stop on
+a full disk (store.DiskFull: exit 3, the last good checkpoint kept).
 Exit codes: 0 finished, 2 bad input, 3 stopped by the guard or a full disk, 130 interrupted.
 """
 from __future__ import annotations
@@ -693,7 +695,8 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
     if o.checkpoint_interval:
         sim.add(guarded(checkpoint), o.checkpoint_interval)
     if o.checkpoint_wall_interval:
-        sim.add(guarded(WallCheckpoints(checkpoint, o.checkpoint_wall_interval)), wall=WallCheckpoints.CHECK)
+        # the clock is looked at every second; the guard runs only before a checkpoint is written
+        sim.add(WallCheckpoints(guarded(checkpoint), o.checkpoint_wall_interval), wall=WallCheckpoints.CHECK)
     writer = None
     if renderer is not None and cfg.video.enabled:
         from .gui.video import VideoWriter

@@ -71,26 +71,61 @@ def checkpoint_time(path: pathlib.Path) -> float:
 # -- disk full
 
 
-def test_disk_full_mid_run_on_a_small_tmpfs(tmp_path):
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 3 MB tmpfs (root may mount one on this machine and CI's; elsewhere the test skips and the injected
+    ENOSPC tests below cover the same stops)."""
     disk = tmp_path / "disk"
     disk.mkdir()
     if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=3m", "tmpfs", str(disk)],
                       capture_output=True).returncode != 0:
         pytest.skip("mounting a tmpfs is not permitted here (the injected ENOSPC tests cover the same stop)")
     try:
-        out = disk / "run"
-        # a snapshot every step (about 40 kB of run.h5 each) fills 3 MB within a few dozen steps; a checkpoint
-        # every 5 steps leaves a good one behind
-        r = fbed("run", SETTLE, *TINY, "--set", "run.duration=1", "--set", "output.particles_interval=1e-3",
-                 "--set", "output.checkpoint_interval=5e-3", "--out", out)
-        assert_clean_stop(r, out, 3, "the disk is full", "needed", "MB", "the last good checkpoint")
-        t = checkpoint_time(out / "checkpoint.h5")
-        assert 0 < t < 1
-        assert (out / "config.toml").read_text().startswith("# fbed resolved configuration")
-        with h5py.File(out / "run.h5", "r") as f:  # run.h5 still opens: its series reach the checkpoint
-            assert f["series/time"][-1] >= t - 1e-9
+        yield disk
     finally:
         subprocess.run(["umount", str(disk)], check=False)
+
+
+def test_disk_full_at_the_final_checkpoint_on_a_small_tmpfs(small_disk):
+    """A run to 10 ms, then the disk filled to leave the margin and 90 kB, then a resume to 12 ms: its final
+    snapshot (8 kB of data) fits, its final checkpoint (137 kB) does not."""
+    from app.io import store
+
+    out = small_disk / "run"
+    r = fbed("run", SETTLE, *TINY, "--set", "run.duration=0.01", "--set", "output.particles_interval=0",
+             "--out", out)
+    assert r.returncode == 0, r.stderr[-2000:]
+    before = {name: (out / name).read_bytes() for name in ("checkpoint.h5", "bed.h5")}
+    filler = small_disk / "filler"
+    with open(filler, "wb") as f:
+        f.write(b"\0" * (os.statvfs(small_disk).f_bavail * os.statvfs(small_disk).f_frsize
+                         - store.SPACE_MARGIN - 90_000))
+    r = fbed("run", "--resume", out, "--set", "run.duration=0.012")
+    assert_clean_stop(r, out, 3, "the disk is full: writing checkpoint.h5 needed", "free on its disk",
+                      "t = 0.01 s) is kept", "resume with: fbed run --resume")
+    for name, data in before.items():  # the last good checkpoint and the earlier bed, byte for byte
+        assert (out / name).read_bytes() == data
+    assert checkpoint_time(out / "checkpoint.h5") == pytest.approx(0.01)
+    with h5py.File(out / "run.h5", "r") as f:  # still readable, its final snapshot in
+        assert float(f["particles"][str(len(f["particles"]) - 1)]["time"][()]) == pytest.approx(0.012)
+    filler.unlink()  # with room again, the run goes on from the kept checkpoint
+    r = fbed("run", "--resume", out, "--set", "run.duration=0.012")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert checkpoint_time(out / "checkpoint.h5") == pytest.approx(0.012)
+
+
+def test_disk_full_mid_run_on_a_small_tmpfs(small_disk):
+    out = small_disk / "run"
+    # a snapshot every step (about 40 kB of run.h5 each) fills 3 MB within a few dozen steps; a checkpoint
+    # every 5 steps leaves a good one behind
+    r = fbed("run", SETTLE, *TINY, "--set", "run.duration=1", "--set", "output.particles_interval=1e-3",
+             "--set", "output.checkpoint_interval=5e-3", "--out", out)
+    assert_clean_stop(r, out, 3, "the disk is full", "needed", "MB", "the last good checkpoint")
+    t = checkpoint_time(out / "checkpoint.h5")
+    assert 0 < t < 1
+    assert (out / "config.toml").read_text().startswith("# fbed resolved configuration")
+    with h5py.File(out / "run.h5", "r") as f:  # run.h5 still opens: its series reach the checkpoint
+        assert f["series/time"][-1] >= t - 1e-9
 
 
 def test_disk_full_mid_run_injected(tmp_path):
