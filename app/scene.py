@@ -217,8 +217,11 @@ class Scene:
             # grains smaller than the preset's would break its neighbour list sizing, larger ones its cells: both
             # are refused with the two sizes named (the relative 1e-6 absorbs float32 storage)
             if n and (rmax > d.radius_max * (1 + 1e-6) or rmin < d.radius_min * (1 - 1e-6)):
-                raise ConfigError(f"the bed's grains have diameters {2 * rmin:g} to {2 * rmax:g} m, the preset's "
-                                  f"{2 * d.radius_min:g} to {2 * d.radius_max:g} m", str(path),
+                def sizes(lo, hi):
+                    return f"{2 * lo:g} m" if hi <= lo * (1 + 1e-6) else f"{2 * lo:g} to {2 * hi:g} m"
+
+                raise ConfigError(f"the bed's grains have diameters {sizes(rmin, rmax)}, the preset's "
+                                  f"{sizes(d.radius_min, d.radius_max)}", str(path),
                                   "particles.initial_state", hint="set particles.diameter to the bed's, or use a "
                                   "bed made with this preset's sizes")
         else:
