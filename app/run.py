@@ -436,13 +436,18 @@ class WallCheckpoints:
             self.interval = min(2 * self.interval, self.longest)
 
 
-def write_xdmf(out_dir: pathlib.Path) -> None:
-    """run.xdmf (and particles.xdmf, checkpoint.xdmf, bed.xdmf) for ParaView: small XML files that point into the
-    HDF5 files; a failure here costs only them."""
+def write_xdmf(out_dir: pathlib.Path, runfile=None) -> None:
+    """run.xdmf (and particles.xdmf, checkpoint.xdmf) for ParaView: small XML files that point into the HDF5
+    files, at every checkpoint (``runfile``: run.h5 open for writing) and, with bed.xdmf, at the end; a failure
+    here costs only them."""
     from .io import xdmf
 
     try:
-        xdmf.write_all(out_dir)
+        if runfile is not None:
+            xdmf.write_run(runfile.path, runfile.f)
+            xdmf.write_state(out_dir / "checkpoint.h5")
+        else:
+            xdmf.write_all(out_dir)
     except store.DiskFull as err:
         log(f"fbed: run.xdmf not written: {err}")
     except Exception as err:  # noqa: BLE001 - a viewer's index must never lose the run's outputs
@@ -638,6 +643,7 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
         runfile.flush()  # every row up to the checkpoint is on disk: a resumed run continues the series
         grains, gas = state_of(s)
         store.write_checkpoint(path, grains, gas, s.time, s.step_count, config_text)
+        write_xdmf(out_dir, runfile)  # a run killed later still opens in ParaView up to here
 
     energy_floor = 0.0
     if dem is not None:  # every grain at sqrt(g d), the speed of a fall through one diameter (standard g)

@@ -140,6 +140,9 @@ def test_disk_full_mid_run_injected(tmp_path):
     with h5py.File(out / "run.h5", "r") as f:  # the failed snapshot left no empty group behind
         snaps = f["particles"]
         assert len(snaps) == 11 and all("position" in snaps[k] for k in snaps)
+    # run.xdmf as of the last checkpoint (written with each one): it names only snapshots run.h5 holds
+    xml = (out / "run.xdmf").read_text()
+    assert "/particles/10/position" in xml and "/particles/11/" not in xml
     # the kept checkpoint resumes once there is room again
     r = fbed("run", "--resume", out, "--set", "run.duration=0.03")
     assert r.returncode == 0, r.stderr[-2000:]

@@ -103,12 +103,16 @@ def _write(path: pathlib.Path, text: str) -> None:
     write_text(path, text)
 
 
-def write_run(run_h5: pathlib.Path) -> list[pathlib.Path]:
-    """run.xdmf (and particles.xdmf when there is gas too) beside ``run_h5``; returns the files written."""
+def write_run(run_h5: pathlib.Path, f: h5py.File | None = None) -> list[pathlib.Path]:
+    """run.xdmf (and particles.xdmf when there is gas too) beside ``run_h5``; returns the files written.
+    ``f``: run.h5 already open (a run writing it), else it is opened to read."""
     run_h5 = pathlib.Path(run_h5)
     fname = run_h5.name
-    with h5py.File(run_h5, "r") as f:
+    if f is not None:
         grains, gas = _grains_collection(f, fname), _gas_collection(f, fname)
+    else:
+        with h5py.File(run_h5, "r") as f:
+            grains, gas = _grains_collection(f, fname), _gas_collection(f, fname)
     written = []
     grids = [g for g in (grains, gas) if g]
     if grids:
