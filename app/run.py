@@ -415,6 +415,29 @@ def cpu_estimate_note(preset_path: pathlib.Path, n: int, substeps: int, steps: i
             f"{_duration(est)} (estimated from verma_small's rate on 2 cores){alt}")
 
 
+def watch_parent(sim) -> None:
+    """With FBED_STOP_WITH_PARENT = the pid of the process that started this run (set by `fbed sweep` on a Dask
+    worker), stop cleanly, with a checkpoint, once that process is gone (a worker killed): the case is rerun
+    elsewhere, and this run must not go on writing into its folder."""
+    import os
+    import threading
+
+    try:  # the pid of the process that started this one (read here, it may already be gone)
+        parent = int(os.environ.get("FBED_STOP_WITH_PARENT", ""))
+    except ValueError:
+        return
+
+    def watch():
+        while not sim.stop_requested:
+            if os.getppid() != parent:
+                log("fbed: the process that started this run is gone: stopping with a checkpoint")
+                sim.stop_requested = "parent gone"
+                return
+            wallclock.sleep(1.0)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
 class WallCheckpoints:
     """Checkpoints on the wall clock: the first after FIRST seconds (a run killed in its first minute leaves
     something to resume, compilation included), then at doubling intervals up to ``longest``
@@ -731,6 +754,7 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
         log(f"fbed: {sim.stop_requested}: stopping after this step and writing a checkpoint")
 
     old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    watch_parent(sim)
     what = []
     if dem is not None:
         what.append(f"{scene.n} grains, DEM step {der.dt:.3g} s x {der.substeps} per {cfg.run.step:g} s step")

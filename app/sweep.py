@@ -72,7 +72,8 @@ def failed_row(keys, values, out: pathlib.Path, why: str) -> dict:
     return row
 
 
-def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: int) -> dict:
+def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: int,
+             stop_with_parent: bool = False) -> dict:
     args = [sys.executable, "-m", "app", "run", preset, "--out", str(out), "--overwrite", "--arch", arch]
     for k, v in zip(keys, values):
         args += ["--set", f"{k}={v}"]
@@ -80,6 +81,8 @@ def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: i
         args += ["--set", f"run.threads={threads}"]
     env = dict(os.environ)
     env["PYTHONPATH"] = str(pathlib.Path(__file__).resolve().parents[1]) + os.pathsep + env.get("PYTHONPATH", "")
+    if stop_with_parent:  # on a Dask worker: the run stops itself if the worker dies (the case is rerun elsewhere)
+        env["FBED_STOP_WITH_PARENT"] = str(os.getpid())
     out.mkdir(parents=True, exist_ok=True)
     with open(out / "log.txt", "w") as logf:
         rc = subprocess.run(args, stdout=logf, stderr=subprocess.STDOUT, env=env).returncode
@@ -156,7 +159,7 @@ def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathl
             out_abs = out_dir.resolve()
             threads = 1 if cluster is not None and jobs > 1 else 0
             tag = uuid.uuid4().hex[:8]
-            futs = {client.submit(run_case, preset_abs, keys, v, out_abs / f"case-{i:03d}", arch, threads,
+            futs = {client.submit(run_case, preset_abs, keys, v, out_abs / f"case-{i:03d}", arch, threads, True,
                                   key=f"fbed-case-{i:03d}-{tag}", pure=False): i for i, v in enumerate(combos)}
             for fut in as_completed(list(futs)):
                 i = futs[fut]
