@@ -9,6 +9,8 @@
     fbed bench accuracy|stiffness [--size small|full] [--arch cpu|cuda] [--out DIR] [--resume]
                                       (error against cost; --resume goes on from the rows in --out)
     fbed sweep PRESET --set key=v1,v2,... [--set ...] [--jobs N] [--out DIR] [--plot FIGURE]
+               [--scheduler ADDRESS|local]   (each case a task on a Dask cluster)
+    fbed --version
     fbed rcfd analyze RUN_DIR         (recurrence plot, spectra, period of a run that recorded rcfd.h5)
     fbed rcfd run RUN_DIR --horizon T --paths N --seed S [--tag "x<0"]   (rCFD mixing along Markov paths)
     fbed rcfd validate PRESET --t0 A --t1 B --t2 C [--out DIR]   (rCFD against full continuations)
@@ -25,6 +27,9 @@ from .config import ConfigError
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fbed", description="GPU CFD-DEM simulator of gas-solid fluidized beds")
+    from .io.store import VERSION
+
+    p.add_argument("--version", action="version", version=f"fbed {VERSION}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     r = sub.add_parser("run", help="run a preset", description="Run a TOML preset and write its outputs.")
     r.add_argument("preset", nargs="?", help="preset file (.toml); optional with --resume")
@@ -82,6 +87,9 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--plot", dest="plot_figure", metavar="FIGURE",
                    help="plot this summary figure against the first swept key")
     w.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto")
+    w.add_argument("--scheduler", metavar="ADDRESS",
+                   help="submit each case to this Dask distributed scheduler (tcp://host:8786), or 'local' for a "
+                        "LocalCluster of --jobs workers here; needs the cluster extra (pip install -e '.[cluster]')")
     rc = sub.add_parser("rcfd", help="recurrence CFD on a recorded run (fbed rcfd analyze|run|validate)",
                         description="fbed rcfd analyze RUN_DIR: recurrence plot, spectra and period of the frames a "
                                     "run recorded (probes.rcfd_from); fbed rcfd run RUN_DIR: a solids tracer moved "
@@ -170,10 +178,13 @@ def main(argv: list[str] | None = None) -> int:
 
             if not args.sets:
                 raise ConfigError("nothing to sweep", "--set", "", hint="e.g. --set boundary.bottom.velocity=[0,0,0.3],[0,0,0.6]")
-            return sweep(args.preset, args.sets, args.jobs, args.out, args.plot_figure, args.arch)
+            return sweep(args.preset, args.sets, args.jobs, args.out, args.plot_figure, args.arch, args.scheduler)
     except ConfigError as err:
         print(f"fbed: error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # before a run's own handler is installed (or outside a run): nothing half-written
+        print("fbed: interrupted", file=sys.stderr)
+        return 130
     return 2
 
 

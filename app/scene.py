@@ -211,10 +211,19 @@ class Scene:
                                   hint="run the preset that writes it first (e.g. fbed run presets/settle.toml)")
             self.initial = load_bed(path)
             n = len(self.initial["position"])
+            rmin = float(self.initial["radius"].min()) if n else 0.0
             rmax = float(self.initial["radius"].max()) if n else 0.0
-            if n and rmax > self.derived.radius_max * (1 + 1e-6):
-                raise ConfigError(f"the bed holds grains of radius {rmax:g} m, larger than the preset's sizes",
-                                  str(path), "particles.initial_state", hint="use the same particles.diameter(s)")
+            d = self.derived
+            # grains smaller than the preset's would break its neighbour list sizing, larger ones its cells: both
+            # are refused with the two sizes named (the relative 1e-6 absorbs float32 storage)
+            if n and (rmax > d.radius_max * (1 + 1e-6) or rmin < d.radius_min * (1 - 1e-6)):
+                def sizes(lo, hi):
+                    return f"{2 * lo:g} m" if hi <= lo * (1 + 1e-6) else f"{2 * lo:g} to {2 * hi:g} m"
+
+                raise ConfigError(f"the bed's grains have diameters {sizes(rmin, rmax)}, the preset's "
+                                  f"{sizes(d.radius_min, d.radius_max)}", str(path),
+                                  "particles.initial_state", hint="set particles.diameter to the bed's, or use a "
+                                  "bed made with this preset's sizes")
         else:
             n = grain_count(cfg, self.walls, self.derived)
             radius = sample_radii(n, self.derived, rng)

@@ -1,9 +1,14 @@
 """`fbed sweep`: run a preset over the Cartesian product of lists of values.
 
     fbed sweep PRESET --set key=v1,v2,... [--set key2=...] [--jobs N] [--out DIR] [--plot FIGURE]
+               [--scheduler ADDRESS|local]
 
 Each case is an ordinary `fbed run` in its own folder (DIR/case-000, ...), in its own
 process, so a failed case is recorded in sweep.csv and does not stop the others.
+With --scheduler, the cases are submitted to a Dask distributed scheduler (ADDRESS, e.g.
+tcp://head:8786, or `local`: a LocalCluster of --jobs workers on this machine); each runs as
+`python -m app run` on a worker, with PRESET and DIR as absolute paths (a folder every worker
+sees); a worker that dies is recorded as that case's failure and the others go on.
 sweep.csv has one row per case: its swept values, its status and exit code, and every
 number of its summary.json. With --plot, FIGURE (a summary key, e.g. mean_pressure_drop)
 is plotted against the first swept key into DIR/FIGURE.png.
@@ -61,7 +66,14 @@ def cases(sets: list[str]) -> tuple[list[str], list[tuple[str, ...]]]:
     return keys, list(itertools.product(*lists))
 
 
-def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: int) -> dict:
+def failed_row(keys, values, out: pathlib.Path, why: str) -> dict:
+    row = {k: v for k, v in zip(keys, values)}
+    row.update(case=out.name, exit_code=-1, status=f"failed: {why}")
+    return row
+
+
+def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: int,
+             stop_with_parent: bool = False) -> dict:
     args = [sys.executable, "-m", "app", "run", preset, "--out", str(out), "--overwrite", "--arch", arch]
     for k, v in zip(keys, values):
         args += ["--set", f"{k}={v}"]
@@ -69,6 +81,8 @@ def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: i
         args += ["--set", f"run.threads={threads}"]
     env = dict(os.environ)
     env["PYTHONPATH"] = str(pathlib.Path(__file__).resolve().parents[1]) + os.pathsep + env.get("PYTHONPATH", "")
+    if stop_with_parent:  # on a Dask worker: the run stops itself if the worker dies (the case is rerun elsewhere)
+        env["FBED_STOP_WITH_PARENT"] = str(os.getpid())
     out.mkdir(parents=True, exist_ok=True)
     with open(out / "log.txt", "w") as logf:
         rc = subprocess.run(args, stdout=logf, stderr=subprocess.STDOUT, env=env).returncode
@@ -121,8 +135,47 @@ def plot(rows: list[dict], key: str, figure: str, path: pathlib.Path, group: str
     plt.close(fig)
 
 
+def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathlib.Path, arch: str, done) -> None:
+    """Each case as one Dask task (an `fbed run` subprocess on a worker); ``done(i, row)`` as each ends."""
+    try:
+        from distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        raise ConfigError("--scheduler needs Dask's distributed scheduler", "--scheduler", scheduler,
+                          hint="python3 -m pip install -e '.[cluster]' (or pip install 'dask[distributed]')") from None
+    import uuid
+
+    cluster = None
+    if scheduler == "local":
+        cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True, dashboard_address=None)
+    try:
+        try:
+            client = Client(cluster if cluster is not None else scheduler, timeout="30s")
+        except (OSError, TimeoutError, ValueError) as err:
+            raise ConfigError(f"cannot reach the Dask scheduler ({err})", "--scheduler", scheduler,
+                              hint="start one with `dask scheduler` (and workers with `dask worker ADDRESS`), "
+                                   "or pass --scheduler local") from None
+        with client:
+            preset_abs = str(pathlib.Path(preset).resolve())
+            out_abs = out_dir.resolve()
+            threads = 1 if cluster is not None and jobs > 1 else 0
+            tag = uuid.uuid4().hex[:8]
+            futs = {client.submit(run_case, preset_abs, keys, v, out_abs / f"case-{i:03d}", arch, threads, True,
+                                  key=f"fbed-case-{i:03d}-{tag}", pure=False): i for i, v in enumerate(combos)}
+            for fut in as_completed(list(futs)):
+                i = futs[fut]
+                try:
+                    row = fut.result()
+                except Exception as err:  # noqa: BLE001 - a lost worker (KilledWorker) or a task error
+                    row = failed_row(keys, combos[i], out_dir / f"case-{i:03d}",
+                                     f"{type(err).__name__}: {str(err).splitlines()[0][:120] if str(err) else ''}")
+                done(i, row)
+    finally:
+        if cluster is not None:
+            cluster.close()
+
+
 def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, plot_figure: str | None = None,
-          arch: str = "auto") -> int:
+          arch: str = "auto", scheduler: str | None = None) -> int:
     load(preset)  # the preset itself must be valid before anything runs
     keys, combos = cases(sets)
     for values in combos:  # every case's overrides are validated up front: no half-run sweep on a typo
@@ -130,16 +183,23 @@ def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, p
     out_dir = pathlib.Path(out) if out else pathlib.Path("runs") / (pathlib.Path(preset).stem + "-sweep")
     out_dir.mkdir(parents=True, exist_ok=True)
     threads = 1 if jobs > 1 else 0
-    print(f"fbed sweep: {len(combos)} cases of {preset} over {', '.join(keys)}; {jobs} at a time; output in {out_dir}",
+    where = f"on the Dask scheduler {scheduler}" if scheduler and scheduler != "local" else f"{jobs} at a time"
+    print(f"fbed sweep: {len(combos)} cases of {preset} over {', '.join(keys)}; {where}; output in {out_dir}",
           file=sys.stderr, flush=True)
     rows = [None] * len(combos)
-    with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-        futs = {pool.submit(run_case, preset, keys, v, out_dir / f"case-{i:03d}", arch, threads): i
-                for i, v in enumerate(combos)}
-        for fut in concurrent.futures.as_completed(futs):
-            i = futs[fut]
-            rows[i] = fut.result()
-            print(f"  case-{i:03d} {dict(zip(keys, combos[i]))}: {rows[i]['status']}", file=sys.stderr, flush=True)
+
+    def done(i, row):
+        rows[i] = row
+        print(f"  case-{i:03d} {dict(zip(keys, combos[i]))}: {row['status']}", file=sys.stderr, flush=True)
+
+    if scheduler:
+        on_dask(scheduler, jobs, preset, keys, combos, out_dir, arch, done)
+    else:
+        with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+            futs = {pool.submit(run_case, preset, keys, v, out_dir / f"case-{i:03d}", arch, threads): i
+                    for i, v in enumerate(combos)}
+            for fut in concurrent.futures.as_completed(futs):
+                done(futs[fut], fut.result())
     columns = list(dict.fromkeys(["case", *keys, "status", "exit_code"] + [k for r in rows for k in r]))
     with open(out_dir / "sweep.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=columns)

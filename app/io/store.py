@@ -5,21 +5,29 @@ Owns: the on-disk layout. Plain h5py/json; callers pass numpy arrays and dicts.
 run.h5
   /series/<name>                1-D, one entry per series sample (``time`` in s first)
   /particles/<k>/{time,position,velocity,radius}   snapshot k (k = 0, 1, ...)
+  /particle_id                  each grain's index (0 .. n-1), for run.xdmf
   attrs: fbed_version, preset, units (JSON: name -> unit)
   /fields/<k>/{time,gas_velocity,pressure,void_fraction}  gas snapshot k: cell-centred
                                 interstitial velocity (nx,ny,nz,3) [m/s], pressure [Pa], gas fraction [-]
 checkpoint.h5 / bed.h5
   /grains/<array>               every changing DEM array (see DemSolver.state_arrays)
   /gas/<array>                  the gas solver's whole state (see FlowSolver.state_arrays)
+  /particle_id                  each grain's index, for checkpoint.xdmf / bed.xdmf
   attrs: time [s], step, config (the resolved TOML), fbed_version
+  /grid/{points,hexahedra,open_volume}  the gas grid for run.xdmf (written once): cell corners [m],
+                                cells as 8 corner indices (VTK order), open volume fraction of each cell [-]
 Every write goes to a temporary file first and is renamed into place, so a crash
-mid-write leaves the previous checkpoint intact.
+mid-write leaves the previous checkpoint intact. Before a write, the free space is checked against
+what it needs; a full disk raises DiskFull (the temporary file removed), never a half-written file.
 """
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import math
 import os
+import shutil
 import pathlib
 import time as wallclock
 
@@ -34,11 +42,67 @@ SERIES_UNITS = {
 }
 
 
-def _atomic_write(path: pathlib.Path, fill) -> None:
+class DiskFull(Exception):
+    """A write found too little free space (or the disk filled during it): nothing half-written is left."""
+
+    def __init__(self, path, needed: int, free: int | None = None):
+        self.path, self.needed, self.free = pathlib.Path(path), int(needed), free
+        where = f"; {mb(free)} free on its disk" if free is not None else ""
+        super().__init__(f"the disk is full: writing {self.path.name} needed {mb(needed)}{where}")
+
+
+def mb(nbytes: int | float) -> str:
+    return f"{nbytes / 1e6:.3g} MB" if nbytes >= 1e5 else f"{nbytes / 1e3:.3g} kB"
+
+
+# room kept free beyond a write's own bytes: HDF5's metadata and b-trees, and the small files written after it
+# (summary.json, run.xdmf), so a check that passes is not followed by a write that fails
+SPACE_MARGIN = 1 << 20  # bytes
+
+
+def free_bytes(path: pathlib.Path) -> int:
+    p = pathlib.Path(path)
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return shutil.disk_usage(p).free
+
+
+def check_space(path: pathlib.Path, needed: int) -> None:
+    """Raise DiskFull unless the disk holding ``path`` has room for ``needed`` bytes and the margin."""
+    free = free_bytes(path)
+    if free < needed + SPACE_MARGIN:
+        raise DiskFull(path, needed + SPACE_MARGIN, free)
+
+
+def is_disk_full(err: BaseException) -> bool:
+    """Whether an OSError (h5py's included: it puts errno 28 in its message) means no space left."""
+    return isinstance(err, OSError) and (err.errno in (errno.ENOSPC, errno.EDQUOT)
+                                         or "errno = 28" in str(err) or "No space left" in str(err))
+
+
+def grain_ids(n: int) -> np.ndarray:
+    return np.arange(n, dtype=np.int32 if n < 2 ** 31 else np.int64)
+
+
+def _nbytes(*groups) -> int:
+    return sum(np.asarray(v).nbytes for arrays in groups if arrays for v in arrays.values())
+
+
+def _atomic_write(path: pathlib.Path, fill, needed: int = 0) -> None:
     tmp = path.with_name(path.name + ".tmp")
-    with h5py.File(tmp, "w") as f:
-        fill(f)
-    os.replace(tmp, path)
+    check_space(path, needed)
+    try:
+        with h5py.File(tmp, "w") as f:
+            fill(f)
+        os.replace(tmp, path)
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        if is_disk_full(err):
+            raise DiskFull(path, needed, free_bytes(path)) from None
+        raise
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def write_checkpoint(path: pathlib.Path, grains: dict | None, gas: dict | None, time: float, step: int,
@@ -52,9 +116,11 @@ def write_checkpoint(path: pathlib.Path, grains: dict | None, gas: dict | None, 
             g = f.create_group(group)
             for k, v in arrays.items():
                 g.create_dataset(k, data=np.asarray(v))
+        if grains is not None and "position" in grains:  # the grains' index, for checkpoint.xdmf
+            f.create_dataset("particle_id", data=grain_ids(len(grains["position"])))
         f.attrs.update(time=time, step=step, config=config_text, fbed_version=VERSION)
 
-    _atomic_write(pathlib.Path(path), fill)
+    _atomic_write(pathlib.Path(path), fill, _nbytes(grains, gas) + len(config_text))
 
 
 def read_checkpoint(path: pathlib.Path) -> tuple[dict | None, dict | None, dict]:
@@ -98,6 +164,7 @@ class RunFile:
         self._frames: dict[str, list] = {}
         self._frame_bytes = 0
         self._written = wallclock.perf_counter()
+        self.failed = False  # a write failed: close() then only closes
         if resume_time is not None:
             self._truncate_after(resume_time)
 
@@ -122,6 +189,19 @@ class RunFile:
                 if float(group[k]["time"][()]) > t + 1e-12:
                     del group[k]
 
+    @contextlib.contextmanager
+    def _writing(self, nbytes: int):
+        """Guard one write of about ``nbytes`` (uncompressed: an upper bound): free space checked first, an
+        ENOSPC from HDF5 turned into DiskFull."""
+        check_space(self.path, nbytes)
+        try:
+            yield
+        except OSError as err:
+            if is_disk_full(err):
+                self.failed = True
+                raise DiskFull(self.path, nbytes + SPACE_MARGIN, free_bytes(self.path)) from None
+            raise
+
     def append(self, row: dict) -> None:
         """One sample of every series in ``row``; a series first seen now is NaN for earlier samples."""
         self._rows.append({k: float(v) for k, v in row.items()})
@@ -134,6 +214,10 @@ class RunFile:
 
     def flush(self) -> None:
         """Write what is held (series rows, probe frames) and flush the file."""
+        with self._writing(8 * 64 * len(self._rows) + self._frame_bytes):
+            self._flush()
+
+    def _flush(self) -> None:
         if self._rows:
             rows, self._rows = self._rows, []
             n = self.series["time"].shape[0] if "time" in self.series else 0
@@ -152,23 +236,41 @@ class RunFile:
         self._written = wallclock.perf_counter()
 
     def snapshot(self, time: float, position, velocity, radius) -> int:
+        with self._writing(4 * (7 * len(radius))):
+            return self._snapshot(time, position, velocity, radius)
+
+    def _snapshot(self, time: float, position, velocity, radius) -> int:
+        if "particle_id" not in self.f:  # the grains' index, the same in every snapshot (run.xdmf's id)
+            self.f.create_dataset("particle_id", data=grain_ids(len(radius)))
         k = len(self.particles)
         g = self.particles.create_group(str(k))
-        g["time"] = time
-        g.create_dataset("position", data=np.asarray(position, np.float32), compression="gzip", compression_opts=1)
-        g.create_dataset("velocity", data=np.asarray(velocity, np.float32), compression="gzip", compression_opts=1)
-        g.create_dataset("radius", data=np.asarray(radius, np.float32), compression="gzip", compression_opts=1)
-        self.f.flush()
+        try:
+            g["time"] = time
+            for name, arr in (("position", position), ("velocity", velocity), ("radius", radius)):
+                g.create_dataset(name, data=np.asarray(arr, np.float32), compression="gzip", compression_opts=1)
+            self.f.flush()
+        except BaseException:  # no half-written snapshot is left in the file
+            del self.particles[str(k)]
+            raise
         return k
 
     def gas_fields(self, time: float, gas_velocity, pressure, void_fraction) -> int:
+        with self._writing(4 * 5 * np.asarray(pressure).size):
+            return self._gas_fields(time, gas_velocity, pressure, void_fraction)
+
+    def _gas_fields(self, time: float, gas_velocity, pressure, void_fraction) -> int:
         fields = self.f.require_group("fields")
         k = len(fields)
         g = fields.create_group(str(k))
-        g["time"] = time
-        for name, arr in (("gas_velocity", gas_velocity), ("pressure", pressure), ("void_fraction", void_fraction)):
-            g.create_dataset(name, data=np.asarray(arr, np.float32), compression="gzip", compression_opts=1)
-        self.f.flush()
+        try:
+            g["time"] = time
+            for name, arr in (("gas_velocity", gas_velocity), ("pressure", pressure),
+                              ("void_fraction", void_fraction)):
+                g.create_dataset(name, data=np.asarray(arr, np.float32), compression="gzip", compression_opts=1)
+            self.f.flush()
+        except BaseException:  # no half-written snapshot is left in the file
+            del fields[str(k)]
+            raise
         return k
 
     def _frame_groups(self, name: str):
@@ -206,21 +308,66 @@ class RunFile:
 
     def put(self, name: str, data) -> None:
         """A fixed dataset (written once, e.g. a mask)."""
-        if name in self.f:
-            del self.f[name]
-        self.f.create_dataset(name, data=data)
+        with self._writing(np.asarray(data).nbytes):
+            if name in self.f:
+                del self.f[name]
+            self.f.create_dataset(name, data=data)
+
+    def grid(self, shape, h: float, origin, open_volume) -> None:
+        """The gas grid, once, for run.xdmf: corner points, hexahedra (C order of the cell arrays: z fastest)
+        and each cell's open volume fraction."""
+        if "grid" in self.f:
+            return
+        nx, ny, nz = shape
+        with self._writing(4 * (3 * (nx + 1) * (ny + 1) * (nz + 1) + 9 * nx * ny * nz)):
+            ax = [origin[a] + h * np.arange(n + 1) for a, n in enumerate(shape)]
+            X, Y, Z = np.meshgrid(*ax, indexing="ij")
+            pts = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1).astype(np.float32)
+            node = np.arange((nx + 1) * (ny + 1) * (nz + 1), dtype=np.int64).reshape(nx + 1, ny + 1, nz + 1)
+            c = node[:-1, :-1, :-1]
+            dx, dy, dz = (ny + 1) * (nz + 1), nz + 1, 1
+            # VTK hexahedron: the bottom face (z low) counter-clockwise, then the top face
+            hexes = np.stack([c, c + dx, c + dx + dy, c + dy, c + dz, c + dx + dz, c + dx + dy + dz, c + dy + dz],
+                             axis=-1).reshape(-1, 8)
+            g = self.f.create_group("grid")
+            g.attrs.update(shape=np.asarray(shape), h=h, origin=np.asarray(origin, float))
+            g.create_dataset("points", data=pts, compression="gzip", compression_opts=1)
+            dt = np.int32 if hexes.max() < 2 ** 31 else np.int64
+            g.create_dataset("hexahedra", data=hexes.astype(dt), compression="gzip", compression_opts=1)
+            g.create_dataset("open_volume", data=np.asarray(open_volume, np.float32), compression="gzip",
+                             compression_opts=1)
+            self.f.flush()
 
     def close(self) -> None:
+        """Write what is held and close; after a failed write (disk full) only close, as best it can."""
         if self.f:
-            self.flush()
-            self.f.close()
-            self.f = None
+            try:
+                if not self.failed:
+                    self.flush()
+            finally:
+                f, self.f = self.f, None
+                try:
+                    f.close()
+                except Exception:  # noqa: BLE001 - a file that could not be written may not close cleanly
+                    pass
+
+
+def write_text(path: pathlib.Path, text: str) -> None:
+    """A small text file, atomically (a temporary file renamed into place; removed when the disk is full)."""
+    path = pathlib.Path(path)
+    tmp = pathlib.Path(str(path) + ".tmp")
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        if is_disk_full(err):
+            raise DiskFull(path, len(text.encode()), free_bytes(path)) from None
+        raise
 
 
 def write_json(path: pathlib.Path, data: dict) -> None:
-    tmp = pathlib.Path(str(path) + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=float) + "\n")
-    os.replace(tmp, path)
+    write_text(path, json.dumps(data, indent=2, default=float) + "\n")
 
 
 def read_series(path: pathlib.Path) -> dict:

@@ -1,0 +1,62 @@
+"""What a new user meets first: --version, the compile notice, the ETA, the length of the log lines, the note
+on a GPU-sized scene started on the CPU."""
+import os
+import pathlib
+import subprocess
+import sys
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def test_version():
+    r = subprocess.run([sys.executable, "-m", "app", "--version"], capture_output=True, text=True, cwd=ROOT,
+                       env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert r.returncode == 0 and r.stdout.strip() == "fbed 0.1.0"
+    import tomllib
+
+    assert tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"] == "0.1.0"
+
+
+def test_a_gpu_sized_scene_on_the_cpu_says_its_time_and_its_small_variant():
+    from app.run import cpu_estimate_note
+
+    # verma.toml: 965,000 grains, 106 DEM substeps per step, 6500 steps
+    note = cpu_estimate_note(ROOT / "presets" / "verma.toml", 965_000, 106, 6500)
+    assert note and "GPU-sized" in note and "presets/verma_small.toml" in note and " h " in note
+    # its small variant (14,000 grains, 52 substeps, 1000 steps: 3 min measured) gets no note
+    assert cpu_estimate_note(ROOT / "presets" / "verma_small.toml", 14_000, 52, 1000) is None
+
+
+class FakeSim:
+    flow = None
+    duration, total_steps, step_count = 0.6, 600, 0
+
+    @property
+    def time(self):
+        return self.step_count * 1e-3
+
+
+def test_progress_lines_wait_for_the_compilation_and_the_eta_and_stay_short(monkeypatch, capsys):
+    from app import run as runmod
+
+    clock = [0.0]
+    monkeypatch.setattr(runmod.wallclock, "perf_counter", lambda: clock[0])
+    sim = FakeSim()
+    progress = runmod.Progress(sim, "fluidize", 5.0)
+    progress(sim)  # still compiling: no line, no rate, no ETA
+    assert capsys.readouterr().err == ""
+    clock[0], sim.step_count = 90.0, 1  # the first step took the compilation's 90 s
+    progress(sim)
+    err = capsys.readouterr().err
+    assert "kernels ready after 90 s" in err and "ETA ..." in err  # the rate is not yet measured
+    clock[0], sim.step_count = 95.0, 51
+    progress(sim)
+    assert "ETA ..." in capsys.readouterr().err  # 5 s of stepping: not yet
+    clock[0], sim.step_count = 100.0, 101  # 10 steps/s after the compilation: 499 steps left, 50 s
+    progress(sim)
+    line = capsys.readouterr().err.strip()
+    assert "10 st/s" in line and "ETA 50 s" in line, line
+    assert len(line) < 100
+    # with gas, the fastest cell in short form
+    assert runmod._fastest_cell("; fastest in cell (3, 4, 5) at (0.01, 0.02, 0.03) m, open volume fraction 0.52, "
+                                "gas fraction 0.61") == " in 3,4,5 open 0.52 eps 0.61"

@@ -1,0 +1,301 @@
+"""The failures a user can meet: a full disk, a wrong resume, stale outputs, signals, damaged files.
+
+Each runs `python -m app` in a fresh process (as a user would) on a small DEM-only scene and asserts the exit
+code, the message, no traceback, no temporary file left, and that earlier outputs are intact. A full disk is
+made two ways: a small tmpfs (where this machine lets root mount one) and an injected ENOSPC in HDF5's writes
+(always), both mid-run and at the final checkpoint.
+"""
+import hashlib
+import json
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+
+import h5py
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SETTLE = ROOT / "presets" / "settle.toml"
+ENV = dict(os.environ, PYTHONPATH=str(ROOT))
+TINY = ["--arch", "cpu", "--set", "particles.count=300", "--set", "run.threads=1", "--set", "run.step=1e-3"]
+
+# the run, with h5py's dataset creation made to fail with ENOSPC on the Nth dataset NAME created in a file
+# whose name ends with TARGET (the test's fault, injected from outside the code under test)
+INJECT = """
+import errno, os, sys, h5py
+target, name, nth = os.environ["FAULT_TARGET"], os.environ["FAULT_NAME"], int(os.environ["FAULT_NTH"])
+seen = [0]
+real = h5py.Group.create_dataset
+def create_dataset(self, key, *a, **k):
+    if self.file.filename.endswith(target) and key == name:
+        seen[0] += 1
+        if seen[0] >= nth:
+            raise OSError(errno.ENOSPC, "No space left on device")
+    return real(self, key, *a, **k)
+h5py.Group.create_dataset = create_dataset
+from app.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def fbed(*args, cwd=None, env=None, inject=None):
+    cmd = [sys.executable, "-c", INJECT] if inject else [sys.executable, "-m", "app"]
+    e = dict(ENV, **(env or {}))
+    if inject:
+        e.update(FAULT_TARGET=inject[0], FAULT_NAME=inject[1], FAULT_NTH=str(inject[2]))
+    return subprocess.run(cmd + [str(a) for a in args], capture_output=True, text=True, cwd=cwd or ROOT,
+                          env=e, timeout=600)
+
+
+def digest(d: pathlib.Path) -> dict:
+    return {p.name: hashlib.sha1(p.read_bytes()).hexdigest() for p in sorted(d.iterdir()) if p.is_file()}
+
+
+def assert_clean_stop(r, out: pathlib.Path, code: int, *needles):
+    assert r.returncode == code, r.stderr[-3000:]
+    assert "Traceback" not in r.stderr, r.stderr[-3000:]
+    for n in needles:
+        assert n in r.stderr, r.stderr[-3000:]
+    assert not list(out.rglob("*.tmp")), list(out.rglob("*.tmp"))
+
+
+def checkpoint_time(path: pathlib.Path) -> float:
+    with h5py.File(path, "r") as f:  # readable: a good checkpoint, not a torn one
+        assert f["grains/position"].shape == (300, 3)
+        return float(f.attrs["time"])
+
+
+# -- disk full
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 3 MB tmpfs (root may mount one on this machine and CI's; elsewhere the test skips and the injected
+    ENOSPC tests below cover the same stops)."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=3m", "tmpfs", str(disk)],
+                      capture_output=True).returncode != 0:
+        pytest.skip("mounting a tmpfs is not permitted here (the injected ENOSPC tests cover the same stop)")
+    try:
+        yield disk
+    finally:
+        subprocess.run(["umount", str(disk)], check=False)
+
+
+def test_disk_full_at_the_final_checkpoint_on_a_small_tmpfs(small_disk):
+    """A run to 10 ms, then the disk filled to leave the margin and 90 kB, then a resume to 12 ms: its final
+    snapshot (8 kB of data) fits, its final checkpoint (137 kB) does not."""
+    from app.io import store
+
+    out = small_disk / "run"
+    r = fbed("run", SETTLE, *TINY, "--set", "run.duration=0.01", "--set", "output.particles_interval=0",
+             "--out", out)
+    assert r.returncode == 0, r.stderr[-2000:]
+    before = {name: (out / name).read_bytes() for name in ("checkpoint.h5", "bed.h5")}
+    filler = small_disk / "filler"
+    with open(filler, "wb") as f:
+        f.write(b"\0" * (os.statvfs(small_disk).f_bavail * os.statvfs(small_disk).f_frsize
+                         - store.SPACE_MARGIN - 90_000))
+    r = fbed("run", "--resume", out, "--set", "run.duration=0.012")
+    assert_clean_stop(r, out, 3, "the disk is full: writing checkpoint.h5 needed", "free on its disk",
+                      "t = 0.01 s) is kept", "resume with: fbed run --resume")
+    for name, data in before.items():  # the last good checkpoint and the earlier bed, byte for byte
+        assert (out / name).read_bytes() == data
+    assert checkpoint_time(out / "checkpoint.h5") == pytest.approx(0.01)
+    with h5py.File(out / "run.h5", "r") as f:  # still readable, its final snapshot in
+        assert float(f["particles"][str(len(f["particles"]) - 1)]["time"][()]) == pytest.approx(0.012)
+    filler.unlink()  # with room again, the run goes on from the kept checkpoint
+    r = fbed("run", "--resume", out, "--set", "run.duration=0.012")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert checkpoint_time(out / "checkpoint.h5") == pytest.approx(0.012)
+
+
+def test_disk_full_mid_run_on_a_small_tmpfs(small_disk):
+    out = small_disk / "run"
+    # a snapshot every step (about 40 kB of run.h5 each) fills 3 MB within a few dozen steps; a checkpoint
+    # every 5 steps leaves a good one behind
+    r = fbed("run", SETTLE, *TINY, "--set", "run.duration=1", "--set", "output.particles_interval=1e-3",
+             "--set", "output.checkpoint_interval=5e-3", "--out", out)
+    assert_clean_stop(r, out, 3, "the disk is full", "needed", "MB", "the last good checkpoint")
+    t = checkpoint_time(out / "checkpoint.h5")
+    assert 0 < t < 1
+    assert (out / "config.toml").read_text().startswith("# fbed resolved configuration")
+    with h5py.File(out / "run.h5", "r") as f:  # run.h5 still opens: its series reach the checkpoint
+        assert f["series/time"][-1] >= t - 1e-9
+
+
+def test_disk_full_mid_run_injected(tmp_path):
+    out = tmp_path / "run"
+    r = fbed("run", SETTLE, *TINY, "--set", "run.duration=0.05", "--set", "output.particles_interval=1e-3",
+             "--set", "output.checkpoint_interval=5e-3", "--out", out, inject=("run.h5", "position", 12))
+    assert_clean_stop(r, out, 3, "the disk is full: writing run.h5 needed", "the last good checkpoint")
+    t = checkpoint_time(out / "checkpoint.h5")
+    assert 0 < t < 0.05
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "disk_full" and "run.h5" in s["message"]
+    with h5py.File(out / "run.h5", "r") as f:  # the failed snapshot left no empty group behind
+        snaps = f["particles"]
+        assert len(snaps) == 11 and all("position" in snaps[k] for k in snaps)
+    # run.xdmf as of the last checkpoint (written with each one): it names only snapshots run.h5 holds
+    xml = (out / "run.xdmf").read_text()
+    assert "/particles/10/position" in xml and "/particles/11/" not in xml
+    # the kept checkpoint resumes once there is room again
+    r = fbed("run", "--resume", out, "--set", "run.duration=0.03")
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert json.loads((out / "summary.json").read_text())["status"] == "finished"
+
+
+def test_disk_full_at_the_final_checkpoint_injected(tmp_path):
+    out = tmp_path / "run"
+    # checkpoints at 5 and 10 ms, then the final one at 12 ms fails
+    r = fbed("run", SETTLE, *TINY, "--set", "run.duration=0.012", "--set", "output.checkpoint_interval=5e-3",
+             "--out", out, inject=("checkpoint.h5.tmp", "position", 3))
+    assert_clean_stop(r, out, 3, "the disk is full: writing checkpoint.h5 needed", "t = 0.01 s) is kept")
+    assert checkpoint_time(out / "checkpoint.h5") == pytest.approx(0.01)
+    assert not (out / "bed.h5").exists()  # the final outputs stop at the first that fails
+    assert json.loads((out / "summary.json").read_text())["status"] == "disk_full"
+
+
+# -- resume, output protection, damaged files
+
+
+@pytest.fixture(scope="module")
+def done_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("done") / "run"
+    r = fbed("run", SETTLE, *TINY, "--set", "run.duration=0.005", "--out", out)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def test_resume_with_another_scene_is_refused_and_touches_nothing(done_run, tmp_path):
+    before = digest(done_run)
+    r = fbed("run", ROOT / "presets" / "fluidize.toml", "--resume", done_run)
+    assert_clean_stop(r, done_run, 2, "scene differs from the run's", "particles.count", "[gas]")
+    r = fbed("run", "--resume", done_run, "--set", "contact.friction=0.1")
+    assert_clean_stop(r, done_run, 2, "contact.friction: 0.1 here, 0.3 in the run")
+    assert digest(done_run) == before
+
+
+def test_output_protection_covers_every_fbed_file(done_run, tmp_path):
+    d = tmp_path / "old"
+    d.mkdir()
+    for name in ("bed.h5", "summary.json"):  # a folder with fbed files but no run.h5
+        (d / name).write_bytes((done_run / name).read_bytes())
+    before = digest(d)
+    r = fbed("run", SETTLE, *TINY, "--set", "run.duration=0.002", "--out", d)
+    assert_clean_stop(r, d, 2, "already holds a run", "bed.h5", "--overwrite")
+    assert digest(d) == before
+    # --overwrite removes the old run's files first: no stale video or analysis beside the new run
+    (d / "video.mp4").write_bytes(b"old")
+    (d / "analysis").mkdir()
+    (d / "analysis" / "bubble.png").write_bytes(b"old")
+    (d / "notes.txt").write_text("mine")  # not fbed's: kept
+    r = fbed("run", SETTLE, *TINY, "--set", "run.duration=0.002", "--out", d, "--overwrite")
+    assert r.returncode == 0, r.stderr
+    assert not (d / "video.mp4").exists() and not (d / "analysis").exists()
+    assert (d / "notes.txt").read_text() == "mine"
+    assert json.loads((d / "summary.json").read_text())["time"] == pytest.approx(0.002)
+
+
+def test_out_naming_a_file_and_a_damaged_run_h5_are_refused(done_run, tmp_path):
+    f = tmp_path / "afile"
+    f.write_text("x")
+    r = fbed("run", SETTLE, *TINY, "--out", f)
+    assert_clean_stop(r, tmp_path, 2, "is a file, not a folder", "--out")
+    assert f.read_text() == "x"
+    d = tmp_path / "damaged"
+    d.mkdir()
+    for p in done_run.iterdir():
+        if p.is_file():
+            (d / p.name).write_bytes(p.read_bytes())
+    (d / "run.h5").write_bytes((d / "run.h5").read_bytes()[:3000])  # cut short, as by a crash of the disk
+    before = digest(d)
+    r = fbed("run", "--resume", d, "--set", "run.duration=0.01")
+    assert_clean_stop(r, d, 2, "run.h5 is damaged", "--resume")
+    assert digest(d) == before
+
+
+def test_initial_state_of_other_sizes_is_refused_with_both_sizes(done_run, tmp_path):
+    preset = tmp_path / "big.toml"
+    text = SETTLE.read_text().replace("count = 2500", f'initial_state = "{done_run / "bed.h5"}"')
+    preset.write_text(text.replace("diameter = 2.0e-3", "diameter = 3.0e-3"))
+    assert "diameter = 3.0e-3" in preset.read_text()
+    r = fbed("run", preset, "--arch", "cpu", "--out", tmp_path / "o")
+    assert_clean_stop(r, tmp_path, 2, "the bed's grains have diameters 0.002", "the preset's 0.003",
+                      "particles.initial_state")
+
+
+# -- signals and schedules
+
+
+def test_a_second_signal_waits_for_the_checkpoint(tmp_path):
+    out = tmp_path / "run"
+    p = subprocess.Popen([sys.executable, "-m", "app", "run", str(SETTLE), *TINY, "--set", "run.duration=100",
+                          "--out", str(out)], stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT)
+    deadline = time.time() + 300
+    while time.time() < deadline and not (out / "run.h5").exists():
+        time.sleep(0.2)
+    time.sleep(2)
+    p.send_signal(signal.SIGINT)
+    time.sleep(0.05)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 130, err[-2000:]
+    assert "Traceback" not in err and "resume with: fbed run --resume" in err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "interrupted"
+    assert checkpoint_time(out / "checkpoint.h5") == pytest.approx(s["time"])
+    assert not list(out.glob("*.tmp"))
+
+
+def test_wall_checkpoints_come_early_then_spread(monkeypatch):
+    """The first wall checkpoint after 30 s (a run killed in its first minute can resume), then 60, 120 ...
+    up to output.checkpoint_wall_interval."""
+    from app import run as runmod
+
+    clock = [0.0]
+    monkeypatch.setattr(runmod.wallclock, "perf_counter", lambda: clock[0])
+    written = []
+    hook = runmod.WallCheckpoints(lambda sim: written.append(clock[0]), 300.0)
+    for t in range(0, 1500):
+        clock[0] = float(t)
+        hook(None)
+    assert written[:5] == [30.0, 90.0, 210.0, 450.0, 750.0]
+    assert all(b - a == 300.0 for a, b in zip(written[4:], written[5:]))
+
+
+def test_an_interrupted_preparation_resumes(tmp_path):
+    """Ctrl-C during a run.start_from preparation: the next run goes on from its checkpoint, not from zero;
+    and --set says that it reaches this stage only."""
+    prep = tmp_path / "prep.toml"
+    prep.write_text(SETTLE.read_text().replace("count = 2500", "count = 300"))
+    main = tmp_path / "main.toml"
+    main.write_text(prep.read_text().replace("[run]", '[run]\nstart_from = "prep.toml"', 1))
+    env = dict(ENV)
+    p = subprocess.Popen([sys.executable, "-m", "app", "run", str(main), "--arch", "cpu",
+                          "--set", "run.threads=1"], stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
+    head = ""
+    for line in p.stderr:  # the preparation has started stepping (its signal handler is in place)
+        head += line
+        if "compiling kernels" in line:
+            break
+    assert "preparing prep.toml first" in head, head
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=300)
+    err = head + err
+    assert "Traceback" not in err, err[-2000:]
+    (cache,) = [d for d in tmp_path.glob("runs/prepared/prep-*") if d.is_dir()]
+    assert json.loads((cache / "summary.json").read_text())["status"] == "interrupted", err[-2000:]
+    t_stop = checkpoint_time(cache / "checkpoint.h5")
+    r = fbed("run", main, "--arch", "cpu", "--set", "run.threads=1", "--set", "run.duration=0.31", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "resuming the preparation prep.toml" in r.stderr
+    assert "--set changes this stage only" in r.stderr
+    with h5py.File(cache / "run.h5", "r") as f:  # the preparation's series go on from where it stopped
+        t = f["series/time"][...]
+    assert t[0] == 0 and (t[1:] > t[:-1]).all() and t[-1] == pytest.approx(0.3) and t_stop < 0.3
+    assert json.loads((cache / "summary.json").read_text())["status"] == "finished"
