@@ -17,7 +17,7 @@ from .config.derived import Derived, derive
 from .config.schema import Config
 from .io import store
 from .sim import geometry
-from .sim.fields import ROLL_CONSTANT, ROLL_EPSD, DemModel
+from .sim.fields import ROLL_CONSTANT, ROLL_EPSD, DemModel, slots_bound
 
 ROLLING = {"none": 0, "constant_torque": ROLL_CONSTANT, "epsd": ROLL_EPSD}
 CELLS_PER_GRAIN = 4  # cap on the cell list's size (8 bytes per cell)
@@ -146,8 +146,7 @@ def dem_model(cfg: Config, der: Derived, n: int, walls: list, coupled: bool = Fa
     cell = tuple((hi[a] - lo[a]) / cells[a] for a in range(3))
     slots = cfg.dem.max_neighbors
     if not slots:
-        q = (2 * der.radius_max + der.skin) / (2 * der.radius_min)
-        slots = int(min(256, math.ceil(12 * q ** 2)))
+        slots = slots_bound(der.radius_min, der.skin)
     r = der.diameters[0] / 2
     pc, wc = der.pair, der.wall
     return DemModel(

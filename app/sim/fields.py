@@ -20,6 +20,7 @@ rolling +12*(K + W) (epsd only), plus 8 bytes per cell of the cell list.
 """
 
 import dataclasses
+import math
 
 import taichi as ti
 
@@ -124,10 +125,14 @@ class NeighborList:
         self.cell_start = ti.field(ti.i32, nc + 1)
         self.sorted = ti.field(ti.i32, m.n)
         self.block_sum = ti.field(ti.i32, (nc + SCAN_BLOCK - 1) // SCAN_BLOCK + 1)
-        self.overflow = ti.field(ti.i32, ())
-        self.max_disp2 = ti.field(float, ())
-        self.removed = ti.field(ti.i32, ())
-        self.builds = 0  # host-side counter of rebuilds
+        # [rebuild flag, overflow (largest row asked for), grains removed, builds]: the rebuild decision
+        # lives here on the device; the host reads the counters once per DemSolver.advance
+        self.counters = ti.field(ti.i32, 4)
+
+    @property
+    def builds(self) -> int:
+        """Rebuilds so far (a device read: not for the hot loop)."""
+        return int(self.counters[3])
 
 
 class WallData:
@@ -139,6 +144,16 @@ class WallData:
 
 class _NoData:
     """Placeholder for walls whose shape is analytic (kernels never read it)."""
+
+
+def slots_bound(radius_min: float, skin: float) -> int:
+    """Neighbour slots per grain of the half list in which the smaller grain of a pair owns it (ties: the
+    lower index): a row holds only partners at least its grain's size, within r_i + r_j + skin, so its
+    length is bounded by the monodisperse one at the smallest radius, 12 ((2 r_min + skin) / (2 r_min))^2
+    (the kissing number of equal spheres scaled to the skin shell), whatever the size ratio. An
+    overflow is detected at the build and stops the run (dem.max_neighbors overrides)."""
+    q = (2 * radius_min + skin) / (2 * radius_min)
+    return int(min(256, math.ceil(12 * q * q)))
 
 
 def bytes_per_grain(m: DemModel, precision_bytes: int = 4) -> float:
