@@ -24,48 +24,62 @@ from ..fields import ROLL_CONSTANT, ROLL_EPSD
 
 @ti.func
 def normal_force(model: ti.template(), wall: ti.template(), delta, ddelta, r_eff, m_eff):
-    """Normal force magnitude (>= 0) and the local normal stiffness dF/dd."""
+    """Normal force magnitude (>= 0), the local normal stiffness dF/dd and the two roots the tangential law
+    reuses: sqrt(R* d) and the damping factor sqrt(m* k_n) d^(1/4) (Hertz) or sqrt(m* k_n) (linear).
+
+    Written for few square roots: for equal grains R*, m* are compile-time constants, so only
+    sqrt(d) and d^(1/4) are computed per contact."""
     e_star = ti.static(model.w_e_star if wall else model.e_star)
     damping = ti.static(model.w_damping if wall else model.damping)
     fn = 0.0
     stiff = 0.0
+    root_rd = 0.0
+    damp_root = 0.0
     if ti.static(model.hertz):
-        kn = 4.0 / 3.0 * e_star * ti.sqrt(r_eff)
+        sr = ti.sqrt(r_eff)
         sd = ti.sqrt(delta)
-        fn = kn * delta * sd + damping * ti.sqrt(m_eff * kn) * ti.sqrt(sd) * ddelta
+        kn = 4.0 / 3.0 * e_star * sr
+        damp_root = ti.sqrt(m_eff * kn) * ti.sqrt(sd)
+        fn = kn * delta * sd + damping * damp_root * ddelta
         stiff = 1.5 * kn * sd
+        root_rd = sr * sd
     else:
-        fn = model.kn * delta + 2.0 * damping * ti.sqrt(m_eff * model.kn) * ddelta
+        damp_root = ti.sqrt(m_eff * model.kn)
+        fn = model.kn * delta + 2.0 * damping * damp_root * ddelta
         stiff = ti.cast(model.kn, float)
-    return ti.max(fn, 0.0), stiff
+    return ti.max(fn, 0.0), stiff, root_rd, damp_root
 
 
 @ti.func
-def tangential_force(model: ti.template(), wall: ti.template(), spring, n, vt, fn, delta, r_eff, m_eff):
-    """Tangential force on grain i and the updated slip spring."""
+def tangential_force(model: ti.template(), wall: ti.template(), spring, n, vt, fn, root_rd, damp_root):
+    """Tangential force on grain i and the updated slip spring (``root_rd``, ``damp_root`` from
+    ``normal_force``)."""
+    e_star = ti.static(model.w_e_star if wall else model.e_star)
     g_star = ti.static(model.w_g_star if wall else model.g_star)
     damping = ti.static(model.w_damping if wall else model.damping)
     mu = ti.static(model.w_mu if wall else model.mu)
     # keep the spring in the current tangent plane, at its length
-    mag = spring.norm()
+    mag2 = spring.dot(spring)
     spring -= spring.dot(n) * n
-    mag2 = spring.norm()
-    if mag2 > 1e-30:
-        spring *= mag / mag2
+    proj2 = spring.dot(spring)
+    if proj2 > 1e-60:
+        spring *= ti.sqrt(mag2 / proj2)
     spring += vt * model.dt
     kt = 0.0
     gamma = 0.0
     if ti.static(model.hertz):
-        kt = 8.0 * g_star * ti.sqrt(r_eff * delta)
-        # same dimensionless damping as the normal law: alpha sqrt(m* k_n) d^(1/4) = alpha sqrt(2/3 m* S_n)
-        gamma = damping * ti.sqrt(2.0 / 3.0 * m_eff * kt)
+        kt = 8.0 * g_star * root_rd
+        # same dimensionless damping as the normal law: gamma_t = alpha sqrt(2/3 m* k_t), and
+        # 2/3 m* k_t / (m* k_n sqrt(d)) = 4 G* / E*, so gamma_t = alpha damp_root sqrt(4 G* / E*)
+        gamma = damping * damp_root * ti.static((4.0 * g_star / e_star) ** 0.5 if e_star > 0 else 0.0)
     else:
         kt = ti.cast(model.kt, float)
-        gamma = 2.0 * damping * ti.sqrt(m_eff * kt)
+        gamma = 2.0 * damping * damp_root * ti.static((model.kt / model.kn) ** 0.5 if model.kn > 0 else 0.0)
     ft = -kt * spring - gamma * vt
-    ftn = ft.norm()
+    ft2 = ft.dot(ft)
     limit = mu * fn
-    if ftn > limit:
+    if ft2 > limit * limit:
+        ftn = ti.sqrt(ft2)
         if ftn > 1e-30:
             ft *= limit / ftn
         if kt > 0:
@@ -100,12 +114,12 @@ def contact(model: ti.template(), wall: ti.template(), n, delta, vrel, w_rel, r_
     Returns the force on grain i, the tangential force (its torque is arm x F_t, with the
     caller's lever arms), the rolling torque on i, and the updated springs."""
     vn = vrel.dot(n)
-    fn, stiff = normal_force(model, wall, delta, vn, r_eff, m_eff)
+    fn, stiff, root_rd, damp_root = normal_force(model, wall, delta, vn, r_eff, m_eff)
     force = -fn * n
     ft = ti.Vector([0.0, 0.0, 0.0])
     tr = ti.Vector([0.0, 0.0, 0.0])
     if ti.static(model.friction):
-        ft, spring = tangential_force(model, wall, spring, n, vrel - vn * n, fn, delta, r_eff, m_eff)
+        ft, spring = tangential_force(model, wall, spring, n, vrel - vn * n, fn, root_rd, damp_root)
         force += ft
         if ti.static(model.rolling != 0):
             tr, roll_spring = rolling_torque(model, wall, roll_spring, w_rel, fn, stiff, r_eff)

@@ -48,7 +48,7 @@ def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template()
                 rs = ri + rj
                 if d2 < rs * rs and state.alive[j]:
                     dist = ti.sqrt(d2)
-                    n = dx / ti.max(dist, 1e-30)
+                    n = dx * (1.0 / ti.max(dist, 1e-30))
                     delta = rs - dist
                     mj = grain_mass(model, sizes, j)
                     # lever arms to the contact point, the middle of the overlap: they sum to the centre
