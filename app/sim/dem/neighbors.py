@@ -14,14 +14,15 @@ grain follow from the smallest grain alone: at most ~12 ((2 r_min + skin) / (2 r
 (``fields.slots_bound``), where the owner-by-index rule needs a big grain's worth of small ones.
 
 Build: counting sort of grains by cell (count, block scan, scatter), then each grain
-gathers its new row in registers and carries every surviving pair's springs to the new
-slot; each thread writes only its own row, so no second list buffer is needed."""
+gathers its new row in registers and carries every surviving pair's history slot number
+to the new slot (the springs themselves stay put); each thread writes only its own row,
+so no second list buffer is needed."""
 import taichi as ti
 
-from ..fields import ROLL_EPSD, SCAN_BLOCK
+from ..fields import NO_SPRING, SCAN_BLOCK
 from .grains import grain_radius
 
-REBUILD, OVERFLOW, REMOVED, BUILDS = 0, 1, 2, 3  # nlist.counters
+REBUILD, OVERFLOW, REMOVED, BUILDS, SPRING_OVERFLOW = 0, 1, 2, 3, 4  # nlist.counters
 
 
 @ti.func
@@ -52,18 +53,20 @@ def owns(model: ti.template(), sizes: ti.template(), i, ri, j):
 def rebuild_if_flagged(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                        nlist: ti.template()):
     """The whole rebuild as top-level loops of the calling kernel; each runs empty unless flagged."""
+    # one array of n_cells + 1 ints: counts, then inclusive ends (the scan), then starts (each scattered
+    # grain takes its slot from the end of its cell downwards)
     nb = (model.n_cells + SCAN_BLOCK - 1) // SCAN_BLOCK
     for c in range(nlist.counters[REBUILD] * model.n_cells):
-        nlist.cell_count[c] = 0
+        nlist.cell_start[c] = 0
     for i in range(nlist.counters[REBUILD] * model.n):
         if state.alive[i]:
-            ti.atomic_add(nlist.cell_count[cell_index(model, cell_of(model, state.x[i]))], 1)
+            ti.atomic_add(nlist.cell_start[cell_index(model, cell_of(model, state.x[i]))], 1)
     for b in range(nlist.counters[REBUILD] * nb):
         total = 0
         for t in range(SCAN_BLOCK):
             c = b * SCAN_BLOCK + t
             if c < model.n_cells:
-                total += nlist.cell_count[c]
+                total += nlist.cell_start[c]
         nlist.block_sum[b] = total
     ti.loop_config(serialize=True)
     for _ in range(nlist.counters[REBUILD]):
@@ -78,12 +81,11 @@ def rebuild_if_flagged(model: ti.template(), sizes: ti.template(), state: ti.tem
         for t in range(SCAN_BLOCK):
             c = b * SCAN_BLOCK + t
             if c < model.n_cells:
-                nlist.cell_start[c] = run
-                run += nlist.cell_count[c]
-                nlist.cell_count[c] = nlist.cell_start[c]  # becomes the scatter cursor
+                run += nlist.cell_start[c]
+                nlist.cell_start[c] = run  # the end of cell c
     for i in range(nlist.counters[REBUILD] * model.n):
         if state.alive[i]:
-            slot = ti.atomic_add(nlist.cell_count[cell_index(model, cell_of(model, state.x[i]))], 1)
+            slot = ti.atomic_sub(nlist.cell_start[cell_index(model, cell_of(model, state.x[i]))], 1) - 1
             nlist.sorted[slot] = i
     for i in range(nlist.counters[REBUILD] * model.n):
         build_row(model, sizes, state, history, nlist, i)
@@ -119,23 +121,22 @@ def build_row(model: ti.template(), sizes: ti.template(), state: ti.template(), 
                             else:
                                 ti.atomic_max(nlist.counters[OVERFLOW], cnt + 1)
         nlist.x_ref[i] = xi
-    if ti.static(model.friction or model.rolling == ROLL_EPSD):
+    if ti.static(model.has_history):
+        # the springs stay where they are: each surviving pair's history slot number moves with it
+        # (a touching pair is always within the cut-off, so no contact is dropped here)
         n_old = nlist.count[i]
-        keep_t = ti.Matrix.zero(float, model.slots, 3)
-        keep_r = ti.Matrix.zero(float, model.slots, 3)
+        keep = ti.Vector([NO_SPRING] * model.slots, ti.i32)
+        used = ti.u32(0)
         for k in range(cnt):
             for q in range(n_old):
                 if nlist.partner[q, i] == new[k]:
-                    for a in ti.static(range(3)):
-                        if ti.static(model.friction):
-                            keep_t[k, a] = history.tangential[q, i][a]
-                        if ti.static(model.rolling == ROLL_EPSD):
-                            keep_r[k, a] = history.rolling[q, i][a]
+                    h = ti.cast(nlist.spring_slot[q, i], ti.i32)
+                    keep[k] = h
+                    if h != NO_SPRING:
+                        used |= ti.u32(1) << ti.cast(h, ti.u32)
         for k in range(model.slots):
-            if ti.static(model.friction):
-                history.tangential[k, i] = ti.Vector([keep_t[k, 0], keep_t[k, 1], keep_t[k, 2]])
-            if ti.static(model.rolling == ROLL_EPSD):
-                history.rolling[k, i] = ti.Vector([keep_r[k, 0], keep_r[k, 1], keep_r[k, 2]])
+            nlist.spring_slot[k, i] = ti.cast(keep[k], ti.u8)
+        nlist.springs_used[i] = used
     for k in range(cnt):
         nlist.partner[k, i] = new[k]
     nlist.count[i] = cnt

@@ -16,11 +16,27 @@ import math
 import numpy as np
 import taichi as ti
 
-from ..fields import ROLL_EPSD, ContactHistory, DemModel, GrainModel, GrainState, NeighborList, WallData
+from ..fields import NO_SPRING, ROLL_EPSD, ContactHistory, DemModel, GrainModel, GrainState, NeighborList, WallData
 from ..geometry import wall_clearance_normal
 from .contact import contact
 from .grains import grain_mass, grain_radius, scatter_add
-from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, rebuild_if_flagged
+from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW, rebuild_if_flagged
+
+
+@ti.func
+def take_spring_slot(model: ti.template(), nlist: ti.template(), i):
+    """The lowest free history slot of grain i, marked used; NO_SPRING (and the overflow counter) if all
+    ``model.history_slots`` hold contacts."""
+    used = nlist.springs_used[i]
+    h = NO_SPRING
+    for b in range(model.history_slots):
+        if h == NO_SPRING and (used >> ti.cast(b, ti.u32)) & ti.u32(1) == ti.u32(0):
+            h = b
+    if h == NO_SPRING:
+        ti.atomic_max(nlist.counters[SPRING_OVERFLOW], 1)
+    else:
+        nlist.springs_used[i] = used | (ti.u32(1) << ti.cast(h, ti.u32))
+    return h
 
 
 @ti.func
@@ -59,29 +75,41 @@ def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template()
                     w_rel = zero
                     spring = zero
                     roll_spring = zero
+                    h = NO_SPRING
+                    if ti.static(model.has_history):
+                        h = ti.cast(nlist.spring_slot[k, i], ti.i32)
+                        if h == NO_SPRING:  # a new contact: take a free history slot, its springs start at 0
+                            h = take_spring_slot(model, nlist, i)
+                            nlist.spring_slot[k, i] = ti.cast(h, ti.u8)
+                        else:
+                            if ti.static(model.friction):
+                                spring = history.tangential[h, i]
+                            if ti.static(model.rolling == ROLL_EPSD):
+                                roll_spring = history.rolling[h, i]
                     if ti.static(model.friction):
                         wj = state.omega[j]
                         vrel += (wi * arm_i + wj * arm_j).cross(n)
                         w_rel = wi - wj
-                        spring = history.tangential[k, i]
-                    if ti.static(model.rolling == ROLL_EPSD):
-                        roll_spring = history.rolling[k, i]
                     f, ft, tr, spring, roll_spring = contact(model, False, n, delta, vrel, w_rel, ri * rj / rs,
                                                              mi * mj / (mi + mj), spring, roll_spring)
+                    if ti.static(model.has_history):
+                        if h != NO_SPRING:
+                            if ti.static(model.friction):
+                                history.tangential[h, i] = spring
+                            if ti.static(model.rolling == ROLL_EPSD):
+                                history.rolling[h, i] = roll_spring
                     if ti.static(model.friction):
-                        history.tangential[k, i] = spring
                         tq = n.cross(ft)  # torque per unit lever arm: arm_i n x F on i, arm_j n x F on j
                         torque_i += arm_i * tq + tr
                         scatter_add(model, state.torque, j, arm_j * tq - tr)
-                    if ti.static(model.rolling == ROLL_EPSD):
-                        history.rolling[k, i] = roll_spring
                     fi += f
                     scatter_add(model, state.force, j, -f)
                 else:
-                    if ti.static(model.friction):
-                        history.tangential[k, i] = zero
-                    if ti.static(model.rolling == ROLL_EPSD):
-                        history.rolling[k, i] = zero
+                    if ti.static(model.has_history):
+                        h = ti.cast(nlist.spring_slot[k, i], ti.i32)
+                        if h != NO_SPRING:  # the contact ended: free its history slot
+                            nlist.spring_slot[k, i] = ti.cast(NO_SPRING, ti.u8)
+                            nlist.springs_used[i] &= ~(ti.u32(1) << ti.cast(h, ti.u32))
             # walls: unrolled at compile time, each with its own history slot
             for w in ti.static(range(len(model.walls))):
                 clearance, nrm = wall_clearance_normal(model.walls[w], walls.sampled[w], xi)
@@ -241,7 +269,7 @@ class DemSolver:
         return np.ascontiguousarray(a, dtype=np.float64 if self.state.v.dtype == ti.f64 else np.float32)
 
     def _read_counters(self) -> np.ndarray:
-        """The one host read of the device counters [rebuild flag, overflow, removed, builds]."""
+        """The one host read of the device counters [rebuild flag, overflow, removed, builds, springs short]."""
         return self.nlist.counters.to_numpy()
 
     def set_grains(self, position, velocity=None, radius=None, omega=None, alive=None):
@@ -261,17 +289,22 @@ class DemSolver:
             self.state.omega.from_numpy(self._f(np.zeros((n, 3)) if omega is None else omega))
             self.state.torque.fill(0)
             self.history.tangential.fill(0)
-            self.history.wall_tangential.fill(0)
+            if self.m.walls:
+                self.history.wall_tangential.fill(0)
         if self.m.rolling == ROLL_EPSD:
             self.history.rolling.fill(0)
-            self.history.wall_rolling.fill(0)
+            if self.m.walls:
+                self.history.wall_rolling.fill(0)
         if self.m.coupled:
             self.state.external_force.fill(0)
             self.state.drag_coeff.fill(0)
             self.state.gas_velocity.fill(0)
         self.nlist.count.fill(0)
+        if self.m.has_history:
+            self.nlist.spring_slot.fill(NO_SPRING)
+            self.nlist.springs_used.fill(0)
         builds = int(self.nlist.counters[BUILDS])
-        self.nlist.counters.from_numpy(np.array([1, 0, 0, builds], np.int32))  # rebuild at the next substep
+        self.nlist.counters.from_numpy(np.array([1, 0, 0, builds, 0], np.int32))  # rebuild at the next substep
 
     def radii(self) -> np.ndarray:
         if self.m.polydisperse:
@@ -291,11 +324,17 @@ class DemSolver:
                "radius": self.radii(), "nl_partner": nlist.partner.to_numpy(), "nl_count": nlist.count.to_numpy(),
                "nl_x_ref": nlist.x_ref.to_numpy(), "removed": np.array(counters[REMOVED]),
                "substeps_done": np.array(self.substeps_done), "need_build": np.array(int(counters[REBUILD]))}
+        if self.m.has_history:
+            out.update(nl_spring_slot=nlist.spring_slot.to_numpy(), nl_springs_used=nlist.springs_used.to_numpy())
         if self.m.friction:
             out.update(omega=state.omega.to_numpy(), torque=state.torque.to_numpy(),
-                       tangential=history.tangential.to_numpy(), wall_tangential=history.wall_tangential.to_numpy())
+                       tangential=history.tangential.to_numpy())
+            if self.m.walls:
+                out.update(wall_tangential=history.wall_tangential.to_numpy())
         if self.m.rolling == ROLL_EPSD:
-            out.update(rolling=history.rolling.to_numpy(), wall_rolling=history.wall_rolling.to_numpy())
+            out.update(rolling=history.rolling.to_numpy())
+            if self.m.walls:
+                out.update(wall_rolling=history.wall_rolling.to_numpy())
         out["force"] = state.force.to_numpy()
         if self.m.coupled:
             out.update(external_force=state.external_force.to_numpy(), drag_coeff=state.drag_coeff.to_numpy(),
@@ -313,14 +352,27 @@ class DemSolver:
         nlist.x_ref.from_numpy(self._f(arrays["nl_x_ref"]))
         self.substeps_done = int(arrays["substeps_done"])
         builds = int(nlist.counters[BUILDS])
-        nlist.counters.from_numpy(np.array([int(arrays["need_build"]), 0, int(arrays["removed"]), builds], np.int32))
+        # a state written before the springs had their own slots (no nl_spring_slot) restarts its pair
+        # springs from zero at a fresh build; the wall springs, per wall then as now, are kept
+        current = not self.m.has_history or "nl_spring_slot" in arrays
+        need_build = int(arrays["need_build"]) if current else 1
+        nlist.counters.from_numpy(np.array([need_build, 0, int(arrays["removed"]), builds, 0], np.int32))
+        if self.m.has_history and current:
+            nlist.spring_slot.from_numpy(np.asarray(arrays["nl_spring_slot"], np.uint8))
+            nlist.springs_used.from_numpy(np.asarray(arrays["nl_springs_used"], np.uint32))
+        elif self.m.has_history:
+            nlist.count.fill(0)
         if self.m.friction:
             state.torque.from_numpy(self._f(arrays["torque"]))
-            history.tangential.from_numpy(self._f(arrays["tangential"]))
-            history.wall_tangential.from_numpy(self._f(arrays["wall_tangential"]))
+            if current:
+                history.tangential.from_numpy(self._f(arrays["tangential"]))
+            if self.m.walls:
+                history.wall_tangential.from_numpy(self._f(arrays["wall_tangential"]))
         if self.m.rolling == ROLL_EPSD:
-            history.rolling.from_numpy(self._f(arrays["rolling"]))
-            history.wall_rolling.from_numpy(self._f(arrays["wall_rolling"]))
+            if current:
+                history.rolling.from_numpy(self._f(arrays["rolling"]))
+            if self.m.walls:
+                history.wall_rolling.from_numpy(self._f(arrays["wall_rolling"]))
         if self.m.coupled and "drag_coeff" in arrays:
             state.external_force.from_numpy(self._f(arrays["external_force"]))
             state.drag_coeff.from_numpy(self._f(arrays["drag_coeff"]))
@@ -344,7 +396,12 @@ class DemSolver:
         self.check()
 
     def check(self) -> None:
-        over = int(self._read_counters()[OVERFLOW])
+        counters = self._read_counters()
+        over = int(counters[OVERFLOW])
+        if counters[SPRING_OVERFLOW]:
+            raise NeighborOverflow(f"a grain touches more than {self.m.history_slots} grains at least its size (they "
+                                   "overlap by several per cent): stiffen the contacts (contact.youngs_modulus) or "
+                                   "set dem.max_neighbors, which gives every neighbour slot its own springs")
         if over:
             raise NeighborOverflow(f"a grain has at least {over} neighbours within the skin but the list holds "
                                    f"{self.m.slots}: raise dem.max_neighbors (now {self.m.slots}) or lower dem.skin")
