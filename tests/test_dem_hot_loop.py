@@ -73,3 +73,13 @@ def test_device_rebuild_matches_a_rebuild_every_substep():
     scale = np.abs(a["velocity"]).max()
     assert np.abs(a["velocity"] - b["velocity"]).max() < 1e-9 * scale
     assert np.abs(a["omega"] - b["omega"]).max() < 1e-9 * np.abs(a["omega"]).max()
+
+
+def test_contacts_count_every_touching_pair_once():
+    scene, dem = falling_bed()
+    dem.advance(200)
+    a = dem.state_arrays()
+    x, r = a["position"][a["alive"] == 1], a["radius"][a["alive"] == 1]
+    d = np.linalg.norm(x[:, None] - x[None], axis=-1)
+    touching = (d < r[:, None] + r[None]) & np.triu(np.ones_like(d, bool), 1)
+    assert touching.sum() > 20 and dem.diagnostics()["contacts"] == touching.sum()
