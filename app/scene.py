@@ -17,10 +17,10 @@ from .config.derived import Derived, derive
 from .config.schema import Config
 from .io import store
 from .sim import geometry
-from .sim.fields import ROLL_CONSTANT, ROLL_EPSD, DemModel
+from .sim.fields import HISTORY_SLOTS, ROLL_CONSTANT, ROLL_EPSD, DemModel, slots_bound
 
 ROLLING = {"none": 0, "constant_torque": ROLL_CONSTANT, "epsd": ROLL_EPSD}
-CELLS_PER_GRAIN = 4  # cap on the cell list's size (8 bytes per cell)
+CELLS_PER_GRAIN = 4  # cap on the cell list's size (4 bytes per cell)
 
 
 def build_walls(cfg: Config) -> list:
@@ -145,9 +145,12 @@ def dem_model(cfg: Config, der: Derived, n: int, walls: list, coupled: bool = Fa
     cells = tuple(max(1, int((hi[a] - lo[a]) // cut)) for a in range(3))
     cell = tuple((hi[a] - lo[a]) / cells[a] for a in range(3))
     slots = cfg.dem.max_neighbors
+    # springs per grain: the kissing number (contacts with grains at least its size), or one per
+    # neighbour slot when the list is sized by hand (dem.max_neighbors: the way out of a shortage)
+    history = min(slots, HISTORY_SLOTS) if not slots else slots
     if not slots:
-        q = (2 * der.radius_max + der.skin) / (2 * der.radius_min)
-        slots = int(min(256, math.ceil(12 * q ** 2)))
+        slots = slots_bound(der.radius_min, der.skin)
+        history = min(slots, HISTORY_SLOTS)
     r = der.diameters[0] / 2
     pc, wc = der.pair, der.wall
     return DemModel(
@@ -156,7 +159,8 @@ def dem_model(cfg: Config, der: Derived, n: int, walls: list, coupled: bool = Fa
         e_star=pc.e_star, g_star=pc.g_star, kn=pc.kn, kt=pc.kt, damping=pc.damping, mu=pc.friction,
         mu_roll=pc.rolling_friction, w_e_star=wc.e_star, w_g_star=wc.g_star, w_damping=wc.damping, w_mu=wc.friction,
         w_mu_roll=wc.rolling_friction, walls=tuple(walls), gravity=tuple(d.gravity), dt=der.dt, skin=der.skin,
-        lo=lo, hi=hi, cell=cell, cells=cells, coupled=coupled, serial=serial)
+        lo=lo, hi=hi, cell=cell, cells=cells, coupled=coupled, serial=serial,
+        history_slots=history)
 
 
 def flow_config(cfg: Config, walls: list):

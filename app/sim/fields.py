@@ -7,19 +7,25 @@ kernels receive as ``ti.template()`` arguments; nothing here computes physics.
   monodisperse kernels use compile-time constants instead).
 - ``GrainState``  changes every substep: position, velocity, angular velocity (only with
   friction), force and torque accumulators, alive flag.
-- ``ContactHistory``  tangential spring per neighbour slot and per wall (only with
-  friction), rolling spring (only for the elastic-plastic rolling model).
-- ``NeighborList``  Verlet half list (partner j > i) in (slot, grain) layout, so threads
-  of consecutive grains read consecutive memory on a GPU; plus the cell list used to
-  build it (counting sort).
+- ``ContactHistory``  the springs of the contacts a grain owns: H history slots per grain
+  (tangential with friction, rolling for the elastic-plastic model only), and one per wall.
+- ``NeighborList``  Verlet half list (the smaller grain owns a pair) in (slot, grain) layout,
+  so threads of consecutive grains read consecutive memory on a GPU; with history, each
+  neighbour slot names the history slot of its contact (255: not touching) and a bit mask
+  marks the grain's history slots in use. So a contact finds its springs without a search,
+  springs never move at a rebuild (only the slot numbers travel with their partners), and
+  only touching pairs hold springs: H = 12 (the kissing number: a grain touches at most
+  12 grains at least its size unless they overlap by several per cent) against K
+  neighbour slots. Plus the cell list used to build it (counting sort).
 
-Memory per grain, float32, K neighbour slots, W walls (see ``bytes_per_grain``):
-state 12*4 + 1 (x, v, x_ref, force, alive), with friction +24 (omega, torque),
-neighbour list 4*K + 8 (partners, count, cell-sorted id), history 12*(K + W) with friction,
-rolling +12*(K + W) (epsd only), plus 8 bytes per cell of the cell list.
+Memory per grain, float32, K neighbour slots, H history slots, W walls (see ``bytes_per_grain``):
+state 12*4 + 1 (x, v, x_ref, force, alive), with friction +24 (omega, torque), polydisperse +8,
+coupled +28; neighbour list 4*K + 8 (partners, count, cell-sorted id); with history K + 4
+(slot numbers, mask) and 12*(H + W) per spring kind, plus 4 bytes per cell of the cell list.
 """
 
 import dataclasses
+import math
 
 import taichi as ti
 
@@ -63,6 +69,11 @@ class DemModel:
     cells: tuple                # cell counts per axis
     coupled: bool = False       # gas drag: per-grain drag coefficient, gas velocity and explicit force
     serial: bool = False        # one CPU thread: serial loops, atomics demoted to plain adds
+    history_slots: int = 12     # springs per grain (contacts it owns); see ContactHistory
+
+    @property
+    def has_history(self) -> bool:
+        return self.friction or self.rolling == ROLL_EPSD
 
     @property
     def n_cells(self) -> int:
@@ -71,6 +82,8 @@ class DemModel:
 
 ROLL_NONE, ROLL_CONSTANT, ROLL_EPSD = 0, 1, 2
 SCAN_BLOCK = 1024
+NO_SPRING = 255
+HISTORY_SLOTS = 12
 
 
 @ti.data_oriented
@@ -106,28 +119,36 @@ class ContactHistory:
     def __init__(self, m: DemModel):
         vec = ti.types.vector(3, float)
         if m.friction:
-            self.tangential = vec.field(shape=(m.slots, m.n))
-            self.wall_tangential = vec.field(shape=(max(1, len(m.walls)), m.n))
+            self.tangential = vec.field(shape=(m.history_slots, m.n))
+            if m.walls:
+                self.wall_tangential = vec.field(shape=(len(m.walls), m.n))
         if m.rolling == ROLL_EPSD:
-            self.rolling = vec.field(shape=(m.slots, m.n))
-            self.wall_rolling = vec.field(shape=(max(1, len(m.walls)), m.n))
+            self.rolling = vec.field(shape=(m.history_slots, m.n))
+            if m.walls:
+                self.wall_rolling = vec.field(shape=(len(m.walls), m.n))
 
 
 @ti.data_oriented
 class NeighborList:
     def __init__(self, m: DemModel):
         self.partner = ti.field(ti.i32, (m.slots, m.n))
+        if m.has_history:
+            self.spring_slot = ti.field(ti.u8, (m.slots, m.n))  # history slot of the contact, NO_SPRING if none
+            self.springs_used = ti.field(ti.u32, m.n)  # bit h: history slot h holds a contact
         self.count = ti.field(ti.i32, m.n)
         self.x_ref = ti.types.vector(3, float).field(shape=m.n)
         nc = m.n_cells
-        self.cell_count = ti.field(ti.i32, nc)
         self.cell_start = ti.field(ti.i32, nc + 1)
         self.sorted = ti.field(ti.i32, m.n)
         self.block_sum = ti.field(ti.i32, (nc + SCAN_BLOCK - 1) // SCAN_BLOCK + 1)
-        self.overflow = ti.field(ti.i32, ())
-        self.max_disp2 = ti.field(float, ())
-        self.removed = ti.field(ti.i32, ())
-        self.builds = 0  # host-side counter of rebuilds
+        # [rebuild flag, overflow (largest row asked for), grains removed, builds, history slots short]: the rebuild decision
+        # lives here on the device; the host reads the counters once per DemSolver.advance
+        self.counters = ti.field(ti.i32, 5)
+
+    @property
+    def builds(self) -> int:
+        """Rebuilds so far (a device read: not for the hot loop)."""
+        return int(self.counters[3])
 
 
 class WallData:
@@ -141,6 +162,16 @@ class _NoData:
     """Placeholder for walls whose shape is analytic (kernels never read it)."""
 
 
+def slots_bound(radius_min: float, skin: float) -> int:
+    """Neighbour slots per grain of the half list in which the smaller grain of a pair owns it (ties: the
+    lower index): a row holds only partners at least its grain's size, within r_i + r_j + skin, so its
+    length is bounded by the monodisperse one at the smallest radius, 12 ((2 r_min + skin) / (2 r_min))^2
+    (the kissing number of equal spheres scaled to the skin shell), whatever the size ratio. An
+    overflow is detected at the build and stops the run (dem.max_neighbors overrides)."""
+    q = (2 * radius_min + skin) / (2 * radius_min)
+    return int(min(256, math.ceil(12 * q * q)))
+
+
 def bytes_per_grain(m: DemModel, precision_bytes: int = 4) -> float:
     """Device memory per grain slot [bytes], cell list included."""
     f = precision_bytes
@@ -148,11 +179,13 @@ def bytes_per_grain(m: DemModel, precision_bytes: int = 4) -> float:
     if m.polydisperse:
         b += 2 * f
     if m.friction:
-        b += 2 * 3 * f + 3 * f * (m.slots + max(1, len(m.walls)))
+        b += 2 * 3 * f + 3 * f * (m.history_slots + len(m.walls))
     if m.rolling == ROLL_EPSD:
-        b += 3 * f * (m.slots + max(1, len(m.walls)))
+        b += 3 * f * (m.history_slots + len(m.walls))
+    if m.has_history:
+        b += m.slots + 4  # history slot per neighbour slot, mask
     if m.coupled:
         b += 7 * f
     b += 4 * m.slots + 4 + 4  # partner slots, count, cell-sorted id
-    b += (8 * m.n_cells) / max(1, m.n)
+    b += (4 * m.n_cells) / max(1, m.n)
     return b

@@ -1,0 +1,126 @@
+"""The contact law, written once: normal, tangential and rolling, for grain pairs and walls alike.
+
+Sign conventions: ``n`` points from grain i to its partner (the other grain or the wall),
+``delta`` > 0 is the overlap, ``vrel`` the velocity of i relative to the partner at the
+contact point. A wall is a partner of infinite mass and radius: the caller passes r* = r_i,
+m* = m_i and the wall's constants are chosen at compile time (``wall`` is static).
+
+- normal: linear  F = k_n d + 2 zeta sqrt(m* k_n) dd/dt, or
+          Hertz   F = 4/3 E* sqrt(R*) d^1.5 + alpha sqrt(m* k_n) d^0.25 dd/dt,
+  clamped at F >= 0 (no attraction); zeta / alpha are solved from the restitution in
+  ``app.config.derived``.
+- tangential (with friction only): an incremental spring on the accumulated slip xi,
+  k_t = 8 G* sqrt(R* d) (Mindlin) or the linear k_t, with damping of the same
+  dimensionless strength as the normal one, capped by Coulomb |F_t| <= mu F_n (the
+  spring is reset to the capped force, so sliding dissipates).
+- rolling (optional): constant torque mu_r R* F_n against the relative rolling
+  velocity, or an elastic-plastic spring (k_r = 2.25 mu_r^2 R*^2 dF_n/dd, capped at
+  mu_r R* F_n), after Ai et al. (2011) Powder Technol. 206:269.
+"""
+import taichi as ti
+
+from ..fields import ROLL_CONSTANT, ROLL_EPSD
+
+
+@ti.func
+def normal_force(model: ti.template(), wall: ti.template(), delta, ddelta, r_eff, m_eff):
+    """Normal force magnitude (>= 0), the local normal stiffness dF/dd and the two roots the tangential law
+    reuses: sqrt(R* d) and the damping factor sqrt(m* k_n) d^(1/4) (Hertz) or sqrt(m* k_n) (linear).
+
+    Written for few square roots: for equal grains R*, m* are compile-time constants, so only
+    sqrt(d) and d^(1/4) are computed per contact."""
+    e_star = ti.static(model.w_e_star if wall else model.e_star)
+    damping = ti.static(model.w_damping if wall else model.damping)
+    fn = 0.0
+    stiff = 0.0
+    root_rd = 0.0
+    damp_root = 0.0
+    if ti.static(model.hertz):
+        sr = ti.sqrt(r_eff)
+        sd = ti.sqrt(delta)
+        kn = 4.0 / 3.0 * e_star * sr
+        damp_root = ti.sqrt(m_eff * kn) * ti.sqrt(sd)
+        fn = kn * delta * sd + damping * damp_root * ddelta
+        stiff = 1.5 * kn * sd
+        root_rd = sr * sd
+    else:
+        damp_root = ti.sqrt(m_eff * model.kn)
+        fn = model.kn * delta + 2.0 * damping * damp_root * ddelta
+        stiff = ti.cast(model.kn, float)
+    return ti.max(fn, 0.0), stiff, root_rd, damp_root
+
+
+@ti.func
+def tangential_force(model: ti.template(), wall: ti.template(), spring, n, vt, fn, root_rd, damp_root):
+    """Tangential force on grain i and the updated slip spring (``root_rd``, ``damp_root`` from
+    ``normal_force``)."""
+    e_star = ti.static(model.w_e_star if wall else model.e_star)
+    g_star = ti.static(model.w_g_star if wall else model.g_star)
+    damping = ti.static(model.w_damping if wall else model.damping)
+    mu = ti.static(model.w_mu if wall else model.mu)
+    # keep the spring in the current tangent plane, at its length
+    mag2 = spring.dot(spring)
+    spring -= spring.dot(n) * n
+    proj2 = spring.dot(spring)
+    if proj2 > 1e-60:
+        spring *= ti.sqrt(mag2 / proj2)
+    spring += vt * model.dt
+    kt = 0.0
+    gamma = 0.0
+    if ti.static(model.hertz):
+        kt = 8.0 * g_star * root_rd
+        # same dimensionless damping as the normal law: gamma_t = alpha sqrt(2/3 m* k_t), and
+        # 2/3 m* k_t / (m* k_n sqrt(d)) = 4 G* / E*, so gamma_t = alpha damp_root sqrt(4 G* / E*)
+        gamma = damping * damp_root * ti.static((4.0 * g_star / e_star) ** 0.5 if e_star > 0 else 0.0)
+    else:
+        kt = ti.cast(model.kt, float)
+        gamma = 2.0 * damping * damp_root * ti.static((model.kt / model.kn) ** 0.5 if model.kn > 0 else 0.0)
+    ft = -kt * spring - gamma * vt
+    ft2 = ft.dot(ft)
+    limit = mu * fn
+    if ft2 > limit * limit:
+        ftn = ti.sqrt(ft2)
+        if ftn > 1e-30:
+            ft *= limit / ftn
+        if kt > 0:
+            spring = -(ft + gamma * vt) / kt
+    return ft, spring
+
+
+@ti.func
+def rolling_torque(model: ti.template(), wall: ti.template(), roll_spring, w_rel, fn, stiff, r_eff):
+    """Rolling-resistance torque on grain i and the updated elastic-plastic spring torque."""
+    mu_r = ti.static(model.w_mu_roll if wall else model.mu_roll)
+    tr = ti.Vector([0.0, 0.0, 0.0])
+    limit = mu_r * r_eff * fn
+    if ti.static(model.rolling == ROLL_CONSTANT):
+        wn = w_rel.norm()
+        if wn > 1e-12:
+            tr = -limit * w_rel / wn
+    elif ti.static(model.rolling == ROLL_EPSD):
+        kr = 2.25 * mu_r * mu_r * r_eff * r_eff * stiff
+        roll_spring -= kr * w_rel * model.dt
+        mn = roll_spring.norm()
+        if mn > limit and mn > 1e-30:
+            roll_spring *= limit / mn
+        tr = roll_spring
+    return tr, roll_spring
+
+
+@ti.func
+def contact(model: ti.template(), wall: ti.template(), n, delta, vrel, w_rel, r_eff, m_eff, spring, roll_spring):
+    """One contact, the whole law in order: normal, then tangential (with friction), then rolling.
+
+    Returns the force on grain i, the tangential force (its torque is arm x F_t, with the
+    caller's lever arms), the rolling torque on i, and the updated springs."""
+    vn = vrel.dot(n)
+    fn, stiff, root_rd, damp_root = normal_force(model, wall, delta, vn, r_eff, m_eff)
+    force = -fn * n
+    ft = ti.Vector([0.0, 0.0, 0.0])
+    tr = ti.Vector([0.0, 0.0, 0.0])
+    if ti.static(model.friction):
+        ft, spring = tangential_force(model, wall, spring, n, vrel - vn * n, fn, root_rd, damp_root)
+        force += ft
+        if ti.static(model.rolling != 0):
+            tr, roll_spring = rolling_torque(model, wall, roll_spring, w_rel, fn, stiff, r_eff)
+    return force, ft, tr, spring, roll_spring

@@ -1,0 +1,31 @@
+"""Per-grain constants read inside the DEM kernels, and the scatter that adds to another grain.
+
+Monodisperse scenes store no radius or mass per grain: the kernels read the model's
+compile-time constants instead (``ti.static`` on ``model.polydisperse``)."""
+import taichi as ti
+
+
+@ti.func
+def grain_radius(model: ti.template(), sizes: ti.template(), i):
+    r = ti.cast(model.radius, float)
+    if ti.static(model.polydisperse):
+        r = sizes.radius[i]
+    return r
+
+
+@ti.func
+def grain_mass(model: ti.template(), sizes: ti.template(), i):
+    mass = ti.cast(model.mass, float)
+    if ti.static(model.polydisperse):
+        mass = sizes.mass[i]
+    return mass
+
+
+@ti.func
+def scatter_add(model: ti.template(), target: ti.template(), j, value):
+    """target[j] += value from inside the grain loop: atomic when threads run it, a plain
+    read-modify-write when the loop is serial (float atomics are compare-and-swap loops on a CPU)."""
+    if ti.static(model.serial):
+        target[j] = target[j] + value
+    else:
+        ti.atomic_add(target[j], value)

@@ -1,0 +1,427 @@
+"""The DEM substep, one kernel launch, and ``DemSolver``, which holds a scene's bundles and runs it.
+
+One substep (``substep``, a single kernel whose top-level loops run in order):
+[rebuild the Verlet half list, when the device flag says a grain moved more than skin/2]
+-> contact forces: grain pairs from the half list, then each wall, with the one contact
+   law of ``contact.py``
+-> symplectic Euler integration (v += a dt; x += v dt; omega += T/I dt, the gas drag
+   taken implicitly), which also zeroes the accumulators, removes grains that left the
+   domain and raises the rebuild flag.
+The host only launches: nothing is read back inside ``advance``'s loop; the counters
+(overflow, removals, builds) are read once at its end. Diagnostics are computed only
+when asked for. No I/O, no printing.
+"""
+import math
+
+import numpy as np
+import taichi as ti
+
+from ..fields import NO_SPRING, ROLL_EPSD, ContactHistory, DemModel, GrainModel, GrainState, NeighborList, WallData
+from ..geometry import wall_clearance_normal
+from .contact import contact
+from .grains import grain_mass, grain_radius, scatter_add
+from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW, rebuild_if_flagged
+
+
+@ti.func
+def take_spring_slot(model: ti.template(), nlist: ti.template(), i):
+    """The lowest free history slot of grain i, marked used; NO_SPRING (and the overflow counter) if all
+    ``model.history_slots`` hold contacts."""
+    used = nlist.springs_used[i]
+    h = NO_SPRING
+    for b in range(model.history_slots):
+        if h == NO_SPRING and (used >> ti.cast(b, ti.u32)) & ti.u32(1) == ti.u32(0):
+            h = b
+    if h == NO_SPRING:
+        ti.atomic_max(nlist.counters[SPRING_OVERFLOW], 1)
+    else:
+        nlist.springs_used[i] = used | (ti.u32(1) << ti.cast(h, ti.u32))
+    return h
+
+
+@ti.func
+def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+                nlist: ti.template(), walls: ti.template()):
+    # one CPU thread: a serial loop lets Taichi demote the partner atomics to plain adds
+    ti.loop_config(serialize=model.serial)
+    for i in range(model.n):
+        if state.alive[i]:
+            xi = state.x[i]
+            vi = state.v[i]
+            ri = grain_radius(model, sizes, i)
+            mi = grain_mass(model, sizes, i)
+            wi = ti.Vector([0.0, 0.0, 0.0])
+            if ti.static(model.friction):
+                wi = state.omega[i]
+            fi = ti.Vector([0.0, 0.0, 0.0])
+            torque_i = ti.Vector([0.0, 0.0, 0.0])
+            zero = ti.Vector([0.0, 0.0, 0.0])
+            for k in range(nlist.count[i]):
+                j = nlist.partner[k, i]
+                dx = state.x[j] - xi
+                rj = grain_radius(model, sizes, j)
+                d2 = dx.dot(dx)
+                rs = ri + rj
+                if d2 < rs * rs and state.alive[j]:
+                    dist = ti.sqrt(d2)
+                    n = dx * (1.0 / ti.max(dist, 1e-30))
+                    delta = rs - dist
+                    mj = grain_mass(model, sizes, j)
+                    # lever arms to the contact point, the middle of the overlap: they sum to the centre
+                    # distance, so the pair's torques conserve angular momentum exactly
+                    arm_i = ri - 0.5 * delta
+                    arm_j = rj - 0.5 * delta
+                    vrel = vi - state.v[j]
+                    w_rel = zero
+                    spring = zero
+                    roll_spring = zero
+                    h = NO_SPRING
+                    if ti.static(model.has_history):
+                        h = ti.cast(nlist.spring_slot[k, i], ti.i32)
+                        if h == NO_SPRING:  # a new contact: take a free history slot, its springs start at 0
+                            h = take_spring_slot(model, nlist, i)
+                            nlist.spring_slot[k, i] = ti.cast(h, ti.u8)
+                        else:
+                            if ti.static(model.friction):
+                                spring = history.tangential[h, i]
+                            if ti.static(model.rolling == ROLL_EPSD):
+                                roll_spring = history.rolling[h, i]
+                    if ti.static(model.friction):
+                        wj = state.omega[j]
+                        vrel += (wi * arm_i + wj * arm_j).cross(n)
+                        w_rel = wi - wj
+                    f, ft, tr, spring, roll_spring = contact(model, False, n, delta, vrel, w_rel, ri * rj / rs,
+                                                             mi * mj / (mi + mj), spring, roll_spring)
+                    if ti.static(model.has_history):
+                        if h != NO_SPRING:
+                            if ti.static(model.friction):
+                                history.tangential[h, i] = spring
+                            if ti.static(model.rolling == ROLL_EPSD):
+                                history.rolling[h, i] = roll_spring
+                    if ti.static(model.friction):
+                        tq = n.cross(ft)  # torque per unit lever arm: arm_i n x F on i, arm_j n x F on j
+                        torque_i += arm_i * tq + tr
+                        scatter_add(model, state.torque, j, arm_j * tq - tr)
+                    fi += f
+                    scatter_add(model, state.force, j, -f)
+                else:
+                    if ti.static(model.has_history):
+                        h = ti.cast(nlist.spring_slot[k, i], ti.i32)
+                        if h != NO_SPRING:  # the contact ended: free its history slot
+                            nlist.spring_slot[k, i] = ti.cast(NO_SPRING, ti.u8)
+                            nlist.springs_used[i] &= ~(ti.u32(1) << ti.cast(h, ti.u32))
+            # walls: unrolled at compile time, each with its own history slot
+            for w in ti.static(range(len(model.walls))):
+                clearance, nrm = wall_clearance_normal(model.walls[w], walls.sampled[w], xi)
+                delta = ri - clearance
+                if delta > 0:
+                    n = -nrm  # from the grain towards the wall
+                    arm = ri - 0.5 * delta
+                    vrel = vi
+                    spring = zero
+                    roll_spring = zero
+                    if ti.static(model.friction):
+                        vrel += (wi * arm).cross(n)
+                        spring = history.wall_tangential[w, i]
+                    if ti.static(model.rolling == ROLL_EPSD):
+                        roll_spring = history.wall_rolling[w, i]
+                    f, ft, tr, spring, roll_spring = contact(model, True, n, delta, vrel, wi, ri, mi, spring,
+                                                             roll_spring)
+                    if ti.static(model.friction):
+                        history.wall_tangential[w, i] = spring
+                        torque_i += arm * n.cross(ft) + tr
+                    if ti.static(model.rolling == ROLL_EPSD):
+                        history.wall_rolling[w, i] = roll_spring
+                    fi += f
+                else:
+                    if ti.static(model.friction):
+                        history.wall_tangential[w, i] = zero
+                    if ti.static(model.rolling == ROLL_EPSD):
+                        history.wall_rolling[w, i] = zero
+            scatter_add(model, state.force, i, fi)
+            if ti.static(model.friction):
+                scatter_add(model, state.torque, i, torque_i)
+
+
+@ti.func
+def integrate(model: ti.template(), sizes: ti.template(), state: ti.template(), nlist: ti.template()):
+    """Symplectic Euler; zeroes the accumulators; removes grains outside the domain; flags a rebuild."""
+    half_skin2 = (0.5 * model.skin) ** 2
+    for i in range(model.n):
+        if state.alive[i]:
+            mass = grain_mass(model, sizes, i)
+            f = state.force[i]
+            v = state.v[i]
+            if ti.static(model.coupled):
+                # drag K (u_gas - v) taken implicitly: stable even when m/K is shorter than dt
+                f += state.external_force[i]
+                kdt = state.drag_coeff[i] * model.dt / mass
+                v = (v + (f / mass + ti.Vector(model.gravity)) * model.dt + kdt * state.gas_velocity[i]) / (1.0 + kdt)
+            else:
+                v = v + (f / mass + ti.Vector(model.gravity)) * model.dt
+            x = state.x[i] + v * model.dt
+            state.v[i] = v
+            state.x[i] = x
+            state.force[i] = ti.Vector([0.0, 0.0, 0.0])
+            if ti.static(model.friction):
+                r = grain_radius(model, sizes, i)
+                state.omega[i] += state.torque[i] / (0.4 * mass * r * r) * model.dt
+                state.torque[i] = ti.Vector([0.0, 0.0, 0.0])
+            inside = True
+            for a in ti.static(range(3)):
+                if not (model.lo[a] <= x[a] <= model.hi[a]):
+                    inside = False
+            if not inside:
+                state.alive[i] = ti.cast(0, ti.u8)
+                state.v[i] = ti.Vector([0.0, 0.0, 0.0])
+                ti.atomic_add(nlist.counters[REMOVED], 1)
+            else:
+                d = x - nlist.x_ref[i]
+                if d.dot(d) > half_skin2:
+                    nlist.counters[REBUILD] = 1  # every writer stores the same value
+
+
+@ti.kernel
+def dem_substep(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+            nlist: ti.template(), walls: ti.template()):
+    """One DEM step in one launch: [rebuild] -> pair and wall forces -> integration."""
+    rebuild_if_flagged(model, sizes, state, history, nlist)
+    pair_forces(model, sizes, state, history, nlist, walls)
+    integrate(model, sizes, state, nlist)
+
+
+# ---------------------------------------------------------------------------- diagnostics
+
+@ti.kernel
+def measure(model: ti.template(), sizes: ti.template(), state: ti.template(), nlist: ti.template(),
+            walls: ti.template(), out: ti.template(), hist: ti.template()) -> ti.i32:
+    """Fill ``out`` with [KE_trans, KE_rot, max overlap/diameter, max speed, alive, bad values, touching
+    pairs]; ``hist`` with a height histogram of alive grains. Returns the alive count."""
+    for k in range(7):
+        out[k] = 0.0
+    for b in range(hist.shape[0]):
+        hist[b] = 0
+    alive = 0
+    nb = hist.shape[0]
+    for i in range(model.n):
+        if state.alive[i]:
+            alive += 1
+            mass = grain_mass(model, sizes, i)
+            ri = grain_radius(model, sizes, i)
+            v = state.v[i]
+            x = state.x[i]
+            ti.atomic_add(out[0], 0.5 * mass * v.dot(v))
+            if ti.static(model.friction):
+                w = state.omega[i]
+                ti.atomic_add(out[1], 0.5 * 0.4 * mass * ri * ri * w.dot(w))
+            ti.atomic_max(out[3], v.norm())
+            bad = 0
+            for a in ti.static(range(3)):
+                if not (ti.abs(x[a]) < 1e30 and ti.abs(v[a]) < 1e30):  # also catches NaN
+                    bad = 1
+            ti.atomic_add(out[5], bad)
+            zb = ti.cast((x[2] - model.lo[2]) / (model.hi[2] - model.lo[2]) * nb, ti.i32)
+            ti.atomic_add(hist[ti.min(ti.max(zb, 0), nb - 1)], 1)
+            touching = 0
+            for k in range(nlist.count[i]):
+                j = nlist.partner[k, i]
+                if state.alive[j]:
+                    rj = grain_radius(model, sizes, j)
+                    d = (state.x[j] - x).norm()
+                    ti.atomic_max(out[2], (ri + rj - d) / (2.0 * ti.min(ri, rj)))
+                    if d < ri + rj:
+                        touching += 1
+            ti.atomic_add(out[6], touching)
+            for w in ti.static(range(len(model.walls))):
+                clearance, nrm = wall_clearance_normal(model.walls[w], walls.sampled[w], x)
+                ti.atomic_max(out[2], (ri - clearance) / (2.0 * ri))
+    out[4] = alive
+    return alive
+
+
+# ---------------------------------------------------------------------------- host side
+
+class NeighborOverflow(RuntimeError):
+    pass
+
+
+class DemSolver:
+    """Holds one scene's DEM fields and advances them; no I/O, no printing.
+
+    Bundles: ``model`` (compile-time DemModel, also ``m``), ``fixed`` (per-grain radius and mass,
+    polydisperse only), ``state``, ``history`` (contact springs), ``nlist`` (the half list and its
+    counters; ``nlist.builds`` reads the rebuild count from the device), ``walls``."""
+
+    def __init__(self, model: DemModel):
+        self.m = self.model = model
+        self.fixed = GrainModel(model)
+        self.state = GrainState(model)
+        self.history = ContactHistory(model)
+        self.nlist = NeighborList(model)
+        self.walls = WallData(model)
+        self._diag = ti.field(float, 7)
+        self._hist = ti.field(ti.i32, 1024)
+        self.substeps_done = 0
+
+    # -- state in and out -------------------------------------------------------------
+    def _f(self, a):
+        """numpy array in the kernels' float type (float32 or float64)."""
+        return np.ascontiguousarray(a, dtype=np.float64 if self.state.v.dtype == ti.f64 else np.float32)
+
+    def _read_counters(self) -> np.ndarray:
+        """The one host read of the device counters [rebuild flag, overflow, removed, builds, springs short]."""
+        return self.nlist.counters.to_numpy()
+
+    def set_grains(self, position, velocity=None, radius=None, omega=None, alive=None):
+        n = self.m.n
+        position = self._f(position)
+        if position.shape != (n, 3):
+            raise ValueError(f"positions must be ({n}, 3), got {position.shape}")
+        self.state.x.from_numpy(position)
+        self.state.v.from_numpy(self._f(np.zeros((n, 3)) if velocity is None else velocity))
+        self.state.force.fill(0)
+        self.state.alive.from_numpy(np.ones(n, np.uint8) if alive is None else np.asarray(alive, np.uint8))
+        if self.m.polydisperse:
+            r = np.asarray(radius, float)
+            self.fixed.radius.from_numpy(self._f(r))
+            self.fixed.mass.from_numpy(self._f(self.m.density * 4.0 / 3.0 * math.pi * r ** 3))
+        if self.m.friction:
+            self.state.omega.from_numpy(self._f(np.zeros((n, 3)) if omega is None else omega))
+            self.state.torque.fill(0)
+            self.history.tangential.fill(0)
+            if self.m.walls:
+                self.history.wall_tangential.fill(0)
+        if self.m.rolling == ROLL_EPSD:
+            self.history.rolling.fill(0)
+            if self.m.walls:
+                self.history.wall_rolling.fill(0)
+        if self.m.coupled:
+            self.state.external_force.fill(0)
+            self.state.drag_coeff.fill(0)
+            self.state.gas_velocity.fill(0)
+        self.nlist.count.fill(0)
+        if self.m.has_history:
+            self.nlist.spring_slot.fill(NO_SPRING)
+            self.nlist.springs_used.fill(0)
+        builds = int(self.nlist.counters[BUILDS])
+        self.nlist.counters.from_numpy(np.array([1, 0, 0, builds, 0], np.int32))  # rebuild at the next substep
+
+    def radii(self) -> np.ndarray:
+        if self.m.polydisperse:
+            return self.fixed.radius.to_numpy()
+        return np.full(self.m.n, self.m.radius)
+
+    def masses(self) -> np.ndarray:
+        if self.m.polydisperse:
+            return self.fixed.mass.to_numpy()
+        return np.full(self.m.n, self.m.mass)
+
+    def state_arrays(self) -> dict:
+        """Every changing field (and the neighbour list) as numpy arrays: a full checkpoint."""
+        state, history, nlist = self.state, self.history, self.nlist
+        counters = self._read_counters()
+        out = {"position": state.x.to_numpy(), "velocity": state.v.to_numpy(), "alive": state.alive.to_numpy(),
+               "radius": self.radii(), "nl_partner": nlist.partner.to_numpy(), "nl_count": nlist.count.to_numpy(),
+               "nl_x_ref": nlist.x_ref.to_numpy(), "removed": np.array(counters[REMOVED]),
+               "substeps_done": np.array(self.substeps_done), "need_build": np.array(int(counters[REBUILD]))}
+        if self.m.has_history:
+            out.update(nl_spring_slot=nlist.spring_slot.to_numpy(), nl_springs_used=nlist.springs_used.to_numpy())
+        if self.m.friction:
+            out.update(omega=state.omega.to_numpy(), torque=state.torque.to_numpy(),
+                       tangential=history.tangential.to_numpy())
+            if self.m.walls:
+                out.update(wall_tangential=history.wall_tangential.to_numpy())
+        if self.m.rolling == ROLL_EPSD:
+            out.update(rolling=history.rolling.to_numpy())
+            if self.m.walls:
+                out.update(wall_rolling=history.wall_rolling.to_numpy())
+        out["force"] = state.force.to_numpy()
+        if self.m.coupled:
+            out.update(external_force=state.external_force.to_numpy(), drag_coeff=state.drag_coeff.to_numpy(),
+                       gas_velocity=state.gas_velocity.to_numpy())
+        return out
+
+    def load_state_arrays(self, arrays: dict) -> None:
+        """Restore exactly what ``state_arrays`` returned (same scene model required)."""
+        state, history, nlist = self.state, self.history, self.nlist
+        self.set_grains(arrays["position"], arrays["velocity"], arrays["radius"], arrays.get("omega"),
+                        arrays["alive"])
+        state.force.from_numpy(self._f(arrays["force"]))
+        nlist.partner.from_numpy(arrays["nl_partner"])
+        nlist.count.from_numpy(arrays["nl_count"])
+        nlist.x_ref.from_numpy(self._f(arrays["nl_x_ref"]))
+        self.substeps_done = int(arrays["substeps_done"])
+        builds = int(nlist.counters[BUILDS])
+        # a state written before the springs had their own slots (no nl_spring_slot) restarts its pair
+        # springs from zero at a fresh build; the wall springs, per wall then as now, are kept
+        current = not self.m.has_history or "nl_spring_slot" in arrays
+        need_build = int(arrays["need_build"]) if current else 1
+        nlist.counters.from_numpy(np.array([need_build, 0, int(arrays["removed"]), builds, 0], np.int32))
+        if self.m.has_history and current:
+            nlist.spring_slot.from_numpy(np.asarray(arrays["nl_spring_slot"], np.uint8))
+            nlist.springs_used.from_numpy(np.asarray(arrays["nl_springs_used"], np.uint32))
+        elif self.m.has_history:
+            nlist.count.fill(0)
+        if self.m.friction:
+            state.torque.from_numpy(self._f(arrays["torque"]))
+            if current:
+                history.tangential.from_numpy(self._f(arrays["tangential"]))
+            if self.m.walls:
+                history.wall_tangential.from_numpy(self._f(arrays["wall_tangential"]))
+        if self.m.rolling == ROLL_EPSD:
+            if current:
+                history.rolling.from_numpy(self._f(arrays["rolling"]))
+            if self.m.walls:
+                history.wall_rolling.from_numpy(self._f(arrays["wall_rolling"]))
+        if self.m.coupled and "drag_coeff" in arrays:
+            state.external_force.from_numpy(self._f(arrays["external_force"]))
+            state.drag_coeff.from_numpy(self._f(arrays["drag_coeff"]))
+            state.gas_velocity.from_numpy(self._f(arrays["gas_velocity"]))
+
+    # -- stepping ---------------------------------------------------------------------
+    def rebuild(self) -> None:
+        """Ask for a rebuild at the next substep (the build itself runs on the device)."""
+        self.nlist.counters[REBUILD] = 1
+
+    def substep(self) -> None:
+        """Queue one substep; reads nothing back (see ``advance`` for the checks)."""
+        dem_substep(self.m, self.fixed, self.state, self.history, self.nlist, self.walls)
+        self.substeps_done += 1
+
+    def advance(self, substeps: int) -> None:
+        """Queue ``substeps`` substeps, then read the counters once: NeighborOverflow if a rebuild ran out
+        of slots (the substeps after it missed pairs: the run must stop)."""
+        for _ in range(substeps):
+            self.substep()
+        self.check()
+
+    def check(self) -> None:
+        counters = self._read_counters()
+        over = int(counters[OVERFLOW])
+        if counters[SPRING_OVERFLOW]:
+            raise NeighborOverflow(f"a grain touches more than {self.m.history_slots} grains at least its size (they "
+                                   "overlap by several per cent): stiffen the contacts (contact.youngs_modulus) or "
+                                   "set dem.max_neighbors, which gives every neighbour slot its own springs")
+        if over:
+            raise NeighborOverflow(f"a grain has at least {over} neighbours within the skin but the list holds "
+                                   f"{self.m.slots}: raise dem.max_neighbors (now {self.m.slots}) or lower dem.skin")
+
+    def diagnostics(self) -> dict:
+        """Kinetic energy [J], max overlap / diameter, max speed [m/s], grains alive and removed,
+        non-finite values, touching grain pairs, and the bed height (95th percentile of grain heights) [m]."""
+        alive = measure(self.m, self.fixed, self.state, self.nlist, self.walls, self._diag, self._hist)
+        d = self._diag.to_numpy()
+        hist = self._hist.to_numpy()
+        z95 = float("nan")
+        if alive > 0:
+            cum = np.cumsum(hist)
+            target = 0.95 * alive
+            b = int(np.searchsorted(cum, target))
+            below = cum[b - 1] if b > 0 else 0
+            frac = (target - below) / max(hist[b], 1)
+            width = (self.m.hi[2] - self.m.lo[2]) / hist.size
+            z95 = self.m.lo[2] + (b + frac) * width
+        return {"kinetic_energy": float(d[0] + d[1]), "kinetic_energy_rotational": float(d[1]),
+                "max_overlap": float(max(d[2], 0.0)), "max_speed": float(d[3]), "grains_alive": int(alive),
+                "grains_removed": int(self._read_counters()[REMOVED]), "non_finite": int(d[5]),
+                "contacts": int(d[6]), "bed_height": z95}

@@ -1,0 +1,115 @@
+"""Two commits' DEM substep side by side in ONE process, interleaved: robust ratios on a loaded CPU.
+
+Each tree's ``app`` package is copied into a temporary folder under its own name (``app_a``, ``app_b``:
+fbed imports itself relatively), Taichi is started once, and both solvers are built on the same bed
+(benchmarks/dem_substep.py's squeezed lattice in a cylinder, Hertz-Mindlin with friction; ``--poly``:
+tri-disperse with epsd rolling). Blocks of ``--substeps`` alternate A B, B A, ...; each block's process
+CPU time (not counting time spent descheduled) and wall time per substep are kept. Prints and appends the
+medians and the median of the per-pair ratios A/B (> 1: B is faster).
+
+    git worktree add /tmp/old e7a1a90   # or: git archive e7a1a90 | tar -x -C /tmp/old
+    python benchmarks/dem_ab.py --a /tmp/old --b . --n 10000 50000 --precision float32
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import pathlib
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "benchmarks" / "liggghts"))
+
+import numpy as np  # noqa: E402
+
+import dem_substep as bench  # noqa: E402
+from benchmarks_common import append_results  # noqa: E402
+
+
+def solver(pkg: str, n: int, poly: bool, precision: str):
+    cfgmod = importlib.import_module(pkg + ".config")
+    scenemod = importlib.import_module(pkg + ".scene")
+    demmod = importlib.import_module(pkg + ".sim.dem")
+    from liggghts_pour import make_lattice
+
+    sizes = bench.POPPY
+    dmax = sizes[-1] if poly else bench.D
+    pos, radius = make_lattice(n, diameter=dmax, spacing=1.0)
+    pos = pos * 0.997 + np.random.default_rng(0).uniform(-1e-3, 1e-3, pos.shape) * dmax
+    top = float(pos[:, 2].max()) + 4 * dmax
+    grains = (f"diameter = 0.0\ndiameters = [{sizes[0]}, {sizes[1]}, {sizes[2]}]\nfractions = [0.3333, 0.3333, "
+              f"0.3334]\nfractions_by = \"number\"" if poly else f"diameter = {bench.D}")
+    rolling = "rolling_friction = 0.1\nrolling_model = \"epsd\"\n" if poly else ""
+    text = (f"[run]\nduration = 1.0\nprecision = \"{precision}\"\nthreads = 1\n[domain]\nlo = [{-radius}, {-radius}, 0.0]\n"
+            f"hi = [{radius}, {radius}, {top}]\n[vessel]\nshape = \"cylinder\"\nradius = {radius}\n[particles]\n{grains}\n"
+            f"density = {bench.RHO}\ncount = {n}\n[contact]\nmodel = \"hertz_mindlin\"\nyoungs_modulus = {bench.E}\n"
+            f"poisson_ratio = {bench.NU}\nrestitution = {bench.REST}\nfriction = {bench.MU}\n{rolling}[dem]\n"
+            f"dt = {bench.DT}\n")
+    r = np.random.default_rng(1).choice(np.asarray(sizes) / 2, n) if poly else np.full(n, bench.D / 2)
+    scene = scenemod.Scene(cfgmod.load_text(text, "bench.toml"), "bench.toml",
+                           initial={"position": pos, "velocity": np.zeros_like(pos), "radius": r}, serial=True)
+    dem = demmod.DemSolver(scene.model)
+    dem.set_grains(pos, radius=r)
+    return dem
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--a", required=True, help="tree A (a checkout holding app/)")
+    ap.add_argument("--b", default=str(ROOT), help="tree B (default: this one)")
+    ap.add_argument("--n", type=int, nargs="+", default=[10000])
+    ap.add_argument("--precision", default="float32", choices=("float32", "float64"))
+    ap.add_argument("--poly", action="store_true")
+    ap.add_argument("--blocks", type=int, default=9)
+    ap.add_argument("--substeps", type=int, default=100)
+    ap.add_argument("--no-append", action="store_true")
+    a = ap.parse_args(argv)
+    tmp = pathlib.Path(tempfile.mkdtemp(prefix="dem_ab_"))
+    for name, tree in (("app_a", a.a), ("app_b", a.b)):
+        shutil.copytree(pathlib.Path(tree) / "app", tmp / name, ignore=shutil.ignore_patterns("__pycache__"))
+    sys.path.insert(0, str(tmp))
+    import taichi as ti
+
+    run_a = importlib.import_module("app_a.sim.runtime")
+    run_b = importlib.import_module("app_b.sim.runtime")
+    run_b.init("cpu", a.precision, 1)
+    run_a._current = run_b._current  # one Taichi for both: a second ti.init would drop the first's fields
+    rows = []
+    for n in a.n:
+        dems = {k: solver(k, n, a.poly, a.precision) for k in ("app_a", "app_b")}
+        for dem in dems.values():
+            dem.advance(200)
+        ti.sync()
+        cpu = {k: [] for k in dems}
+        wall = {k: [] for k in dems}
+        for b in range(a.blocks):
+            order = list(dems) if b % 2 == 0 else list(dems)[::-1]
+            for k in order:
+                c0, w0 = time.process_time(), time.perf_counter()
+                dems[k].advance(a.substeps)
+                ti.sync()
+                cpu[k].append(1e3 * (time.process_time() - c0) / a.substeps)
+                wall[k].append(1e3 * (time.perf_counter() - w0) / a.substeps)
+        rc = [x / y for x, y in zip(cpu["app_a"], cpu["app_b"])]
+        rw = [x / y for x, y in zip(wall["app_a"], wall["app_b"])]
+        rows.append({"N": n, "bed": "tri-disperse epsd" if a.poly else "monodisperse",
+                     "A cpu ms/substep": f"{statistics.median(cpu['app_a']):.3f}",
+                     "B cpu ms/substep": f"{statistics.median(cpu['app_b']):.3f}",
+                     "A/B cpu (median of pairs, min-max)": f"{statistics.median(rc):.3f} ({min(rc):.2f}-{max(rc):.2f})",
+                     "A/B wall": f"{statistics.median(rw):.3f}",
+                     "B contacts": dems["app_b"].diagnostics().get("contacts", "-")})
+        print(rows[-1], flush=True)
+    shutil.rmtree(tmp, ignore_errors=True)
+    title = (f"DEM substep, two commits in one process (cpu, {a.precision}, threads 1; A = {a.a}, B = {a.b}; "
+             f"squeezed-lattice bed in a cylinder, Hertz-Mindlin + friction, dt = 2e-06 s; {a.blocks} interleaved "
+             f"blocks of {a.substeps} substeps after 200 warm-up)")
+    append_results(title, rows, "cpu", dry=a.no_append)
+
+
+if __name__ == "__main__":
+    main()
