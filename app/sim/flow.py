@@ -346,7 +346,13 @@ P_RHO, P_MU, P_H, P_G, P_POUT, P_THMIN, P_TRACE = 0, 1, 2, 3, 6, 12, 13
 NPAR = 16
 # scalar slots (F[M[R_SC] + ...])
 SC_DMAX, SC_SMAX, SC_UMAX, SC_UOLD, SC_DV = range(5)
-NSC = 8
+# the step's control, on the device (the host reads them once, in the step record):
+# viscous sweeps done, 1 while sweeping, their threshold; the predicted field's flux scale, the
+# reference scale of the divergence, 1 once the projection is applied
+SC_NSW, SC_VACT, SC_VTHR, SC_SPRED, SC_SREF, SC_CORR = range(5, 11)
+NSC = 16
+R_VSAVE = 56  # the initial velocity, kept while the first step finds a consistent pressure
+VISCOUS_CHUNK = 4  # red-black sweeps per launch of the viscous predictor (each stops itself on the device)
 
 ND = ti.types.ndarray()
 
@@ -672,9 +678,9 @@ def _k_read(F: ND, off: ti.i32, dst: ND):
 
 
 @ti.kernel
-def _k_advect(F: ND, M: ND, dt: float) -> float:
+def _k_advect(F: ND, M: ND, dt: float):
     """old = vel; adv = back-traced vel (MacCormack-corrected when asked) + dt/2 (a at the departure
-    point - a here), a being the last step's weighted acceleration; returns max|old|.
+    point - a here), a being the last step's weighted acceleration; max|old| into SC_UOLD.
 
     The acceleration's share is carried by the plain semi-Lagrangian trace, outside the
     MacCormack correction: corrected together with the velocity (u + dt/2 a traced as one field),
@@ -731,7 +737,6 @@ def _k_advect(F: ND, M: ND, dt: float) -> float:
             if M[M_SCHEME] == 2:
                 v = F[vmc + f]
             F[vadv + f] = v + F[vinc + f]
-    return F[M[R_SC] + SC_UOLD]
 
 
 @ti.kernel
@@ -761,9 +766,10 @@ def _k_bc_prep(F: ND, M: ND, dt: float):
 
 
 @ti.func
-def _visc_colour(F: ti.template(), M: ti.template(), dt, colour):
+def _visc_colour(F: ti.template(), M: ti.template(), dt, colour, nf):
     """Gauss-Seidel update, in place on the velocity, of the faces of one colour (parity of
-    i+j+k): the viscous stencil couples a face only to faces of the other colour."""
+    i+j+k) among the first nf faces (all, or none once the sweeps have stopped): the viscous
+    stencil couples a face only to faces of the other colour."""
     n = _n(M)
     src = M[R_VEL]
     rho = _par(F, M, P_RHO)
@@ -771,7 +777,7 @@ def _visc_colour(F: ti.template(), M: ti.template(), dt, colour):
     h = _par(F, M, P_H)
     thmin = _par(F, M, P_THMIN)
     nc = M[M_NC]
-    for f in range(M[M_NF]):
+    for f in range(nf):
         a, I = _fdecode(M, f)
         if (I[0] + I[1] + I[2]) % 2 == colour and _solved(F, M, f, a, I):
             eP = F[M[R_EF] + f]
@@ -844,19 +850,33 @@ def _visc_colour(F: ti.template(), M: ti.template(), dt, colour):
 
 
 @ti.kernel
-def _k_visc(F: ND, M: ND, dt: float) -> float:
-    """One red-black Gauss-Seidel sweep of the implicit predictor (see module doc);
-    returns the largest change of a face velocity."""
-    F[M[R_SC] + SC_DV] = 0.0
-    _visc_colour(F, M, dt, 0)
-    _visc_colour(F, M, dt, 1)
-    return F[M[R_SC] + SC_DV]
+def _k_visc(F: ND, M: ND, dt: float, first: ti.i32, factor: float, bc_speed: float, max_sweeps: ti.i32):
+    """VISCOUS_CHUNK red-black Gauss-Seidel sweeps of the implicit predictor (see module doc), each
+    only while the sweeps go on: they stop (on the device) when the largest change of a face
+    velocity is at most factor * max(max|u_old|, bc_speed) or after max_sweeps. ``first`` starts
+    the count."""
+    sc = M[R_SC]
+    if first:
+        F[sc + SC_NSW] = 0.0
+        F[sc + SC_VACT] = 1.0
+        F[sc + SC_VTHR] = factor * ti.max(ti.max(F[sc + SC_UOLD], bc_speed), 1e-30)
+    for _s in ti.static(range(VISCOUS_CHUNK)):
+        nf = M[M_NF] * ti.cast(F[sc + SC_VACT] > 0.0, ti.i32)
+        F[sc + SC_DV] = 0.0
+        _visc_colour(F, M, dt, 0, nf)
+        _visc_colour(F, M, dt, 1, nf)
+        if nf > 0:
+            F[sc + SC_NSW] += 1.0
+            if F[sc + SC_DV] <= F[sc + SC_VTHR] or F[sc + SC_NSW] >= ti.cast(max_sweeps, float):
+                F[sc + SC_VACT] = 0.0
 
 
 @ti.kernel
-def _k_build(F: ND, M: ND, G: ND, MM: ND, dt: float, again: ti.i32) -> float:
+def _k_build(F: ND, M: ND, G: ND, MM: ND, dt: float, again: ti.i32):
     """Outlet faces get their predicted velocity (not ``again``: a refinement round projects the
-    corrected field once more); pressure-system T and b into G. Returns the gross-flux scale."""
+    corrected field once more); pressure-system T and b into G; the residual scale of the solve
+    (the gross-flux scale of the predicted field, or the reference scale in a refinement round)
+    into the linear solver's scalars."""
     n = _n(M)
     h = _par(F, M, P_H)
     vel = M[R_VEL]
@@ -902,7 +922,12 @@ def _k_build(F: ND, M: ND, G: ND, MM: ND, dt: float, again: ti.i32) -> float:
             ti.atomic_max(F[M[R_SC] + SC_SMAX], gross)
         G[MM[ls.O_B0] + c] = b
         G[MM[ls.O_X] + c] = 0.0  # the solve is for the pressure increment
-    return F[M[R_SC] + SC_SMAX]
+    sc = M[R_SC]
+    if not again:
+        F[sc + SC_SPRED] = F[sc + SC_SMAX]
+        F[sc + SC_SREF] = F[sc + SC_SMAX]
+    G[MM[ls.O_SC] + ls.S_SCALE] = F[sc + SC_SREF]
+    F[sc + SC_CORR] = 0.0
 
 
 @ti.func
@@ -957,13 +982,15 @@ def _face_grad_inc(F: ti.template(), M: ti.template(), G: ti.template(), MM: ti.
 
 
 @ti.func
-def _cell_outputs(F: ti.template(), M: ti.template(), G: ti.template(), MM: ti.template()):
-    """Cell-centred gas velocity and pressure gradient, divergence and its scale (reductions)."""
+def _cell_outputs(F: ti.template(), M: ti.template(), G: ti.template(), MM: ti.template(), on):
+    """Cell-centred gas velocity and pressure gradient, divergence and its scale (reductions);
+    nothing unless ``on``."""
     n = _n(M)
     nc = M[M_NC]
-    F[M[R_SC] + SC_DMAX] = 0.0
-    F[M[R_SC] + SC_SMAX] = 0.0
-    for i, j, k in ti.ndrange(n[0], n[1], n[2]):
+    if on:
+        F[M[R_SC] + SC_DMAX] = 0.0
+        F[M[R_SC] + SC_SMAX] = 0.0
+    for i, j, k in ti.ndrange(n[0] * on, n[1], n[2]):
         I = ti.Vector([i, j, k])
         c = _cidx(M, I)
         active = F[M[R_THETA] + c] > 0.0
@@ -996,12 +1023,18 @@ def _cell_outputs(F: ti.template(), M: ti.template(), G: ti.template(), MM: ti.t
 
 
 @ti.kernel
-def _k_correct(F: ND, M: ND, G: ND, MM: ND, dt: float, again: ti.i32) -> ti.types.vector(3, float):
-    """u = u* - kappa grad phi, p += phi; periodic copies; cell outputs. Returns (max|div|, scale,
-    max|u|). The predictor increment is recorded in the first round only."""
+def _k_correct(F: ND, M: ND, G: ND, MM: ND, dt: float, again: ti.i32):
+    """u = u* - kappa grad phi, p += phi; periodic copies; cell outputs; (max|div|, scale, max|u|)
+    into the scalars. The predictor increment is recorded in the first round only. Runs once the
+    pressure solve has finished, once per round (the host launches it without waiting)."""
     n = _n(M)
     vel = M[R_VEL]
-    for f in range(M[M_NF]):
+    sc = M[R_SC]
+    on = 0
+    if G[MM[ls.O_SC] + ls.S_DONE] > 0.0 and F[sc + SC_CORR] == 0.0:
+        on = 1
+    nf = M[M_NF] * on
+    for f in range(nf):
         a, I = _fdecode(M, f)
         if not again:
             dp = 0.0
@@ -1012,18 +1045,19 @@ def _k_correct(F: ND, M: ND, G: ND, MM: ND, dt: float, again: ti.i32) -> ti.type
         if ok:
             kap, _ = _kappa(F, M, a, I, dt)
             F[vel + f] -= kap * g
-    for c in range(M[M_NC]):
+    for c in range(M[M_NC] * on):
         if F[M[R_THETA] + c] > 0.0:
             F[M[R_P] + c] += G[MM[ls.O_X] + c]
-    for f in range(M[M_NF]):
+    for f in range(nf):
         a, I = _fdecode(M, f)
         if M[M_PER + a] == 1 and I[a] == n[a]:
             J = I
             J[a] = 0
             F[vel + f] = F[vel + _fidx(M, a, J)]
-    F[M[R_SC] + SC_UMAX] = 0.0
+    if on:
+        F[M[R_SC] + SC_UMAX] = 0.0
     rho = _par(F, M, P_RHO)
-    for f in range(M[M_NF]):
+    for f in range(nf):
         ti.atomic_max(F[M[R_SC] + SC_UMAX], ti.abs(F[vel + f]))
         a, I = _fdecode(M, f)
         acc = 0.0
@@ -1036,15 +1070,37 @@ def _k_correct(F: ND, M: ND, G: ND, MM: ND, dt: float, again: ti.i32) -> ti.type
             wt = rho * e / (rho * e + be * dt)
             acc = _par(F, M, P_TRACE) * wt * (F[vel + f] - F[M[R_VADV] + f]) / dt
         F[M[R_ACC] + f] = acc
-    _cell_outputs(F, M, G, MM)
-    sc = M[R_SC]
-    return ti.Vector([F[sc + SC_DMAX], F[sc + SC_SMAX], F[sc + SC_UMAX]])
+    _cell_outputs(F, M, G, MM, on)
+    if on:
+        F[sc + SC_SREF] = ti.max(F[sc + SC_SREF], F[sc + SC_SMAX])
+        F[sc + SC_CORR] = 1.0
 
 
 @ti.kernel
-def _k_outputs(F: ND, M: ND, G: ND, MM: ND) -> ti.types.vector(2, float):
-    _cell_outputs(F, M, G, MM)
+def _k_record(F: ND, M: ND, G: ND, MM: ND) -> ti.types.vector(12, ti.f64):  # f64: the type is fixed at import, maybe before ti.init
+    """The step record, read once per step: max|u_old|, max|u_new|, viscous sweeps, max|div|, the
+    corrected field's flux scale, the reference scale, 1 once corrected, then the pressure solve's
+    (iterations, max|r|, converged, scale, initial max|r|)."""
+    sc = M[R_SC]
+    r = ls.solve_record(G, MM)
+    return ti.Vector([F[sc + SC_UOLD], F[sc + SC_UMAX], F[sc + SC_NSW], F[sc + SC_DMAX], F[sc + SC_SMAX],
+                      F[sc + SC_SREF], F[sc + SC_CORR], r[0], r[1], r[2], r[3], r[4]])
+
+
+@ti.kernel
+def _k_outputs(F: ND, M: ND, G: ND, MM: ND) -> ti.types.vector(2, ti.f64):
+    _cell_outputs(F, M, G, MM, 1)
     return ti.Vector([F[M[R_SC] + SC_DMAX], F[M[R_SC] + SC_SMAX]])
+
+
+@ti.kernel
+def _k_copy(F: ND, src: ti.i32, dst: ti.i32, n: ti.i32, zero: ti.i32):
+    """F[dst:dst+n] = F[src:src+n] (or 0 when ``zero``)."""
+    for i in range(n):
+        v = 0.0
+        if not zero:
+            v = F[src + i]
+        F[dst + i] = v
 
 
 @ti.kernel
@@ -1262,7 +1318,7 @@ class FlowSolver:
             off += n
             return o
 
-        for slot in (R_VEL, R_VOLD, R_VADV, R_VTMP, R_AP, R_ACC, R_DPRED, R_EF, R_BF):
+        for slot in (R_VEL, R_VOLD, R_VADV, R_VTMP, R_AP, R_ACC, R_DPRED, R_EF, R_BF, R_VSAVE):
             M[slot] = alloc(nf)
         if cfg.convection == "maccormack":
             M[R_VLO] = alloc(nf)
@@ -1584,51 +1640,52 @@ class FlowSolver:
             # p = 0 would leave an O(dt) splitting error at no-slip walls. Take one step, keep its
             # pressure, and restart from the initial velocity.
             self._p_init_pending = False
-            vel = self._read(R_VEL, self._nf)
+            mp, nf = self._M_np, self._nf
+            _k_copy(self.F, int(mp[R_VEL]), int(mp[R_VSAVE]), nf, 0)
             t, n = self.time, self.steps
             self._step(dt)
             self.time, self.steps = t, n
-            self._write(R_VEL, vel)
-            self._write(R_ACC, np.zeros(self._nf))
-            self._write(R_DPRED, np.zeros(self._nf))
+            _k_copy(self.F, int(mp[R_VSAVE]), int(mp[R_VEL]), nf, 0)
+            _k_copy(self.F, 0, int(mp[R_ACC]), nf, 1)
+            _k_copy(self.F, 0, int(mp[R_DPRED]), nf, 1)
         return self._step(dt)
 
     def _step(self, dt: float) -> StepInfo:
+        """One fractional step. Every kernel is launched without waiting on the device: the viscous
+        sweeps and the pressure iterations stop themselves there (a fixed number of launches, each
+        doing nothing once done), and the host reads one record at the end. It reads again only
+        when the pressure solve needed more iterations than the last step's count and a half
+        (:meth:`MGPCG.budget`), or a refinement round is due (float32 at its precision floor)."""
         cfg = self.config
         F, M, G, MM = self.F, self.M, self.mg.G, self.mg.M
         fl = self.fields
         _k_pull(F, M, fl.eps, fl.deps_dt, fl.beta, fl.us, fl.f_exp)
         _k_face_coef(F, M)
-        uold = float(_k_advect(F, M, dt))
+        _k_advect(F, M, dt)
         _k_bc_prep(F, M, dt)
         # red-black Gauss-Seidel sweeps until the estimated error, change * r/(1-r) with r the
         # contraction factor at this diffusion number, and the change itself (a first sweep from a
         # poor initial iterate leaves red and black faces with different errors: a checkerboard)
-        # are below VISCOUS_REDUCTION of the velocity scale
+        # are below VISCOUS_REDUCTION of the velocity scale (decided on the device)
         r = self._jacobi_factor(dt) ** 2
-        uscale = max(uold, self._bc_speed, 1e-30)
-        thr = VISCOUS_REDUCTION * uscale * min(1.0, (1.0 - r) / max(r, 1e-30))
-        nsw = 0
-        while nsw < int(cfg.max_viscous_sweeps):
-            change = float(_k_visc(F, M, dt))
-            nsw += 1
-            if change <= thr:
-                break
-        s_pred = float(_k_build(F, M, G, MM, dt, 0))
-        info = self.mg.solve(cfg.tol, int(cfg.max_iter), singular=self._singular, scale=s_pred)
-        dmax, smax, umax = (float(x) for x in _k_correct(F, M, G, MM, dt, 0))
-        iters = info.iterations
-        s_ref = max(s_pred, smax)
+        factor = VISCOUS_REDUCTION * min(1.0, (1.0 - r) / max(r, 1e-30))
+        nmax = int(cfg.max_viscous_sweeps)
+        for c in range(-(-nmax // VISCOUS_CHUNK)):
+            _k_visc(F, M, dt, int(c == 0), factor, self._bc_speed, nmax)
+        max_iter = int(cfg.max_iter)
+        rec = self._project(dt, 0, max_iter)
+        first = self.mg.info_from(rec[7:])
+        iters = first.iterations
         for _ in range(2):
             # refinement: where the solve stopped at its precision floor (float32 with a large
             # pressure increment), project the remaining, much smaller divergence once more
-            if dmax <= cfg.tol * s_ref or iters >= int(cfg.max_iter):
+            dmax, s_ref = float(rec[3]), float(rec[5])
+            if dmax <= cfg.tol * s_ref or iters >= max_iter:
                 break
-            _k_build(F, M, G, MM, dt, 1)
-            info = self.mg.solve(cfg.tol, int(cfg.max_iter) - iters, singular=self._singular, scale=s_ref)
-            iters += info.iterations
-            dmax, smax, umax = (float(x) for x in _k_correct(F, M, G, MM, dt, 1))
-            s_ref = max(s_ref, smax)
+            rec = self._project(dt, 1, max_iter - iters)
+            iters += self.mg.info_from(rec[7:]).iterations
+        self.mg.last = first  # the next step's iteration budget follows the main solve
+        uold, umax, nsw, dmax, smax, s_ref = (float(x) for x in rec[:6])
         self._s_pred = s_ref
         self._div = (dmax, smax)
         _k_push(F, M, G, MM, fl.p, fl.u_gas, fl.grad_p)
@@ -1636,7 +1693,23 @@ class FlowSolver:
         self.time += dt
         self.steps += 1
         self.last = StepInfo(dt=dt, cfl=max(uold, umax) * dt / self.h,
-                             diffusion_number=cfg.mu * dt / (cfg.rho * self.h ** 2), viscous_sweeps=nsw,
+                             diffusion_number=cfg.mu * dt / (cfg.rho * self.h ** 2), viscous_sweeps=int(round(nsw)),
                              pressure_iterations=iters, pressure_residual=div,
                              converged=div <= cfg.tol, divergence=div)
         return self.last
+
+    def _project(self, dt: float, again: int, max_iter: int):
+        """Pressure system, solve and correction (round ``again``); returns the step record (one read,
+        more only when the solve outran its budget)."""
+        F, M, G, MM = self.F, self.M, self.mg.G, self.mg.M
+        _k_build(F, M, G, MM, dt, again)
+        mg = self.mg
+        mg.begin(self.config.tol, max_iter, singular=self._singular, device_scale=True)
+        n = mg.budget()
+        while True:
+            mg.launch(n)
+            _k_correct(F, M, G, MM, dt, again)
+            rec = _k_record(F, M, G, MM)
+            if rec[6] > 0.5 or mg.exhausted:
+                return rec
+            n = max(4, n // 2)
