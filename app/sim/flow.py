@@ -2,8 +2,8 @@
 
 Owns: the gas flow set-up (:class:`FlowConfig`, boundary conditions :class:`BC`), the solver
 (:class:`FlowSolver`: one fractional step per call of :meth:`FlowSolver.step`), the Taichi
-field bundle shared with the coupling code (:class:`GasFields`), and the lid-driven cavity
-set-up (:func:`lid_driven_cavity`). It knows nothing about particles: the coupling code
+field bundle shared with the coupling code (:class:`GasFields`). (The lid-driven cavity, a
+verification scene, is set up with the accuracy cases, :mod:`app.accuracy.gas_cases`.) It knows nothing about particles: the coupling code
 writes the gas fraction, its rate of change and the drag coefficients into the bundle.
 
 Equations (u = interstitial gas velocity, eps = gas volume fraction, m = 1 for the
@@ -114,6 +114,7 @@ from typing import Mapping, Sequence
 import numpy as np
 import taichi as ti
 
+from ..config.schema import GasConfig
 from . import linsolve as ls
 from .gasgrid import CutCells, MacGrid, cut_cells
 
@@ -171,6 +172,45 @@ def _finite(x) -> bool:
     return bool(np.all(np.isfinite(np.asarray(x, float))))
 
 
+# FlowConfig field -> the preset's [gas] key: the defaults, units and ranges are the schema's
+# (app/config/schema.py, GasConfig), so a scene built here and one built from a preset agree
+GAS_KEYS = {"rho": "density", "mu": "viscosity", "pressure_form": "pressure_form", "convection": "convection",
+            "tol": "tolerance", "max_iter": "max_iterations", "aperture_samples": "aperture_samples",
+            "min_open_fraction": "min_open_fraction", "max_viscous_sweeps": "max_viscous_sweeps",
+            "trace_forces": "trace_forces"}
+
+
+def _gas_default(field: str):
+    return GasConfig.__dataclass_fields__[GAS_KEYS[field]].default
+
+
+def _gas_check(field: str, value) -> None:
+    """ValueError unless ``value`` fits the schema's range or choices of the [gas] key behind ``field``."""
+    key = GAS_KEYS[field]
+    meta = GasConfig.__dataclass_fields__[key].metadata
+    choices = meta.get("choices")
+    if choices:
+        if value not in choices:
+            raise ValueError(f"flow: {field} (gas.{key}) must be one of {list(choices)}, got {value!r}")
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        if GasConfig.__dataclass_fields__[key].type in (bool, "bool"):
+            return
+        raise ValueError(f"flow: {field} (gas.{key}) must be a number, got {value!r}")
+    lo, hi, unit = meta.get("lo"), meta.get("hi"), meta.get("unit", "-")
+    u = "" if unit == "-" else f" {unit}"
+    bad = not np.isfinite(value)
+    if lo is not None and (value < lo or (meta.get("lo_open") and value <= lo)):
+        bad = True
+    if hi is not None and value > hi:
+        bad = True
+    if bad:
+        rng = f"{'>' if meta.get('lo_open') else '>='} {lo:g}" if lo is not None else ""
+        if hi is not None:
+            rng += (" and " if rng else "") + f"<= {hi:g}"
+        raise ValueError(f"flow: {field} (gas.{key}) must be {rng}{u}, got {value!r}")
+
+
 @dataclasses.dataclass(frozen=True)
 class FlowConfig:
     """Everything the gas solver needs to be built (validated on construction).
@@ -183,24 +223,26 @@ class FlowConfig:
     iterations; aperture_samples: sub-samples per face edge for cut cells; min_open_fraction:
     cut cells with at most this open volume fraction are closed (small-cell removal);
     max_viscous_sweeps: cap on red-black Gauss-Seidel sweeps of the implicit viscous predictor.
+    These gas fields are the preset's [gas] keys (:data:`GAS_KEYS`): their defaults, units and
+    ranges are read from the schema (app/config/schema.py), so none can drift from it.
     """
 
     shape: tuple[int, int, int]
     h: float
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    rho: float = 1.2
-    mu: float = 1.8e-5
+    rho: float = _gas_default("rho")
+    mu: float = _gas_default("mu")
     gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
     bcs: Mapping[str, BC] = dataclasses.field(default_factory=dict)
     walls: tuple = ()
-    pressure_form: str = "gas"
-    convection: str = "maccormack"
-    tol: float = 1e-6
-    max_iter: int = 200
-    aperture_samples: int = 4
-    min_open_fraction: float = 0.0
-    max_viscous_sweeps: int = 40
-    trace_forces: bool = True
+    pressure_form: str = _gas_default("pressure_form")
+    convection: str = _gas_default("convection")
+    tol: float = _gas_default("tol")
+    max_iter: int = _gas_default("max_iter")
+    aperture_samples: int = _gas_default("aperture_samples")
+    min_open_fraction: float = _gas_default("min_open_fraction")
+    max_viscous_sweeps: int = _gas_default("max_viscous_sweeps")
+    trace_forces: bool = _gas_default("trace_forces")
 
     def __post_init__(self):
         bad = ValueError
@@ -218,22 +260,8 @@ class FlowConfig:
             if len(tuple(v)) != 3 or not _finite(v):
                 raise bad(f"flow: {name} must be three finite numbers, got {v!r}")
             object.__setattr__(self, name, tuple(float(x) for x in v))
-        if not (np.isfinite(self.rho) and self.rho > 0):
-            raise bad(f"flow: gas density rho must be > 0 kg/m3, got {self.rho!r}")
-        if not (np.isfinite(self.mu) and self.mu >= 0):
-            raise bad(f"flow: gas viscosity mu must be >= 0 Pa s, got {self.mu!r}")
-        if self.pressure_form not in PRESSURE_FORMS:
-            raise bad(f"flow: pressure_form must be one of {sorted(PRESSURE_FORMS)}, got {self.pressure_form!r}")
-        if self.convection not in CONVECTION:
-            raise bad(f"flow: convection must be one of {sorted(CONVECTION)}, got {self.convection!r}")
-        if not (np.isfinite(self.tol) and 0 < self.tol < 1):
-            raise bad(f"flow: tol must be in (0, 1), got {self.tol!r}")
-        if int(self.max_iter) < 1:
-            raise bad(f"flow: max_iter must be >= 1, got {self.max_iter!r}")
-        if int(self.aperture_samples) < 1:
-            raise bad(f"flow: aperture_samples must be >= 1, got {self.aperture_samples!r}")
-        if int(self.max_viscous_sweeps) < 1:
-            raise bad(f"flow: max_viscous_sweeps must be >= 1, got {self.max_viscous_sweeps!r}")
+        for name in GAS_KEYS:  # the schema's ranges and choices of the [gas] keys
+            _gas_check(name, getattr(self, name))
         norm = {}
         for face, bc in dict(self.bcs).items():
             f = ALIASES.get(face, face)
@@ -277,39 +305,6 @@ class FlowConfig:
     @property
     def periodic(self) -> tuple[bool, bool, bool]:
         return tuple(self.bc(ax + "-").kind == "periodic" for ax in "xyz")
-
-
-def lid_driven_cavity(n: int = 64, re: float = 100.0, lid_speed: float = 1.0, size: float = 1.0, rho: float = 1.0,
-                      **overrides) -> FlowConfig:
-    """Square lid-driven cavity (Ghia et al. 1982 set-up) in the vertical x-z plane.
-
-    n x n cells (one periodic cell in y), walls at x = 0, size and z = 0, the top (z+) lid
-    moving at ``lid_speed`` along +x; Re = rho U L / mu sets mu; no gravity.
-    """
-    if n < 2 or re <= 0 or lid_speed == 0 or size <= 0:
-        raise ValueError("cavity: need n >= 2, re > 0, lid_speed != 0, size > 0")
-    mu = rho * abs(lid_speed) * size / re
-    bcs = {"x-": wall(), "x+": wall(), "y-": periodic(), "y+": periodic(), "z-": wall(),
-           "z+": moving_wall((lid_speed, 0.0, 0.0))}
-    kw = dict(shape=(n, 1, n), h=size / n, rho=rho, mu=mu, gravity=(0.0, 0.0, 0.0), bcs=bcs, tol=1e-6)
-    kw.update(overrides)
-    return FlowConfig(**kw)
-
-
-def cavity_centrelines(solver: "FlowSolver"):
-    """(z, u on x = L/2) and (x, w on z = L/2) of a :func:`lid_driven_cavity` solver (n even),
-    wall values included, both coordinates scaled by the cavity size."""
-    n = solver.config.shape[0]
-    h = solver.config.h
-    L = n * h
-    u = solver.face_velocity(0)[n // 2, 0, :]
-    w = solver.face_velocity(2)[:, 0, n // 2]
-    lid = solver.config.bc("z+").velocity[0]
-    zc = np.concatenate([[0.0], (np.arange(n) + 0.5) * h, [L]]) / L
-    uc = np.concatenate([[0.0], u, [lid]])
-    xc = np.concatenate([[0.0], (np.arange(n) + 0.5) * h, [L]]) / L
-    wc = np.concatenate([[0.0], w, [0.0]])
-    return (zc, uc), (xc, wc)
 
 
 @dataclasses.dataclass(frozen=True)
