@@ -34,7 +34,7 @@ def _bed_scene(shape=(16, 16, 24)):
     beta[bed] = 1.5e4 * (1.0 + 0.3 * rng.random(bed.sum()))
     s.set_eps(eps)
     s.set_beta(beta)
-    return s
+    return s, eps
 
 
 def _sim_modules():
@@ -42,7 +42,7 @@ def _sim_modules():
 
 
 def test_one_gas_step_reads_one_value_back():
-    s = _bed_scene()
+    s, eps = _bed_scene()
     for _ in range(3):  # the first step also finds a consistent pressure; the budget settles
         s.step(DT)
     reads = []
@@ -60,3 +60,6 @@ def test_one_gas_step_reads_one_value_back():
         assert kc.reads == 1, kc.reads_by
     assert max(reads) <= 1, reads
     assert s.divergence_residual() <= s.config.tol
+    # the accessors a recording probe reads: the void fraction as set, face velocities of the face shapes
+    np.testing.assert_array_equal(s.void_fraction(), eps)
+    assert [u.shape for u in s.face_velocities()] == [s.grid.face_shape(a) for a in range(3)]

@@ -1487,7 +1487,14 @@ class FlowSolver:
         return self._read(R_VEL, n, extra=int(self._M_np[M_FO + a])).reshape(self._fshapes[a])
 
     def face_velocities(self):
+        """(u, v, w) face velocities [m/s] (interstitial), each of shape face_shape(axis)."""
         return tuple(self.face_velocity(a) for a in range(3))
+
+    def void_fraction(self) -> np.ndarray:
+        """Gas volume fraction eps [-] on the cells (nx, ny, nz), as the coupling last wrote it (the
+        solver reads it clamped to [1e-3, 1]). With :meth:`face_velocities`, the volume flux through a
+        face is aperture * eps_face * u * h^2 (eps_face the mean of its two cells)."""
+        return self.fields.eps.to_numpy()
 
     def cell_velocity(self) -> np.ndarray:
         """Interstitial gas velocity at cell centres (nx, ny, nz, 3) [m/s] (0 in inactive cells)."""
