@@ -347,7 +347,8 @@ SC_DMAX, SC_SMAX, SC_UMAX, SC_UOLD, SC_DV = range(5)
 SC_NSW, SC_VACT, SC_VTHR, SC_SPRED, SC_SREF, SC_CORR = range(5, 11)
 NSC = 16
 R_VSAVE = 56  # the initial velocity, kept while the first step finds a consistent pressure
-VISCOUS_CHUNK = 4  # red-black sweeps per launch of the viscous predictor (each stops itself on the device)
+VISCOUS_CHUNK = 2  # red-black sweeps per launch of the viscous predictor (each stops itself on the device;
+# each is a copy of the sweep in the compiled kernel: 4 cost 50% more compile time in all than before)
 
 ND = ti.types.ndarray()
 
