@@ -106,7 +106,11 @@ Units are SI throughout. The solver never prints or writes files.
 
 Implementation note: all solver state lives in flat Taichi ndarrays and the kernels are
 module-level, so they compile once per process for any grid; only the small copy kernels
-between the :class:`GasFields` bundle and that state are compiled per solver.
+between the :class:`GasFields` bundle and that state are compiled per solver. A step does not
+wait on the device: the viscous sweeps and the pressure iterations are launched in fixed
+batches whose stopping tests run on the device (a launch past convergence does nothing), and
+the host reads one record per step (:func:`_k_record`), a second only when the pressure solve
+outran its batch or a float32 refinement round is due.
 """
 import dataclasses
 from typing import Mapping, Sequence
