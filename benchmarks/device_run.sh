@@ -7,7 +7,9 @@
 # fill: particle-substeps/s and bytes_per_grain in runs/verma_dem/summary.json), small (boyce_small with video), boyce (full rig),
 # sweep (the injection-time sweep from the cached bed), verma_start (the full Verma run, started in its
 # own process session so that it outlives this call: the machine stays lent while later calls poll it),
-# wait (poll the background run until it ends or LIMIT_wait), accuracy / stiffness (the full-size benches).
+# wait (poll the background run until it ends or LIMIT_wait), accuracy / stiffness (the full-size benches),
+# gas (the gas step alone on the Verma grid 32x32x116 and on 32x32x64 with a bed's void fraction and drag:
+# ms per step, then launches and host reads per step; issue 18's target is <= 3 ms per Verma step on one H200).
 # Before a call that runs the cavity or the Verma analysis: `mkdir -p runs && cp -r ../shared/reference runs/`
 # here, and carry [".devkit", "runs/reference"] (../shared is not copied to the device).
 # MRI poppy-seed bed (issue 19; validation/mri/README.md): mri_prepare (fill and settle the 1e6 grains, then pack
@@ -30,6 +32,9 @@ for stage in "$@"; do
   lim=$(eval echo "\${LIMIT_$stage:-590}")  # e.g. LIMIT_boyce=300: SIGTERM stops the run cleanly in time
   T="timeout -k 15 -s TERM $lim"  # -k: a bench whose scenes run in child processes is killed 15 s after
   case "$stage" in
+    gas)
+      $T bash -c 'python3 benchmarks/flow_throughput.py --arch cuda --grids 32x32x116 32x32x64 --steps 50 \
+        --warmup 5 && python3 benchmarks/gas_counts.py --arch cuda --grids 32x32x116 32x32x64 --label cuda' ;;
     bench)
       $T python3 benchmarks/dem_throughput.py --arch cuda --sizes 10000 100000 1000000 --substeps 500 ;;
     dem)

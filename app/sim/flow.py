@@ -2,8 +2,8 @@
 
 Owns: the gas flow set-up (:class:`FlowConfig`, boundary conditions :class:`BC`), the solver
 (:class:`FlowSolver`: one fractional step per call of :meth:`FlowSolver.step`), the Taichi
-field bundle shared with the coupling code (:class:`GasFields`), and the lid-driven cavity
-set-up (:func:`lid_driven_cavity`). It knows nothing about particles: the coupling code
+field bundle shared with the coupling code (:class:`GasFields`). (The lid-driven cavity, a
+verification scene, is set up with the accuracy cases, :mod:`app.accuracy.gas_cases`.) It knows nothing about particles: the coupling code
 writes the gas fraction, its rate of change and the drag coefficients into the bundle.
 
 Equations (u = interstitial gas velocity, eps = gas volume fraction, m = 1 for the
@@ -106,7 +106,11 @@ Units are SI throughout. The solver never prints or writes files.
 
 Implementation note: all solver state lives in flat Taichi ndarrays and the kernels are
 module-level, so they compile once per process for any grid; only the small copy kernels
-between the :class:`GasFields` bundle and that state are compiled per solver.
+between the :class:`GasFields` bundle and that state are compiled per solver. A step does not
+wait on the device: the viscous sweeps and the pressure iterations are launched in fixed
+batches whose stopping tests run on the device (a launch past convergence does nothing), and
+the host reads one record per step (:func:`_k_record`), a second only when the pressure solve
+outran its batch or a float32 refinement round is due.
 """
 import dataclasses
 from typing import Mapping, Sequence
@@ -114,6 +118,7 @@ from typing import Mapping, Sequence
 import numpy as np
 import taichi as ti
 
+from ..config.schema import GasConfig
 from . import linsolve as ls
 from .gasgrid import CutCells, MacGrid, cut_cells
 
@@ -171,6 +176,45 @@ def _finite(x) -> bool:
     return bool(np.all(np.isfinite(np.asarray(x, float))))
 
 
+# FlowConfig field -> the preset's [gas] key: the defaults, units and ranges are the schema's
+# (app/config/schema.py, GasConfig), so a scene built here and one built from a preset agree
+GAS_KEYS = {"rho": "density", "mu": "viscosity", "pressure_form": "pressure_form", "convection": "convection",
+            "tol": "tolerance", "max_iter": "max_iterations", "aperture_samples": "aperture_samples",
+            "min_open_fraction": "min_open_fraction", "max_viscous_sweeps": "max_viscous_sweeps",
+            "trace_forces": "trace_forces"}
+
+
+def _gas_default(field: str):
+    return GasConfig.__dataclass_fields__[GAS_KEYS[field]].default
+
+
+def _gas_check(field: str, value) -> None:
+    """ValueError unless ``value`` fits the schema's range or choices of the [gas] key behind ``field``."""
+    key = GAS_KEYS[field]
+    meta = GasConfig.__dataclass_fields__[key].metadata
+    choices = meta.get("choices")
+    if choices:
+        if value not in choices:
+            raise ValueError(f"flow: {field} (gas.{key}) must be one of {list(choices)}, got {value!r}")
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        if GasConfig.__dataclass_fields__[key].type in (bool, "bool"):
+            return
+        raise ValueError(f"flow: {field} (gas.{key}) must be a number, got {value!r}")
+    lo, hi, unit = meta.get("lo"), meta.get("hi"), meta.get("unit", "-")
+    u = "" if unit == "-" else f" {unit}"
+    bad = not np.isfinite(value)
+    if lo is not None and (value < lo or (meta.get("lo_open") and value <= lo)):
+        bad = True
+    if hi is not None and value > hi:
+        bad = True
+    if bad:
+        rng = f"{'>' if meta.get('lo_open') else '>='} {lo:g}" if lo is not None else ""
+        if hi is not None:
+            rng += (" and " if rng else "") + f"<= {hi:g}"
+        raise ValueError(f"flow: {field} (gas.{key}) must be {rng}{u}, got {value!r}")
+
+
 @dataclasses.dataclass(frozen=True)
 class FlowConfig:
     """Everything the gas solver needs to be built (validated on construction).
@@ -183,24 +227,26 @@ class FlowConfig:
     iterations; aperture_samples: sub-samples per face edge for cut cells; min_open_fraction:
     cut cells with at most this open volume fraction are closed (small-cell removal);
     max_viscous_sweeps: cap on red-black Gauss-Seidel sweeps of the implicit viscous predictor.
+    These gas fields are the preset's [gas] keys (:data:`GAS_KEYS`): their defaults, units and
+    ranges are read from the schema (app/config/schema.py), so none can drift from it.
     """
 
     shape: tuple[int, int, int]
     h: float
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    rho: float = 1.2
-    mu: float = 1.8e-5
+    rho: float = _gas_default("rho")
+    mu: float = _gas_default("mu")
     gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
     bcs: Mapping[str, BC] = dataclasses.field(default_factory=dict)
     walls: tuple = ()
-    pressure_form: str = "gas"
-    convection: str = "maccormack"
-    tol: float = 1e-6
-    max_iter: int = 200
-    aperture_samples: int = 4
-    min_open_fraction: float = 0.0
-    max_viscous_sweeps: int = 40
-    trace_forces: bool = True
+    pressure_form: str = _gas_default("pressure_form")
+    convection: str = _gas_default("convection")
+    tol: float = _gas_default("tol")
+    max_iter: int = _gas_default("max_iter")
+    aperture_samples: int = _gas_default("aperture_samples")
+    min_open_fraction: float = _gas_default("min_open_fraction")
+    max_viscous_sweeps: int = _gas_default("max_viscous_sweeps")
+    trace_forces: bool = _gas_default("trace_forces")
 
     def __post_init__(self):
         bad = ValueError
@@ -218,22 +264,8 @@ class FlowConfig:
             if len(tuple(v)) != 3 or not _finite(v):
                 raise bad(f"flow: {name} must be three finite numbers, got {v!r}")
             object.__setattr__(self, name, tuple(float(x) for x in v))
-        if not (np.isfinite(self.rho) and self.rho > 0):
-            raise bad(f"flow: gas density rho must be > 0 kg/m3, got {self.rho!r}")
-        if not (np.isfinite(self.mu) and self.mu >= 0):
-            raise bad(f"flow: gas viscosity mu must be >= 0 Pa s, got {self.mu!r}")
-        if self.pressure_form not in PRESSURE_FORMS:
-            raise bad(f"flow: pressure_form must be one of {sorted(PRESSURE_FORMS)}, got {self.pressure_form!r}")
-        if self.convection not in CONVECTION:
-            raise bad(f"flow: convection must be one of {sorted(CONVECTION)}, got {self.convection!r}")
-        if not (np.isfinite(self.tol) and 0 < self.tol < 1):
-            raise bad(f"flow: tol must be in (0, 1), got {self.tol!r}")
-        if int(self.max_iter) < 1:
-            raise bad(f"flow: max_iter must be >= 1, got {self.max_iter!r}")
-        if int(self.aperture_samples) < 1:
-            raise bad(f"flow: aperture_samples must be >= 1, got {self.aperture_samples!r}")
-        if int(self.max_viscous_sweeps) < 1:
-            raise bad(f"flow: max_viscous_sweeps must be >= 1, got {self.max_viscous_sweeps!r}")
+        for name in GAS_KEYS:  # the schema's ranges and choices of the [gas] keys
+            _gas_check(name, getattr(self, name))
         norm = {}
         for face, bc in dict(self.bcs).items():
             f = ALIASES.get(face, face)
@@ -279,39 +311,6 @@ class FlowConfig:
         return tuple(self.bc(ax + "-").kind == "periodic" for ax in "xyz")
 
 
-def lid_driven_cavity(n: int = 64, re: float = 100.0, lid_speed: float = 1.0, size: float = 1.0, rho: float = 1.0,
-                      **overrides) -> FlowConfig:
-    """Square lid-driven cavity (Ghia et al. 1982 set-up) in the vertical x-z plane.
-
-    n x n cells (one periodic cell in y), walls at x = 0, size and z = 0, the top (z+) lid
-    moving at ``lid_speed`` along +x; Re = rho U L / mu sets mu; no gravity.
-    """
-    if n < 2 or re <= 0 or lid_speed == 0 or size <= 0:
-        raise ValueError("cavity: need n >= 2, re > 0, lid_speed != 0, size > 0")
-    mu = rho * abs(lid_speed) * size / re
-    bcs = {"x-": wall(), "x+": wall(), "y-": periodic(), "y+": periodic(), "z-": wall(),
-           "z+": moving_wall((lid_speed, 0.0, 0.0))}
-    kw = dict(shape=(n, 1, n), h=size / n, rho=rho, mu=mu, gravity=(0.0, 0.0, 0.0), bcs=bcs, tol=1e-6)
-    kw.update(overrides)
-    return FlowConfig(**kw)
-
-
-def cavity_centrelines(solver: "FlowSolver"):
-    """(z, u on x = L/2) and (x, w on z = L/2) of a :func:`lid_driven_cavity` solver (n even),
-    wall values included, both coordinates scaled by the cavity size."""
-    n = solver.config.shape[0]
-    h = solver.config.h
-    L = n * h
-    u = solver.face_velocity(0)[n // 2, 0, :]
-    w = solver.face_velocity(2)[:, 0, n // 2]
-    lid = solver.config.bc("z+").velocity[0]
-    zc = np.concatenate([[0.0], (np.arange(n) + 0.5) * h, [L]]) / L
-    uc = np.concatenate([[0.0], u, [lid]])
-    xc = np.concatenate([[0.0], (np.arange(n) + 0.5) * h, [L]]) / L
-    wc = np.concatenate([[0.0], w, [0.0]])
-    return (zc, uc), (xc, wc)
-
-
 @dataclasses.dataclass(frozen=True)
 class StepInfo:
     """What one fluid step did: CFL = max|u| dt/h (old or new velocity, whichever is larger),
@@ -346,7 +345,14 @@ P_RHO, P_MU, P_H, P_G, P_POUT, P_THMIN, P_TRACE = 0, 1, 2, 3, 6, 12, 13
 NPAR = 16
 # scalar slots (F[M[R_SC] + ...])
 SC_DMAX, SC_SMAX, SC_UMAX, SC_UOLD, SC_DV = range(5)
-NSC = 8
+# the step's control, on the device (the host reads them once, in the step record):
+# viscous sweeps done, 1 while sweeping, their threshold; the predicted field's flux scale, the
+# reference scale of the divergence, 1 once the projection is applied
+SC_NSW, SC_VACT, SC_VTHR, SC_SPRED, SC_SREF, SC_CORR = range(5, 11)
+NSC = 16
+R_VSAVE = 56  # the initial velocity, kept while the first step finds a consistent pressure
+VISCOUS_CHUNK = 2  # red-black sweeps per launch of the viscous predictor (each stops itself on the device;
+# each is a copy of the sweep in the compiled kernel: 4 cost 50% more compile time in all than before)
 
 ND = ti.types.ndarray()
 
@@ -672,9 +678,9 @@ def _k_read(F: ND, off: ti.i32, dst: ND):
 
 
 @ti.kernel
-def _k_advect(F: ND, M: ND, dt: float) -> float:
+def _k_advect(F: ND, M: ND, dt: float):
     """old = vel; adv = back-traced vel (MacCormack-corrected when asked) + dt/2 (a at the departure
-    point - a here), a being the last step's weighted acceleration; returns max|old|.
+    point - a here), a being the last step's weighted acceleration; max|old| into SC_UOLD.
 
     The acceleration's share is carried by the plain semi-Lagrangian trace, outside the
     MacCormack correction: corrected together with the velocity (u + dt/2 a traced as one field),
@@ -731,7 +737,6 @@ def _k_advect(F: ND, M: ND, dt: float) -> float:
             if M[M_SCHEME] == 2:
                 v = F[vmc + f]
             F[vadv + f] = v + F[vinc + f]
-    return F[M[R_SC] + SC_UOLD]
 
 
 @ti.kernel
@@ -761,9 +766,10 @@ def _k_bc_prep(F: ND, M: ND, dt: float):
 
 
 @ti.func
-def _visc_colour(F: ti.template(), M: ti.template(), dt, colour):
+def _visc_colour(F: ti.template(), M: ti.template(), dt, colour, nf):
     """Gauss-Seidel update, in place on the velocity, of the faces of one colour (parity of
-    i+j+k): the viscous stencil couples a face only to faces of the other colour."""
+    i+j+k) among the first nf faces (all, or none once the sweeps have stopped): the viscous
+    stencil couples a face only to faces of the other colour."""
     n = _n(M)
     src = M[R_VEL]
     rho = _par(F, M, P_RHO)
@@ -771,7 +777,7 @@ def _visc_colour(F: ti.template(), M: ti.template(), dt, colour):
     h = _par(F, M, P_H)
     thmin = _par(F, M, P_THMIN)
     nc = M[M_NC]
-    for f in range(M[M_NF]):
+    for f in range(nf):
         a, I = _fdecode(M, f)
         if (I[0] + I[1] + I[2]) % 2 == colour and _solved(F, M, f, a, I):
             eP = F[M[R_EF] + f]
@@ -844,19 +850,33 @@ def _visc_colour(F: ti.template(), M: ti.template(), dt, colour):
 
 
 @ti.kernel
-def _k_visc(F: ND, M: ND, dt: float) -> float:
-    """One red-black Gauss-Seidel sweep of the implicit predictor (see module doc);
-    returns the largest change of a face velocity."""
-    F[M[R_SC] + SC_DV] = 0.0
-    _visc_colour(F, M, dt, 0)
-    _visc_colour(F, M, dt, 1)
-    return F[M[R_SC] + SC_DV]
+def _k_visc(F: ND, M: ND, dt: float, first: ti.i32, factor: float, bc_speed: float, max_sweeps: ti.i32):
+    """VISCOUS_CHUNK red-black Gauss-Seidel sweeps of the implicit predictor (see module doc), each
+    only while the sweeps go on: they stop (on the device) when the largest change of a face
+    velocity is at most factor * max(max|u_old|, bc_speed) or after max_sweeps. ``first`` starts
+    the count."""
+    sc = M[R_SC]
+    if first:
+        F[sc + SC_NSW] = 0.0
+        F[sc + SC_VACT] = 1.0
+        F[sc + SC_VTHR] = factor * ti.max(ti.max(F[sc + SC_UOLD], bc_speed), 1e-30)
+    for _s in ti.static(range(VISCOUS_CHUNK)):
+        nf = M[M_NF] * ti.cast(F[sc + SC_VACT] > 0.0, ti.i32)
+        F[sc + SC_DV] = 0.0
+        _visc_colour(F, M, dt, 0, nf)
+        _visc_colour(F, M, dt, 1, nf)
+        if nf > 0:
+            F[sc + SC_NSW] += 1.0
+            if F[sc + SC_DV] <= F[sc + SC_VTHR] or F[sc + SC_NSW] >= ti.cast(max_sweeps, float):
+                F[sc + SC_VACT] = 0.0
 
 
 @ti.kernel
-def _k_build(F: ND, M: ND, G: ND, MM: ND, dt: float, again: ti.i32) -> float:
+def _k_build(F: ND, M: ND, G: ND, MM: ND, dt: float, again: ti.i32):
     """Outlet faces get their predicted velocity (not ``again``: a refinement round projects the
-    corrected field once more); pressure-system T and b into G. Returns the gross-flux scale."""
+    corrected field once more); pressure-system T and b into G; the residual scale of the solve
+    (the gross-flux scale of the predicted field, or the reference scale in a refinement round)
+    into the linear solver's scalars."""
     n = _n(M)
     h = _par(F, M, P_H)
     vel = M[R_VEL]
@@ -902,7 +922,12 @@ def _k_build(F: ND, M: ND, G: ND, MM: ND, dt: float, again: ti.i32) -> float:
             ti.atomic_max(F[M[R_SC] + SC_SMAX], gross)
         G[MM[ls.O_B0] + c] = b
         G[MM[ls.O_X] + c] = 0.0  # the solve is for the pressure increment
-    return F[M[R_SC] + SC_SMAX]
+    sc = M[R_SC]
+    if not again:
+        F[sc + SC_SPRED] = F[sc + SC_SMAX]
+        F[sc + SC_SREF] = F[sc + SC_SMAX]
+    G[MM[ls.O_SC] + ls.S_SCALE] = F[sc + SC_SREF]
+    F[sc + SC_CORR] = 0.0
 
 
 @ti.func
@@ -957,13 +982,15 @@ def _face_grad_inc(F: ti.template(), M: ti.template(), G: ti.template(), MM: ti.
 
 
 @ti.func
-def _cell_outputs(F: ti.template(), M: ti.template(), G: ti.template(), MM: ti.template()):
-    """Cell-centred gas velocity and pressure gradient, divergence and its scale (reductions)."""
+def _cell_outputs(F: ti.template(), M: ti.template(), G: ti.template(), MM: ti.template(), on):
+    """Cell-centred gas velocity and pressure gradient, divergence and its scale (reductions);
+    nothing unless ``on``."""
     n = _n(M)
     nc = M[M_NC]
-    F[M[R_SC] + SC_DMAX] = 0.0
-    F[M[R_SC] + SC_SMAX] = 0.0
-    for i, j, k in ti.ndrange(n[0], n[1], n[2]):
+    if on:
+        F[M[R_SC] + SC_DMAX] = 0.0
+        F[M[R_SC] + SC_SMAX] = 0.0
+    for i, j, k in ti.ndrange(n[0] * on, n[1], n[2]):
         I = ti.Vector([i, j, k])
         c = _cidx(M, I)
         active = F[M[R_THETA] + c] > 0.0
@@ -996,12 +1023,18 @@ def _cell_outputs(F: ti.template(), M: ti.template(), G: ti.template(), MM: ti.t
 
 
 @ti.kernel
-def _k_correct(F: ND, M: ND, G: ND, MM: ND, dt: float, again: ti.i32) -> ti.types.vector(3, float):
-    """u = u* - kappa grad phi, p += phi; periodic copies; cell outputs. Returns (max|div|, scale,
-    max|u|). The predictor increment is recorded in the first round only."""
+def _k_correct(F: ND, M: ND, G: ND, MM: ND, dt: float, again: ti.i32):
+    """u = u* - kappa grad phi, p += phi; periodic copies; cell outputs; (max|div|, scale, max|u|)
+    into the scalars. The predictor increment is recorded in the first round only. Runs once the
+    pressure solve has finished, once per round (the host launches it without waiting)."""
     n = _n(M)
     vel = M[R_VEL]
-    for f in range(M[M_NF]):
+    sc = M[R_SC]
+    on = 0
+    if G[MM[ls.O_SC] + ls.S_DONE] > 0.0 and F[sc + SC_CORR] == 0.0:
+        on = 1
+    nf = M[M_NF] * on
+    for f in range(nf):
         a, I = _fdecode(M, f)
         if not again:
             dp = 0.0
@@ -1012,18 +1045,19 @@ def _k_correct(F: ND, M: ND, G: ND, MM: ND, dt: float, again: ti.i32) -> ti.type
         if ok:
             kap, _ = _kappa(F, M, a, I, dt)
             F[vel + f] -= kap * g
-    for c in range(M[M_NC]):
+    for c in range(M[M_NC] * on):
         if F[M[R_THETA] + c] > 0.0:
             F[M[R_P] + c] += G[MM[ls.O_X] + c]
-    for f in range(M[M_NF]):
+    for f in range(nf):
         a, I = _fdecode(M, f)
         if M[M_PER + a] == 1 and I[a] == n[a]:
             J = I
             J[a] = 0
             F[vel + f] = F[vel + _fidx(M, a, J)]
-    F[M[R_SC] + SC_UMAX] = 0.0
+    if on:
+        F[M[R_SC] + SC_UMAX] = 0.0
     rho = _par(F, M, P_RHO)
-    for f in range(M[M_NF]):
+    for f in range(nf):
         ti.atomic_max(F[M[R_SC] + SC_UMAX], ti.abs(F[vel + f]))
         a, I = _fdecode(M, f)
         acc = 0.0
@@ -1036,15 +1070,37 @@ def _k_correct(F: ND, M: ND, G: ND, MM: ND, dt: float, again: ti.i32) -> ti.type
             wt = rho * e / (rho * e + be * dt)
             acc = _par(F, M, P_TRACE) * wt * (F[vel + f] - F[M[R_VADV] + f]) / dt
         F[M[R_ACC] + f] = acc
-    _cell_outputs(F, M, G, MM)
-    sc = M[R_SC]
-    return ti.Vector([F[sc + SC_DMAX], F[sc + SC_SMAX], F[sc + SC_UMAX]])
+    _cell_outputs(F, M, G, MM, on)
+    if on:
+        F[sc + SC_SREF] = ti.max(F[sc + SC_SREF], F[sc + SC_SMAX])
+        F[sc + SC_CORR] = 1.0
 
 
 @ti.kernel
-def _k_outputs(F: ND, M: ND, G: ND, MM: ND) -> ti.types.vector(2, float):
-    _cell_outputs(F, M, G, MM)
+def _k_record(F: ND, M: ND, G: ND, MM: ND) -> ti.types.vector(12, ti.f64):  # f64: the type is fixed at import, maybe before ti.init
+    """The step record, read once per step: max|u_old|, max|u_new|, viscous sweeps, max|div|, the
+    corrected field's flux scale, the reference scale, 1 once corrected, then the pressure solve's
+    (iterations, max|r|, converged, scale, initial max|r|)."""
+    sc = M[R_SC]
+    r = ls.solve_record(G, MM)
+    return ti.Vector([F[sc + SC_UOLD], F[sc + SC_UMAX], F[sc + SC_NSW], F[sc + SC_DMAX], F[sc + SC_SMAX],
+                      F[sc + SC_SREF], F[sc + SC_CORR], r[0], r[1], r[2], r[3], r[4]])
+
+
+@ti.kernel
+def _k_outputs(F: ND, M: ND, G: ND, MM: ND) -> ti.types.vector(2, ti.f64):
+    _cell_outputs(F, M, G, MM, 1)
     return ti.Vector([F[M[R_SC] + SC_DMAX], F[M[R_SC] + SC_SMAX]])
+
+
+@ti.kernel
+def _k_copy(F: ND, src: ti.i32, dst: ti.i32, n: ti.i32, zero: ti.i32):
+    """F[dst:dst+n] = F[src:src+n] (or 0 when ``zero``)."""
+    for i in range(n):
+        v = 0.0
+        if not zero:
+            v = F[src + i]
+        F[dst + i] = v
 
 
 @ti.kernel
@@ -1262,7 +1318,7 @@ class FlowSolver:
             off += n
             return o
 
-        for slot in (R_VEL, R_VOLD, R_VADV, R_VTMP, R_AP, R_ACC, R_DPRED, R_EF, R_BF):
+        for slot in (R_VEL, R_VOLD, R_VADV, R_VTMP, R_AP, R_ACC, R_DPRED, R_EF, R_BF, R_VSAVE):
             M[slot] = alloc(nf)
         if cfg.convection == "maccormack":
             M[R_VLO] = alloc(nf)
@@ -1436,7 +1492,14 @@ class FlowSolver:
         return self._read(R_VEL, n, extra=int(self._M_np[M_FO + a])).reshape(self._fshapes[a])
 
     def face_velocities(self):
+        """(u, v, w) face velocities [m/s] (interstitial), each of shape face_shape(axis)."""
         return tuple(self.face_velocity(a) for a in range(3))
+
+    def void_fraction(self) -> np.ndarray:
+        """Gas volume fraction eps [-] on the cells (nx, ny, nz), as the coupling last wrote it (the
+        solver reads it clamped to [1e-3, 1]). With :meth:`face_velocities`, the volume flux through a
+        face is aperture * eps_face * u * h^2 (eps_face the mean of its two cells)."""
+        return self.fields.eps.to_numpy()
 
     def cell_velocity(self) -> np.ndarray:
         """Interstitial gas velocity at cell centres (nx, ny, nz, 3) [m/s] (0 in inactive cells)."""
@@ -1584,51 +1647,52 @@ class FlowSolver:
             # p = 0 would leave an O(dt) splitting error at no-slip walls. Take one step, keep its
             # pressure, and restart from the initial velocity.
             self._p_init_pending = False
-            vel = self._read(R_VEL, self._nf)
+            mp, nf = self._M_np, self._nf
+            _k_copy(self.F, int(mp[R_VEL]), int(mp[R_VSAVE]), nf, 0)
             t, n = self.time, self.steps
             self._step(dt)
             self.time, self.steps = t, n
-            self._write(R_VEL, vel)
-            self._write(R_ACC, np.zeros(self._nf))
-            self._write(R_DPRED, np.zeros(self._nf))
+            _k_copy(self.F, int(mp[R_VSAVE]), int(mp[R_VEL]), nf, 0)
+            _k_copy(self.F, 0, int(mp[R_ACC]), nf, 1)
+            _k_copy(self.F, 0, int(mp[R_DPRED]), nf, 1)
         return self._step(dt)
 
     def _step(self, dt: float) -> StepInfo:
+        """One fractional step. Every kernel is launched without waiting on the device: the viscous
+        sweeps and the pressure iterations stop themselves there (a fixed number of launches, each
+        doing nothing once done), and the host reads one record at the end. It reads again only
+        when the pressure solve needed more iterations than the last step's count and a half
+        (:meth:`MGPCG.budget`), or a refinement round is due (float32 at its precision floor)."""
         cfg = self.config
         F, M, G, MM = self.F, self.M, self.mg.G, self.mg.M
         fl = self.fields
         _k_pull(F, M, fl.eps, fl.deps_dt, fl.beta, fl.us, fl.f_exp)
         _k_face_coef(F, M)
-        uold = float(_k_advect(F, M, dt))
+        _k_advect(F, M, dt)
         _k_bc_prep(F, M, dt)
         # red-black Gauss-Seidel sweeps until the estimated error, change * r/(1-r) with r the
         # contraction factor at this diffusion number, and the change itself (a first sweep from a
         # poor initial iterate leaves red and black faces with different errors: a checkerboard)
-        # are below VISCOUS_REDUCTION of the velocity scale
+        # are below VISCOUS_REDUCTION of the velocity scale (decided on the device)
         r = self._jacobi_factor(dt) ** 2
-        uscale = max(uold, self._bc_speed, 1e-30)
-        thr = VISCOUS_REDUCTION * uscale * min(1.0, (1.0 - r) / max(r, 1e-30))
-        nsw = 0
-        while nsw < int(cfg.max_viscous_sweeps):
-            change = float(_k_visc(F, M, dt))
-            nsw += 1
-            if change <= thr:
-                break
-        s_pred = float(_k_build(F, M, G, MM, dt, 0))
-        info = self.mg.solve(cfg.tol, int(cfg.max_iter), singular=self._singular, scale=s_pred)
-        dmax, smax, umax = (float(x) for x in _k_correct(F, M, G, MM, dt, 0))
-        iters = info.iterations
-        s_ref = max(s_pred, smax)
+        factor = VISCOUS_REDUCTION * min(1.0, (1.0 - r) / max(r, 1e-30))
+        nmax = int(cfg.max_viscous_sweeps)
+        for c in range(-(-nmax // VISCOUS_CHUNK)):
+            _k_visc(F, M, dt, int(c == 0), factor, self._bc_speed, nmax)
+        max_iter = int(cfg.max_iter)
+        rec = self._project(dt, 0, max_iter)
+        first = self.mg.info_from(rec[7:])
+        iters = first.iterations
         for _ in range(2):
             # refinement: where the solve stopped at its precision floor (float32 with a large
             # pressure increment), project the remaining, much smaller divergence once more
-            if dmax <= cfg.tol * s_ref or iters >= int(cfg.max_iter):
+            dmax, s_ref = float(rec[3]), float(rec[5])
+            if dmax <= cfg.tol * s_ref or iters >= max_iter:
                 break
-            _k_build(F, M, G, MM, dt, 1)
-            info = self.mg.solve(cfg.tol, int(cfg.max_iter) - iters, singular=self._singular, scale=s_ref)
-            iters += info.iterations
-            dmax, smax, umax = (float(x) for x in _k_correct(F, M, G, MM, dt, 1))
-            s_ref = max(s_ref, smax)
+            rec = self._project(dt, 1, max_iter - iters)
+            iters += self.mg.info_from(rec[7:]).iterations
+        self.mg.last = first  # the next step's iteration budget follows the main solve
+        uold, umax, nsw, dmax, smax, s_ref = (float(x) for x in rec[:6])
         self._s_pred = s_ref
         self._div = (dmax, smax)
         _k_push(F, M, G, MM, fl.p, fl.u_gas, fl.grad_p)
@@ -1636,7 +1700,23 @@ class FlowSolver:
         self.time += dt
         self.steps += 1
         self.last = StepInfo(dt=dt, cfl=max(uold, umax) * dt / self.h,
-                             diffusion_number=cfg.mu * dt / (cfg.rho * self.h ** 2), viscous_sweeps=nsw,
+                             diffusion_number=cfg.mu * dt / (cfg.rho * self.h ** 2), viscous_sweeps=int(round(nsw)),
                              pressure_iterations=iters, pressure_residual=div,
                              converged=div <= cfg.tol, divergence=div)
         return self.last
+
+    def _project(self, dt: float, again: int, max_iter: int):
+        """Pressure system, solve and correction (round ``again``); returns the step record (one read,
+        more only when the solve outran its budget)."""
+        F, M, G, MM = self.F, self.M, self.mg.G, self.mg.M
+        _k_build(F, M, G, MM, dt, again)
+        mg = self.mg
+        mg.begin(self.config.tol, max_iter, singular=self._singular, device_scale=True)
+        n = mg.budget()
+        while True:
+            mg.launch(n)
+            _k_correct(F, M, G, MM, dt, again)
+            rec = _k_record(F, M, G, MM)
+            if rec[6] > 0.5 or mg.exhausted:
+                return rec
+            n = max(4, n // 2)

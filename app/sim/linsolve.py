@@ -44,8 +44,10 @@ Method
 Implementation: all state lives in two flat Taichi ndarrays (floats ``G``, ints ``M``)
 and the kernels are module-level, so they compile once per process whatever the grid
 (a new scene or test does not recompile). Every loop over cells is the outermost loop of
-its kernel, so it runs in parallel on CPU and CUDA; the only host synchronisation is one
-scalar read per outer iteration.
+its kernel, so it runs in parallel on CPU and CUDA. The iteration's control (convergence, the
+true-residual check, stagnation, max_iter) runs on the device: the host launches a batch of
+iterations without waiting, each of which does nothing once the solve has stopped, and reads
+one record per batch (:meth:`MGPCG.solve`; the gas solver reads it with its own step record).
 """
 import dataclasses
 import math
@@ -63,7 +65,11 @@ NMETA = 16
 L_NX, L_NY, L_NZ, L_CO, L_FOX, L_FOY, L_FOZ, L_RX, L_RY, L_RZ, L_NCELL = range(11)
 # ---- scalars (G[M[O_SC] + ...])
 S_RZ, S_RZN, S_RZO, S_PAP, S_RINF, S_SUM, S_CNT, S_BNORM = range(8)
-NSCAL = 16
+# the solve's state, kept on the device so that the host launches iterations without waiting on them
+# (S_ACTIVE 1 while iterating; S_FIRST restart the flexible CG; S_LAST the last true residual, -1 none yet;
+# S_DONE 1 once the solution is final (zero mean taken); S_SCALE the residual scale, S_THR = tol * scale)
+S_ACTIVE, S_IT, S_THR, S_LAST, S_FIRST, S_R0, S_SCALE, S_CONV, S_TRUE, S_DONE = range(8, 18)
+NSCAL = 24
 
 PRE_SWEEPS = 2
 POST_SWEEPS = 2
@@ -122,6 +128,18 @@ def _dims(M: ti.template(), l):
 @ti.func
 def _ratio(M: ti.template(), l):
     return ti.Vector([_lm(M, l, L_RX), _lm(M, l, L_RY), _lm(M, l, L_RZ)])
+
+
+@ti.func
+def _on(G: ti.template(), M: ti.template()):
+    """1 while the solve iterates, else 0: every loop of an iteration runs over _on * cells, so
+    launches after convergence (the host launches a fixed count without waiting) do nothing."""
+    return ti.cast(G[M[O_SC] + S_ACTIVE] > 0.0, ti.i32)
+
+
+@ti.func
+def _ncell(G: ti.template(), M: ti.template(), l):
+    return _lm(M, l, L_NCELL) * _on(G, M)
 
 
 @ti.func
@@ -195,7 +213,7 @@ def _rb_sweep(G: ti.template(), M: ti.template(), l, color):
     n = _dims(M, l)
     co = _lm(M, l, L_CO)
     xb = M[O_XS] + co
-    for c in range(_lm(M, l, L_NCELL)):
+    for c in range(_ncell(G, M, l)):
         I = _decode(n, c)
         if (I[0] + I[1] + I[2]) % 2 == color and G[M[O_DIAG] + co + c] > 0.0:
             d, s, _ = _stencil(G, M, l, xb, I, False)
@@ -207,7 +225,7 @@ def _residual(G: ti.template(), M: ti.template(), l):
     n = _dims(M, l)
     co = _lm(M, l, L_CO)
     xb = M[O_XS] + co
-    for c in range(_lm(M, l, L_NCELL)):
+    for c in range(_ncell(G, M, l)):
         r = 0.0
         if G[M[O_DIAG] + co + c] > 0.0:
             I = _decode(n, c)
@@ -220,7 +238,7 @@ def _residual(G: ti.template(), M: ti.template(), l):
 def _jacobi_sweep(G: ti.template(), M: ti.template(), l):
     _residual(G, M, l)
     co = _lm(M, l, L_CO)
-    for c in range(_lm(M, l, L_NCELL)):
+    for c in range(_ncell(G, M, l)):
         dg = G[M[O_DIAG] + co + c]
         if dg > 0.0:
             G[M[O_XS] + co + c] += JACOBI_WEIGHT * G[M[O_RS] + co + c] / dg
@@ -229,7 +247,7 @@ def _jacobi_sweep(G: ti.template(), M: ti.template(), l):
 @ti.func
 def _zero_x(G: ti.template(), M: ti.template(), l):
     co = _lm(M, l, L_CO)
-    for c in range(_lm(M, l, L_NCELL)):
+    for c in range(_ncell(G, M, l)):
         G[M[O_XS] + co + c] = 0.0
 
 
@@ -241,7 +259,7 @@ def _restrict(G: ti.template(), M: ti.template(), l):
     N = _dims(M, L)
     rb = M[O_RS] + _lm(M, l, L_CO)
     cb = M[O_BS] + _lm(M, L, L_CO)
-    for C in range(_lm(M, L, L_NCELL)):
+    for C in range(_ncell(G, M, L)):
         K = _decode(N, C)
         s = 0.0
         for d in range(8):
@@ -260,7 +278,7 @@ def _prolong(G: ti.template(), M: ti.template(), l):
     co = _lm(M, l, L_CO)
     xb = M[O_XS] + co
     cb = M[O_XS] + _lm(M, L, L_CO)
-    for c in range(_lm(M, l, L_NCELL)):
+    for c in range(_ncell(G, M, l)):
         if G[M[O_DIAG] + co + c] > 0.0:
             K = _decode(n, c) // r
             G[xb + c] += G[cb + _local(N, K)]
@@ -337,8 +355,8 @@ def _k_up_j(G: ND, M: ND, l: ti.i32):
 
 @ti.kernel
 def _k_coarse(G: ND, M: ND, l: ti.i32, singular: ti.i32):
-    """Jacobi-PCG on the (tiny) coarsest level, by one thread."""
-    for _t in range(1):
+    """Jacobi-PCG on the (tiny) coarsest level, by one thread (none once the solve has stopped)."""
+    for _t in range(_on(G, M)):
         n = _dims(M, l)
         nc = _lm(M, l, L_NCELL)
         co = _lm(M, l, L_CO)
@@ -406,10 +424,30 @@ def _k_coarse_smooth(G: ND, M: ND, l: ti.i32, first: ti.i32):
     _rb_sweep(G, M, l, 0)
 
 
-@ti.kernel
-def _k_pcg_init(G: ND, M: ND, singular: ti.i32) -> float:
-    """Project b (singular case), measure max|b|, r = b - A x (affine); returns max|r|."""
+@ti.func
+def _true_residual(G: ti.template(), M: ti.template(), nc):
+    """r = b - A x (affine, with the Dirichlet values) over the first nc cells (nc = 0: nothing);
+    max|r| into S_TRUE. It also feeds the next V-cycle (BS)."""
     n = _dims(M, 0)
+    sc = M[O_SC]
+    G[sc + S_TRUE] = 0.0
+    for c in range(nc):
+        r = 0.0
+        if G[M[O_DIAG] + c] > 0.0:
+            _, _, ax = _stencil(G, M, 0, M[O_X], _decode(n, c), True)
+            r = G[M[O_B0] + c] - ax
+            ti.atomic_max(G[sc + S_TRUE], ti.abs(r))
+        else:
+            G[M[O_X] + c] = 0.0
+        G[M[O_R] + c] = r
+        G[M[O_BS] + c] = r
+
+
+@ti.kernel
+def _k_pcg_begin(G: ND, M: ND, singular: ti.i32, tol: float, scale_mode: ti.i32, scale: float):
+    """Project b (singular case), measure max|b|, r = b - A x; the stopping threshold tol * scale with
+    scale = max|b| (scale_mode 0), the argument (1) or G[S_SCALE] as a caller's kernel left it (2);
+    the solve is active unless r already meets it."""
     nc = M[O_NC0]
     sc = M[O_SC]
     G[sc + S_SUM] = 0.0
@@ -419,29 +457,33 @@ def _k_pcg_init(G: ND, M: ND, singular: ti.i32) -> float:
             G[sc + S_SUM] += G[M[O_B0] + c]
             G[sc + S_CNT] += 1.0
     G[sc + S_BNORM] = 0.0
-    G[sc + S_RINF] = 0.0
     for c in range(nc):
         if G[M[O_DIAG] + c] > 0.0:
             if singular and G[sc + S_CNT] > 0.0:
                 G[M[O_B0] + c] -= G[sc + S_SUM] / G[sc + S_CNT]
             ti.atomic_max(G[sc + S_BNORM], ti.abs(G[M[O_B0] + c]))
-    for c in range(nc):
-        r = 0.0
-        if G[M[O_DIAG] + c] > 0.0:
-            _, _, ax = _stencil(G, M, 0, M[O_X], _decode(n, c), True)
-            r = G[M[O_B0] + c] - ax
-            ti.atomic_max(G[sc + S_RINF], ti.abs(r))
-        else:
-            G[M[O_X] + c] = 0.0
-        G[M[O_R] + c] = r
-        G[M[O_BS] + c] = r
-    return G[sc + S_RINF]
+    _true_residual(G, M, nc)
+    if scale_mode == 0:
+        G[sc + S_SCALE] = G[sc + S_BNORM]
+    elif scale_mode == 1:
+        G[sc + S_SCALE] = scale
+    G[sc + S_THR] = tol * G[sc + S_SCALE]
+    G[sc + S_R0] = G[sc + S_TRUE]
+    G[sc + S_RINF] = G[sc + S_TRUE]
+    G[sc + S_IT] = 0.0
+    G[sc + S_LAST] = -1.0
+    G[sc + S_FIRST] = 1.0
+    G[sc + S_DONE] = 0.0
+    conv = G[sc + S_TRUE] <= G[sc + S_THR]
+    G[sc + S_CONV] = ti.select(conv, 1.0, 0.0)
+    G[sc + S_ACTIVE] = ti.select(conv, 0.0, 1.0)
 
 
 @ti.kernel
-def _k_pcg_from(G: ND, M: ND, first: ti.i32, singular: ti.i32):
-    """z = V-cycle output (zero mean if singular); new search direction (flexible CG)."""
-    nc = M[O_NC0]
+def _k_pcg_from(G: ND, M: ND, singular: ti.i32):
+    """z = V-cycle output (zero mean if singular); new search direction (flexible CG; a restart
+    when S_FIRST is set). Nothing once the solve has stopped."""
+    nc = M[O_NC0] * _on(G, M)
     sc = M[O_SC]
     G[sc + S_SUM] = 0.0
     G[sc + S_CNT] = 0.0
@@ -466,17 +508,21 @@ def _k_pcg_from(G: ND, M: ND, first: ti.i32, singular: ti.i32):
         G[sc + S_RZO] += r * zo
     for c in range(nc):
         beta = 0.0
-        if not first and G[sc + S_RZ] != 0.0:
+        if G[sc + S_FIRST] == 0.0 and G[sc + S_RZ] != 0.0:
             beta = (G[sc + S_RZN] - G[sc + S_RZO]) / G[sc + S_RZ]
         G[M[O_P] + c] = G[M[O_Z] + c] + beta * G[M[O_P] + c]
-    G[sc + S_RZ] = G[sc + S_RZN]
+    if nc > 0:
+        G[sc + S_RZ] = G[sc + S_RZN]
 
 
 @ti.kernel
-def _k_pcg_step(G: ND, M: ND) -> float:
-    """x += alpha p, r -= alpha A p; returns max|r|."""
+def _k_pcg_iter(G: ND, M: ND, max_iter: ti.i32):
+    """One outer iteration, decided on the device: x += alpha p, r -= alpha A p; when the recursive
+    residual meets the threshold, the true residual b - A x is measured: converged if it meets it
+    too, stagnated (stop, the caller may refine) if it did not halve since the last such check,
+    else a restart from it. Stops at max_iter. Nothing once the solve has stopped."""
     n = _dims(M, 0)
-    nc = M[O_NC0]
+    nc = M[O_NC0] * _on(G, M)
     sc = M[O_SC]
     G[sc + S_PAP] = 0.0
     for c in range(nc):
@@ -486,7 +532,7 @@ def _k_pcg_step(G: ND, M: ND) -> float:
             ap = ax
         G[M[O_AP] + c] = ap
         G[sc + S_PAP] += ap * G[M[O_P] + c]
-    G[sc + S_RINF] = 0.0
+    G[sc + S_TRUE] = 0.0
     for c in range(nc):
         alpha = 0.0
         if G[sc + S_PAP] > 0.0:
@@ -496,31 +542,66 @@ def _k_pcg_step(G: ND, M: ND) -> float:
         G[M[O_R] + c] = r
         G[M[O_BS] + c] = r
         if G[M[O_DIAG] + c] > 0.0:
-            ti.atomic_max(G[sc + S_RINF], ti.abs(r))
-    return G[sc + S_RINF]
+            ti.atomic_max(G[sc + S_TRUE], ti.abs(r))
+    cand = 0
+    if nc > 0:
+        G[sc + S_IT] += 1.0
+        G[sc + S_RINF] = G[sc + S_TRUE]
+        G[sc + S_FIRST] = 0.0
+        if G[sc + S_RINF] <= G[sc + S_THR]:
+            cand = 1
+    # the recursively updated residual drifts from b - A x in float32: confirm with the true one
+    _true_residual(G, M, M[O_NC0] * cand)
+    if cand == 1:
+        t = G[sc + S_TRUE]
+        G[sc + S_RINF] = t
+        if t <= G[sc + S_THR]:
+            G[sc + S_CONV] = 1.0
+            G[sc + S_ACTIVE] = 0.0
+        elif G[sc + S_LAST] >= 0.0 and t > 0.5 * G[sc + S_LAST]:
+            G[sc + S_ACTIVE] = 0.0  # stagnated at the precision floor: let the caller refine
+        else:
+            G[sc + S_LAST] = t
+            G[sc + S_FIRST] = 1.0
+    if nc > 0 and G[sc + S_IT] >= ti.cast(max_iter, float):
+        G[sc + S_ACTIVE] = 0.0
 
 
 @ti.kernel
 def _k_pcg_finish(G: ND, M: ND, singular: ti.i32):
-    nc = M[O_NC0]
+    """Once the solve has stopped (and only once): the zero-mean solution of a singular system."""
     sc = M[O_SC]
+    fin = 0
+    if G[sc + S_ACTIVE] == 0.0 and G[sc + S_DONE] == 0.0:
+        fin = 1
+    nc = M[O_NC0] * fin * singular
     G[sc + S_SUM] = 0.0
     G[sc + S_CNT] = 0.0
     for c in range(nc):
-        if singular and G[M[O_DIAG] + c] > 0.0:
+        if G[M[O_DIAG] + c] > 0.0:
             G[sc + S_SUM] += G[M[O_X] + c]
             G[sc + S_CNT] += 1.0
     for c in range(nc):
         m = 0.0
-        if singular and G[sc + S_CNT] > 0.0:
+        if G[sc + S_CNT] > 0.0:
             m = G[sc + S_SUM] / G[sc + S_CNT]
         if G[M[O_DIAG] + c] > 0.0:
             G[M[O_X] + c] -= m
+    if fin == 1:
+        G[sc + S_DONE] = 1.0
+
+
+@ti.func
+def solve_record(G: ti.template(), M: ti.template()):
+    """(iterations, max|r|, converged, scale, initial max|r|, done) of the current solve."""
+    sc = M[O_SC]
+    return ti.Vector([G[sc + S_IT], G[sc + S_RINF], G[sc + S_CONV], G[sc + S_SCALE], G[sc + S_R0],
+                      G[sc + S_DONE]])
 
 
 @ti.kernel
-def _k_get_bnorm(G: ND, M: ND) -> float:
-    return G[M[O_SC] + S_BNORM]
+def _k_record(G: ND, M: ND) -> ti.types.vector(6, ti.f64):
+    return solve_record(G, M)
 
 
 # ---- host <-> level-0 transfer (used by tests and by callers without their own kernels)
@@ -632,6 +713,9 @@ class MGPCG:
         self.G = ti.ndarray(float, shape=(off,))
         self.G.fill(0.0)
         self.last: SolveInfo | None = None
+        self._singular = False
+        self._max_iter = 0
+        self._launched = 0
 
     # ---------------------------------------------------------------- host helpers
     def offset(self, slot: int) -> int:
@@ -679,7 +763,7 @@ class MGPCG:
             self.G[o + i] = float(v)
 
     # ---------------------------------------------------------------- solve
-    def _vcycle(self, singular: bool) -> None:
+    def _vcycle(self) -> None:
         L = self.nlevels - 1
         for l in range(L):
             (_k_down_j if self.level_jacobi[l] else _k_down)(self.G, self.M, l)
@@ -687,9 +771,63 @@ class MGPCG:
             for k in range(COARSE_SMOOTH_SWEEPS):
                 _k_coarse_smooth(self.G, self.M, L, int(k == 0))
         else:
-            _k_coarse(self.G, self.M, L, int(singular))
+            _k_coarse(self.G, self.M, L, int(self._singular))
         for l in reversed(range(L)):
             (_k_up_j if self.level_jacobi[l] else _k_up)(self.G, self.M, l)
+
+    def begin(self, tol: float, max_iter: int, *, singular: bool = False, scale: float | None = None,
+              device_scale: bool = False) -> None:
+        """Start a solve of A x = b (level-0 T, b, x already in ``G``) from the current x; launches only
+        (nothing is read back). ``scale``: see :meth:`solve`; ``device_scale``: a caller's kernel has
+        written the scale into the solver's scalars (``G[M[O_SC] + S_SCALE]``)."""
+        if not (tol > 0.0):
+            raise ValueError(f"tolerance must be > 0, got {tol}")
+        G, M = self.G, self.M
+        self._singular = bool(singular)
+        self._max_iter = int(max_iter)
+        self._launched = 0
+        _k_diag(G, M, 0)
+        for l in range(self.nlevels - 1):
+            _k_coarsen(G, M, l)
+        mode = 2 if device_scale else (0 if scale is None else 1)
+        _k_pcg_begin(G, M, int(self._singular), float(tol), mode, float(scale or 0.0))
+        self._vcycle()
+        _k_pcg_from(G, M, int(self._singular))
+
+    def launch(self, iterations: int) -> None:
+        """Queue up to ``iterations`` more outer iterations (each stops itself on the device once the
+        solve has converged, stagnated or reached max_iter), then the final zero-mean step (once)."""
+        n = max(0, min(int(iterations), self._max_iter - self._launched))
+        sg = int(self._singular)
+        for _ in range(n):
+            _k_pcg_iter(self.G, self.M, self._max_iter)
+            self._vcycle()
+            _k_pcg_from(self.G, self.M, sg)
+        self._launched += n
+        _k_pcg_finish(self.G, self.M, sg)
+
+    @property
+    def exhausted(self) -> bool:
+        """Every iteration up to max_iter has been launched."""
+        return self._launched >= self._max_iter
+
+    def budget(self) -> int:
+        """Iterations to launch before the first look: the last solve's count and half as many more
+        (at least 4 more). The launches past convergence do nothing on the device; a solve that
+        needs more gets further batches, each with one more read."""
+        last = self.last.iterations if self.last is not None else 8
+        return max(4, last + max(4, last // 2))
+
+    def info_from(self, rec) -> SolveInfo:
+        """A :class:`SolveInfo` from a record (:func:`solve_record`) read from the device."""
+        it, rinf, conv, scale, r0 = (float(x) for x in rec[:5])
+        if scale > 0:
+            rel, rel0 = rinf / scale, r0 / scale
+        else:
+            rel, rel0 = (0.0 if rinf == 0 else math.inf), (0.0 if r0 == 0 else math.inf)
+        info = SolveInfo(int(round(it)), rel, bool(conv > 0.5), scale, rel0)
+        self.last = info
+        return info
 
     def solve(self, tol: float = 1e-6, max_iter: int = 200, *, singular: bool = False,
               scale: float | None = None) -> SolveInfo:
@@ -698,49 +836,16 @@ class MGPCG:
         Stops when ``max|b - A x| <= tol * scale``; ``scale`` defaults to ``max|b|`` (after the
         zero-mean projection when ``singular``). ``singular``: no Dirichlet face at all (pure
         Neumann/periodic): b is projected onto zero mean and x returned with zero mean.
+        The iterations are launched in batches (:meth:`budget`) and their convergence is decided on
+        the device; the host reads one record per batch (one in all when the budget suffices).
         Returns a :class:`SolveInfo` (also kept as ``last``).
         """
-        if not (tol > 0.0):
-            raise ValueError(f"tolerance must be > 0, got {tol}")
-        G, M = self.G, self.M
-        _k_diag(G, M, 0)
-        for l in range(self.nlevels - 1):
-            _k_coarsen(G, M, l)
-        sg = int(bool(singular))
-        r0 = float(_k_pcg_init(G, M, sg))
-        if scale is None:
-            scale = float(_k_get_bnorm(G, M))
-        thr = tol * scale
-        it = 0
-        rinf = r0
-        converged = rinf <= thr
-        if not converged:
-            self._vcycle(singular)
-            _k_pcg_from(G, M, 1, sg)
-            last_true = math.inf
-            while it < max_iter:
-                rinf = float(_k_pcg_step(G, M))
-                it += 1
-                first = 0
-                if rinf <= thr:
-                    # the recursively updated residual drifts from b - A x in float32: confirm with
-                    # the true residual, and restart from it when it is not small enough yet
-                    rinf = float(_k_pcg_init(G, M, sg))
-                    if rinf <= thr:
-                        converged = True
-                        break
-                    if rinf > 0.5 * last_true:
-                        break  # stagnated at the precision floor: let the caller refine
-                    last_true = rinf
-                    first = 1
-                self._vcycle(singular)
-                _k_pcg_from(G, M, first, sg)
-        if singular:
-            _k_pcg_finish(G, M, sg)
-        if scale > 0:
-            rel, rel0 = rinf / scale, r0 / scale
-        else:
-            rel, rel0 = (0.0 if rinf == 0 else math.inf), (0.0 if r0 == 0 else math.inf)
-        info = SolveInfo(it, rel, converged, scale, rel0)
-        self.last = info
-        return info
+        self.begin(tol, max_iter, singular=singular, scale=scale)
+        n = self.budget()
+        while True:
+            self.launch(n)
+            rec = _k_record(self.G, self.M)
+            if rec[5] > 0.5 or self.exhausted:
+                break
+            n = max(4, n // 2)
+        return self.info_from(rec)

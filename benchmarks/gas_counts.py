@@ -1,0 +1,76 @@
+"""Kernel launches and host reads per gas step (the flow_throughput scene: cylinder vessel, bed in the
+lower 40% re-randomised every step, 0.5 m/s inflow, Model A, MacCormack, dt = 1e-3 s).
+
+    python benchmarks/gas_counts.py --grids 32x32x116 32x32x64
+
+A host read is a kernel launch that returns a value, a to_numpy() or a Python-scope element read
+of a field or ndarray (counted by tests/kernel_counter.py around every kernel of app.sim); the
+launches count every kernel of app.sim. Counted over ``--steps`` steps after ``--warmup``; prints
+the median per step with the min and max and appends a table to benchmarks/RESULTS.md.
+"""
+from __future__ import annotations
+
+import argparse
+import pathlib
+import statistics
+import sys
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from benchmarks_common import append_results  # noqa: E402
+
+
+def gas_modules():
+    return [m for n, m in sorted(sys.modules.items()) if n.startswith("app.sim") and m is not None]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--arch", default="cpu", choices=("cpu", "cuda"))
+    ap.add_argument("--precision", default="float32", choices=("float32", "float64"))
+    ap.add_argument("--grids", nargs="+", default=["32x32x116", "32x32x64"])
+    ap.add_argument("--steps", type=int, default=5)
+    ap.add_argument("--warmup", type=int, default=2)
+    ap.add_argument("--label", default="", help="what is counted (e.g. before / after)")
+    ap.add_argument("--dry", action="store_true")
+    args = ap.parse_args(argv)
+    from app.sim import runtime
+    from flow_throughput import DT, scene, shuffle_bed
+    from kernel_counter import KernelCounter
+
+    arch = runtime.init(args.arch, args.precision)
+    rows = []
+    for g in args.grids:
+        shape = tuple(int(x) for x in g.lower().split("x"))
+        s, bed, eps, rng = scene(shape, 1e-6)
+        for _ in range(args.warmup):
+            s.step(DT)
+        launches, reads, iters, sweeps = [], [], [], []
+        top = None
+        with KernelCounter(gas_modules()) as kc:
+            for _ in range(args.steps):
+                eps = shuffle_bed(s, bed, eps, rng)
+                kc.reset()
+                info = s.step(DT)
+                launches.append(kc.launches)
+                reads.append(kc.reads)
+                iters.append(info.pressure_iterations)
+                sweeps.append(info.viscous_sweeps)
+                top = dict(kc.reads_by)
+        med = statistics.median
+        rows.append({"label": args.label, "grid": g, "launches/step (median, min-max)":
+                     f"{med(launches):g} ({min(launches)}-{max(launches)})",
+                     "host reads/step (median, min-max)": f"{med(reads):g} ({min(reads)}-{max(reads)})",
+                     "p-iters (median)": f"{med(iters):g}", "viscous sweeps (median)": f"{med(sweeps):g}"})
+        print(rows[-1], "reads by:", top, flush=True)
+    title = (f"Gas step: kernel launches and host reads per step ({arch}, {args.precision}; the flow_throughput "
+             f"scene; {args.steps} steps after {args.warmup})")
+    append_results(title, rows, arch, dry=args.dry)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

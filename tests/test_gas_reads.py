@@ -1,0 +1,65 @@
+"""The gas step does not wait on the device: one value (the step record) read back per step.
+
+Counted with a test double around every read point (tests/kernel_counter.py): each launch of a
+kernel that returns a value, each to_numpy() and each Python-scope element read of a field or
+ndarray, over every kernel of app.sim.
+"""
+import sys
+
+import numpy as np
+
+from app.sim import flow
+from app.sim.geometry import CylinderWall
+
+from kernel_counter import KernelCounter
+
+H, DT = 0.006, 1e-3
+
+
+def _bed_scene(shape=(16, 16, 24)):
+    """The flow_throughput scene, small: cylinder vessel (cut cells), a bed of eps 0.45-0.5 and
+    beta 1.5e4-1.95e4 in the lower 40%, 0.5 m/s inflow, pressure outlet, Model A, MacCormack."""
+    nx, ny, nz = shape
+    cyl = CylinderWall(center=(nx * H / 2, ny * H / 2), radius=(min(nx, ny) / 2 - 1) * H)
+    cfg = flow.FlowConfig(shape=shape, h=H, rho=1.2, mu=1.8e-5, gravity=(0.0, 0.0, -9.81), walls=(cyl,),
+                          pressure_form="shared", convection="maccormack", tol=1e-6,
+                          bcs={"bottom": flow.velocity_inlet((0.0, 0.0, 0.5)), "top": flow.pressure_outlet(0.0)})
+    s = flow.FlowSolver(cfg)
+    rng = np.random.default_rng(3)
+    eps = np.ones(shape)
+    beta = np.zeros(shape)
+    bed = np.zeros(shape, bool)
+    bed[:, :, : int(0.4 * nz)] = True
+    eps[bed] = 0.45 + 0.05 * rng.random(bed.sum())
+    beta[bed] = 1.5e4 * (1.0 + 0.3 * rng.random(bed.sum()))
+    s.set_eps(eps)
+    s.set_beta(beta)
+    return s, eps
+
+
+def _sim_modules():
+    return [m for n, m in sorted(sys.modules.items()) if n.startswith("app.sim") and m is not None]
+
+
+def test_one_gas_step_reads_one_value_back():
+    s, eps = _bed_scene()
+    for _ in range(3):  # the first step also finds a consistent pressure; the budget settles
+        s.step(DT)
+    reads = []
+    with KernelCounter(_sim_modules()) as kc:
+        for _ in range(4):
+            kc.reset()
+            info = s.step(DT)
+            reads.append(kc.reads)
+            assert info.converged and info.divergence <= s.config.tol, info
+            assert info.pressure_iterations >= 2 and info.viscous_sweeps >= 1, info  # real work was done
+            assert kc.launches > 20, kc.by_kernel
+        # the double sees reads: a pressure copy to the host is one
+        kc.reset()
+        s.pressure()
+        assert kc.reads == 1, kc.reads_by
+    assert max(reads) <= 1, reads
+    assert s.divergence_residual() <= s.config.tol
+    # the accessors a recording probe reads: the void fraction as set, face velocities of the face shapes
+    np.testing.assert_array_equal(s.void_fraction(), eps)
+    assert [u.shape for u in s.face_velocities()] == [s.grid.face_shape(a) for a in range(3)]
