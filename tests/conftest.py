@@ -46,3 +46,16 @@ def gui():
             pytest.fail(f"GGUI cannot start offscreen ({why}): install mesa-vulkan-drivers")
         pytest.skip(f"no Vulkan device for GGUI ({why}); apt-get install mesa-vulkan-drivers")
     return True
+
+
+TIERS = ("unit", "verification", "regression", "restart", "smoke", "stress", "bench")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Every test belongs to a tier (a module's `pytestmark = pytest.mark.<tier>`), so that
+    `python -m pytest -m unit` (or any tier) selects it; a module without one is an error, not a silent gap."""
+    untiered = sorted({item.nodeid.split("::")[0] for item in items
+                       if not any(m.name in TIERS for m in item.iter_markers())})
+    if untiered:
+        raise pytest.UsageError(f"tests without a tier ({', '.join(TIERS)}): {', '.join(untiered)}; "
+                                "add `pytestmark = pytest.mark.<tier>` below the module's imports")

@@ -15,6 +15,8 @@ import pytest
 
 from app.accuracy import bed_cases as bc
 
+pytestmark = pytest.mark.verification
+
 TINY = bc.Bed(half_width=0.015, radius=0.014, height=0.12, count=800, duration=0.2, window=0.1)
 
 

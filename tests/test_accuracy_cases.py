@@ -11,6 +11,8 @@ import pytest
 from app.accuracy import Unavailable, all_cases
 from app.accuracy.dem_cases import pair_collision
 
+pytestmark = pytest.mark.bench
+
 CASES = {c.name: c for c in all_cases()}
 
 

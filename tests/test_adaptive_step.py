@@ -13,6 +13,8 @@ from app.sim.simulation import Simulation
 from dem_helpers import make
 from flow_helpers import jet_solver
 
+pytestmark = pytest.mark.verification
+
 
 def test_high_cfl_splits_the_fluid_step_and_pieces_are_exact_smaller_steps():
     sim = Simulation(None, 1e-3, 0, 0.012, flow=jet_solver())

@@ -23,6 +23,8 @@ from scipy import ndimage
 from app.analysis import bubbles as bb
 from app.analysis import verma
 
+pytestmark = pytest.mark.unit
+
 D_COL = 0.1
 N = 32
 H = D_COL / N            # 3.125 mm, the Verma grid

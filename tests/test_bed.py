@@ -10,6 +10,8 @@ import pytest
 
 from dem_helpers import make
 
+pytestmark = pytest.mark.regression
+
 D = 2e-3
 RADIUS = 0.011
 

@@ -14,6 +14,8 @@ from app.schedule import InletSchedule, fraction_at, jet_fraction
 from dem_helpers import merged, toml_text
 from test_cli import ROOT, fbed
 
+pytestmark = pytest.mark.regression
+
 
 def spec(**kw):
     cfg = load_text(toml_text(merged(

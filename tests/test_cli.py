@@ -12,6 +12,8 @@ import h5py
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.smoke
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PRESETS = sorted((ROOT / "presets").rglob("*.toml"))
 
@@ -63,6 +65,7 @@ SMALL = ["--set", "particles.count=300", "--set", "run.threads=1", "--set", "run
          "--set", "run.step=1e-3", "--set", "output.series_interval=1e-3", "--arch", "cpu"]
 
 
+@pytest.mark.restart
 def test_stop_and_resume_matches_a_straight_run(tmp_path):
     """Run 2N steps straight; run N, then resume to 2N in a fresh process: same grains (1e-6 relative)."""
     preset = ROOT / "presets" / "settle.toml"
@@ -103,6 +106,7 @@ def test_stop_and_resume_matches_a_straight_run(tmp_path):
     assert np.all(np.diff(t) > 0) and t[-1] == pytest.approx(0.04)
 
 
+@pytest.mark.restart
 def test_sigterm_stops_cleanly_with_checkpoint(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     out = tmp_path / "run"

@@ -9,6 +9,8 @@ from app.config.derived import damping_from_restitution, derive, effective_modul
 
 from dem_helpers import merged, toml_text
 
+pytestmark = pytest.mark.unit
+
 
 def cfg_of(**changes):
     return load_text(toml_text(merged(**changes)), "t.toml")

@@ -10,6 +10,8 @@ import pytest
 
 from dem_helpers import make
 
+pytestmark = pytest.mark.verification
+
 R = 1e-3
 V = 0.5  # m/s impact speed
 

@@ -8,6 +8,8 @@ from app.sim.flow import FlowSolver
 
 from dem_helpers import make
 
+pytestmark = pytest.mark.verification
+
 R_VESSEL, H = 0.011, 0.002
 
 

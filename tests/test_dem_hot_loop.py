@@ -7,6 +7,8 @@ import pytest
 
 from dem_helpers import make
 
+pytestmark = pytest.mark.verification
+
 FIELD = importlib.import_module("taichi.lang.field")
 MATRIX = importlib.import_module("taichi.lang.matrix")
 READS = [(cls, name) for cls in (FIELD.ScalarField, MATRIX.MatrixField) for name in ("__getitem__", "to_numpy")]

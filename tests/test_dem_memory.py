@@ -7,6 +7,9 @@ import numpy as np
 
 from dem_helpers import make
 from test_cli import ROOT, fbed
+import pytest
+
+pytestmark = pytest.mark.verification
 
 BASE = ["--set", "particles.count=2500", "--set", "run.duration=0.004", "--set", "run.precision=\"float32\"",
         "--arch", "cpu"]

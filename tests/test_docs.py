@@ -2,6 +2,9 @@
 import pathlib
 
 from app.config.docs import reference
+import pytest
+
+pytestmark = pytest.mark.unit
 
 
 def test_readme_reference_matches_schema():

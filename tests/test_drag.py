@@ -6,6 +6,8 @@ import pytest
 
 from app.sim import drag
 
+pytestmark = pytest.mark.unit
+
 D, RHO, MU = 1e-3, 1.2, 1.8e-5
 
 

@@ -8,6 +8,8 @@ from app.sim.fields import bytes_per_grain
 
 from dem_helpers import make
 
+pytestmark = pytest.mark.verification
+
 R = 1e-3
 
 

@@ -16,6 +16,8 @@ from app.sim.geometry import CylinderWall, PlaneWall
 
 from flow_helpers import jet_solver
 
+pytestmark = pytest.mark.verification
+
 PER = flow.periodic()
 
 
@@ -310,6 +312,7 @@ def test_bundle_fields_written_in_kernels():
     assert np.allclose(s.cell_velocity()[..., 2], 0.2, rtol=1e-6)
 
 
+@pytest.mark.restart
 def test_state_arrays_restart_is_exact():
     """A solver restored from state_arrays() continues like the original (checkpoints): same
     velocities to 1e-10 m/s (2 m/s jet; only the order of parallel reductions differs)."""

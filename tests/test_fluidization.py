@@ -12,6 +12,8 @@ from app.sim.flow import FlowSolver
 
 from dem_helpers import make
 
+pytestmark = pytest.mark.verification
+
 MU, RHO_G = 1.8e-5, 1.2
 
 

@@ -12,6 +12,9 @@ from app.sim import flow
 from app.sim.geometry import CylinderWall
 
 from kernel_counter import KernelCounter
+import pytest
+
+pytestmark = pytest.mark.verification
 
 H, DT = 0.006, 1e-3
 

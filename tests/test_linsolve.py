@@ -7,6 +7,8 @@ import scipy.sparse.linalg as spla
 
 from app.sim.linsolve import MGPCG, plan_levels
 
+pytestmark = pytest.mark.verification
+
 
 def _system(shape, periodic=(False, False, False), dirichlet_faces=("z+",), coef=None):
     """Face transmissibilities of a cell-centred Laplacian: 1 inside, 2 on Dirichlet faces (half-cell

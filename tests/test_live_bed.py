@@ -26,6 +26,8 @@ from app.sim.simulation import Simulation
 
 from dem_helpers import merged, toml_text
 
+pytestmark = pytest.mark.regression
+
 D, RHO_P, W = 2e-3, 1000.0, 0.02
 BASE = dict(
     run={"step": 1e-3, "duration": 0.25},

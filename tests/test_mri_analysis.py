@@ -9,6 +9,8 @@ import pytest
 
 from app.analysis import mri
 
+pytestmark = pytest.mark.unit
+
 EMULSION = 0.60
 SUB = 8
 

@@ -10,6 +10,8 @@ import pytest
 from app.probes_mri import slab_volume
 from test_cli import ROOT, fbed
 
+pytestmark = pytest.mark.smoke
+
 SHORT = ["run.duration=0.06", "particles.bed_height=0.01", "output.average_from=0.02",
          "boundary.bottom.schedule=[[0.0,0.0],[0.01,0.0],[0.02,1.0]]", "probes.mri_static_height=0.01"]
 

@@ -4,6 +4,9 @@ import os
 import pathlib
 import subprocess
 import sys
+import pytest
+
+pytestmark = pytest.mark.unit
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 

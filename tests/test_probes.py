@@ -4,6 +4,8 @@ import pytest
 
 from app.probes import plane_weights, slab_layers
 
+pytestmark = pytest.mark.unit
+
 
 def test_slab_takes_the_layers_within_half_its_width_or_the_two_that_straddle_the_midplane():
     # 32 cells of 6 mm from -0.096 m: centres at +-3 mm, +-9 mm, ...; the mid-plane y = 0 is a cell face

@@ -12,6 +12,8 @@ from app.probes_mri import MriImage, slab_volume
 from dem_helpers import merged, toml_text
 from test_cli import fbed
 
+pytestmark = pytest.mark.unit
+
 
 def test_slab_volume_of_a_sphere():
     r = np.array([1e-3])

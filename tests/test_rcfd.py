@@ -9,6 +9,8 @@ from app.rcfd import recurrence as rec
 from app.rcfd.database import parse_tag, shift_operator, tag_mask
 from app.rcfd.transport import SolidsTracer, Stitcher, mixing_index, shift_diffusivity
 
+pytestmark = pytest.mark.unit
+
 
 def synthetic_field(n=400, dt=5e-3, period=0.27, shape=(6, 6, 10), noise=0.02, seed=3):
     """eps(x, t) = 0.6 + 0.1 sin(2 pi t / T + phase(x)) + noise: a pseudo-periodic bed."""

@@ -15,6 +15,8 @@ import h5py
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.smoke
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
@@ -101,6 +103,7 @@ def test_bad_input_exits_2(recorded, tmp_path):
     assert r.returncode == 2 and "probes.rcfd_tag" in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.restart
 def test_a_run_resumed_on_a_frame_boundary_records_the_same_frames(recorded, tmp_path):
     """Stopped at 0.34 s (a frame boundary, with its checkpoint) and resumed to 0.40 s, the recording equals the
     straight run's: the frame open at the checkpoint goes on from the checkpoint's grains, no gap, same shifts."""

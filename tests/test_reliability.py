@@ -17,6 +17,8 @@ import time
 import h5py
 import pytest
 
+pytestmark = pytest.mark.restart
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SETTLE = ROOT / "presets" / "settle.toml"
 ENV = dict(os.environ, PYTHONPATH=str(ROOT))

@@ -14,6 +14,8 @@ import pytest
 from dem_helpers import make, merged, toml_text
 from test_cli import fbed
 
+pytestmark = pytest.mark.smoke
+
 ti = pytest.importorskip("taichi")
 
 

@@ -5,6 +5,8 @@ import pytest
 
 from app.io import store
 
+pytestmark = pytest.mark.restart
+
 
 def test_batched_rows_and_frames_all_reach_the_file(tmp_path, monkeypatch):
     """Rows are held and written in batches (here 3 rows): a series first seen late is NaN before, one

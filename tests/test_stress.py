@@ -8,6 +8,8 @@ import pytest
 
 from app.bench import SCENES, run_scene
 
+pytestmark = pytest.mark.stress
+
 
 @pytest.mark.slow
 @pytest.mark.parametrize("scene", SCENES, ids=[s.name for s in SCENES])

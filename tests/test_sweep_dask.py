@@ -9,6 +9,8 @@ import sys
 
 import pytest
 
+pytestmark = pytest.mark.smoke
+
 pytest.importorskip("distributed")  # the cluster extra (in the test extra too)
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]

@@ -14,6 +14,8 @@ import h5py
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.smoke
+
 meshio = pytest.importorskip("meshio")  # in the test extra
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
