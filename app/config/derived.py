@@ -22,7 +22,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
-from .loader import ConfigError
+from .errors import ConfigError
 from .schema import Config
 
 HERTZ_DURATION_COEFF = 2.868  # t_c = 2.868 (m*^2 / (R* E*^2 v))^(1/5), undamped Hertz impact

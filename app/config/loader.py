@@ -18,6 +18,8 @@ import typing
 from typing import Any
 
 from . import schema
+from .errors import ConfigError, find_line as _find_line
+from .rules import check  # cross-key rules
 
 SECTION_TYPES = {
     "run": schema.RunConfig,
@@ -37,44 +39,6 @@ SECTION_TYPES = {
 FACES = ("x-", "x+", "y-", "y+", "z-", "z+")
 FACE_ALIASES = {"bottom": "z-", "top": "z+"}
 REQUIRED_SECTIONS = ("run", "domain")
-
-
-class ConfigError(Exception):
-    """A preset problem: ``str(err)`` is the full user-facing message."""
-
-    def __init__(self, message: str, file: str = "", key: str = "", line: int | None = None, hint: str = ""):
-        self.file, self.key, self.line, self.hint, self.message = file, key, line, hint, message
-        where = file or "<preset>"
-        if line:
-            where += f":{line}"
-        text = f"{where}: {key + ': ' if key else ''}{message}"
-        if hint:
-            text += f"\n  hint: {hint}"
-        super().__init__(text)
-
-
-# ---------------------------------------------------------------------------- locating keys
-
-def _find_line(text: str, section: str, key: str | None) -> int | None:
-    """Best-effort line number of ``[section] key = ...`` (tomllib gives no positions)."""
-    if not text:
-        return None
-    lines = text.splitlines()
-    in_section = False
-    header = re.compile(r"^\s*\[\s*([A-Za-z0-9_.\-]+)\s*\]")
-    for no, line in enumerate(lines, 1):
-        m = header.match(line)
-        if m:
-            in_section = m.group(1) == section
-            if in_section and key is None:
-                return no
-            continue
-        if in_section and key is not None and re.match(rf"^\s*{re.escape(key)}\s*=", line):
-            return no
-        # dotted keys at top level: section.key = ...
-        if key is not None and re.match(rf"^\s*{re.escape(section)}\.{re.escape(key)}\s*=", line):
-            return no
-    return None
 
 
 # ---------------------------------------------------------------------------- type checks
@@ -277,7 +241,6 @@ def build(data: dict, file: str = "<preset>", text: str = "") -> schema.Config:
             raise ConfigError(f"missing section [{name}]", file, name, None,
                               "every preset needs [run] (with duration, in s) and [domain] (lo, hi in m)")
     cfg = schema.Config(**sections, source=str(pathlib.Path(file).resolve().parent) if file and not file.startswith("<") else "")
-    from .rules import check  # cross-key rules
 
     check(cfg, file, text)
     return cfg

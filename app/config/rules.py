@@ -1,13 +1,13 @@
 """Rules that involve more than one key (each names the key to change)."""
 from __future__ import annotations
 
-from .loader import ConfigError, _find_line
+from .errors import ConfigError, find_line
 from .schema import Config
 
 
 def check(cfg: Config, file: str, text: str) -> None:
     def fail(section, key, message, hint=""):
-        raise ConfigError(message, file, f"{section}.{key}", _find_line(text, section, key), hint)
+        raise ConfigError(message, file, f"{section}.{key}", find_line(text, section, key), hint)
 
     d = cfg.domain
     for a, (lo, hi) in enumerate(zip(d.lo, d.hi)):
