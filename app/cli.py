@@ -137,10 +137,14 @@ def main(argv: list[str] | None = None) -> int:
                 if args.video:
                     overrides.append(f"video.file={args.video!r}".replace("'", '"'))
             return run(args.preset, overrides, args.out, args.arch, args.resume, args.overwrite)
-        if args.command == "view":
-            from .gui.viewer import view
+        if args.command == "view":  # the runner and the window composed here: the GUI never drives the runner
+            from .gui.viewer import ViewerController, display_available
+            from .run import run
 
-            return view(args.preset, args.overrides, args.arch, args.out)
+            if not display_available():
+                raise ConfigError("no display: the interactive window needs a screen", args.preset, "view",
+                                  hint=f"render headless instead: fbed run {args.preset} --video")
+            return run(args.preset, args.overrides, out=args.out, arch=args.arch, viewer=ViewerController)
         if args.command == "bench":
             if args.kind == "accuracy":
                 from .accuracy import all_cases

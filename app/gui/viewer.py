@@ -4,7 +4,8 @@ Owns: the key bindings and the controller that turns them into calls on the run'
 objects (renderer, inlet schedule, simulation clock). Every control is a plain method
 (``toggle_pause``, ``step_once``, ``set_gas_factor``, ``toggle_jet``, ``cycle_colour``,
 ``toggle_view``, ``orbit``, ``zoom``, ``screenshot``), so a script or a test drives the
-simulation exactly as the keys do. The run itself is ``app.run.run`` with this controller:
+simulation exactly as the keys do. The command line composes the run with this controller
+(`fbed view` is ``app.run.run`` given a ViewerController factory), so the GUI never drives the runner:
 headless and windowed runs share one code path (outputs, guard, checkpoints included).
 
 Keys: space pause/resume · n one step · up/down gas velocity x1.1 / /1.1 · j jet on/off ·
@@ -151,18 +152,3 @@ class ViewerController:
             self._pending_steps -= 1
             return "step"
         return "wait" if self.paused else "step"
-
-
-def view(preset: str, overrides: list[str], arch: str = "auto", out: str | None = None) -> int:
-    """`fbed view PRESET`: the run in a window (outputs are written as by `fbed run`)."""
-    from ..config import ConfigError
-    from ..run import run
-
-    if not display_available():
-        raise ConfigError("no display: the interactive window needs a screen", preset, "view",
-                          hint=f"render headless instead: fbed run {preset} --video")
-
-    def make(renderer, schedule, out_dir):
-        return ViewerController(renderer, schedule, out_dir)
-
-    return run(preset, overrides, out=out, arch=arch, viewer=make)
