@@ -1464,26 +1464,6 @@ class FlowSolver:
             self._write(R_VEL, arr, extra=int(self._M_np[M_FO + a]))
         _k_periodic_copy(self.F, self.M)
 
-    def set_cell_velocity(self, uc) -> None:
-        """Set the gas velocity from cell-centred values (nx, ny, nz, 3) [m/s], averaged to faces."""
-        uc = _as_cell_array(uc, self.shape, "cell velocity", vector=True)
-        faces = []
-        per = self.config.periodic
-        for a in range(3):
-            c = uc[..., a]
-            if per[a]:
-                nb = np.roll(c, 1, axis=a)
-                inner = 0.5 * (c + nb)
-                fa = np.concatenate([inner, np.take(inner, [0], axis=a)], axis=a)
-            else:
-                pad_lo = np.take(c, [0], axis=a)
-                pad_hi = np.take(c, [-1], axis=a)
-                ext = np.concatenate([pad_lo, c, pad_hi], axis=a)
-                fa = 0.5 * (np.take(ext, range(0, ext.shape[a] - 1), axis=a) + np.take(ext, range(1, ext.shape[a]),
-                                                                                      axis=a))
-            faces.append(fa)
-        self.set_face_velocity(*faces)
-
     # ------------------------------------------------------------------ outputs
     def face_velocity(self, axis: int) -> np.ndarray:
         """Face velocities [m/s] of component ``axis`` (0, 1, 2), shape face_shape(axis)."""

@@ -52,10 +52,6 @@ class MacGrid:
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @property
-    def ncells(self) -> int:
-        return int(np.prod(self.shape))
-
-    @property
     def extent(self) -> tuple[float, float, float]:
         """Domain size [m] along x, y, z."""
         return tuple(n * self.h for n in self.shape)
