@@ -90,8 +90,14 @@ def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template()
                         wj = state.omega[j]
                         vrel += (wi * arm_i + wj * arm_j).cross(n)
                         w_rel = wi - wj
+                    inertia = 0.0
+                    if ti.static(model.rolling == ROLL_EPSD):
+                        # rolling inertia of the pair (Ai et al. 2011): each grain about the contact point, 7/5 m r^2
+                        ii = mi * ri * ri
+                        ij = mj * rj * rj
+                        inertia = 1.4 * ii * ij / (ii + ij)
                     f, ft, tr, spring, roll_spring = contact(model, False, n, delta, vrel, w_rel, ri * rj / rs,
-                                                             mi * mj / (mi + mj), spring, roll_spring)
+                                                             mi * mj / (mi + mj), inertia, spring, roll_spring)
                     if ti.static(model.has_history):
                         if h != NO_SPRING:
                             if ti.static(model.friction):
@@ -125,8 +131,8 @@ def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template()
                         spring = history.wall_tangential[w, i]
                     if ti.static(model.rolling == ROLL_EPSD):
                         roll_spring = history.wall_rolling[w, i]
-                    f, ft, tr, spring, roll_spring = contact(model, True, n, delta, vrel, wi, ri, mi, spring,
-                                                             roll_spring)
+                    f, ft, tr, spring, roll_spring = contact(model, True, n, delta, vrel, wi, ri, mi,
+                                                             1.4 * mi * ri * ri, spring, roll_spring)
                     if ti.static(model.friction):
                         history.wall_tangential[w, i] = spring
                         torque_i += arm * n.cross(ft) + tr
