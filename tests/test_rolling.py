@@ -158,14 +158,15 @@ def test_spin_about_the_normal_meets_no_rolling_resistance():
 # float64 spelled out: this module is imported before conftest starts Taichi in float64
 @ti.kernel
 def impose(model: ti.template(), steps: ti.i32, n: ti.types.vector(3, ti.f64), w: ti.types.vector(3, ti.f64),
-           fn: ti.f64, k_n: ti.f64, r_eff: ti.f64, inertia: ti.f64, out: ti.template()):
+           fn: ti.f64, k_n: ti.f64, r_eff: ti.f64, m_eff: ti.f64, inertia: ti.f64, out: ti.template()):
     """``steps`` steps of a constant relative rotation rate w at a grain-grain contact: the torque on i and
     the stored spring torque."""
     for _ in range(1):
         spring = ti.Vector([0.0, 0.0, 0.0], ti.f64)
         tr = ti.Vector([0.0, 0.0, 0.0], ti.f64)
         for _s in range(steps):
-            tr, spring = rolling_torque(model, False, spring, n, w, fn, k_n, r_eff, inertia)
+            tr, spring = rolling_torque(model, False, spring, n, w, fn, k_n, ti.sqrt(m_eff * k_n), r_eff,
+                                        ti.sqrt(inertia / m_eff))
         out[0] = tr
         out[1] = spring
 
@@ -177,9 +178,9 @@ def pair_model():
     return scene.model
 
 
-def run_contact(model, steps, n, w, fn=1e-3, k_n=500.0, r_eff=0.5e-3, inertia=4e-12):
+def run_contact(model, steps, n, w, fn=1e-3, k_n=500.0, r_eff=0.5e-3, m_eff=5e-6, inertia=4e-12):
     out = ti.Vector.field(3, ti.f64, 2)
-    impose(model, steps, ti.Vector(list(n), ti.f64), ti.Vector(list(w), ti.f64), fn, k_n, r_eff, inertia, out)
+    impose(model, steps, ti.Vector(list(n), ti.f64), ti.Vector(list(w), ti.f64), fn, k_n, r_eff, m_eff, inertia, out)
     return out.to_numpy()
 
 
@@ -191,7 +192,7 @@ def test_elastic_torque_is_the_spring_times_the_angle_plus_the_dashpot(pair_mode
     w = np.array([0.0, 2.0, 0.0])
     theta = w * steps * m.dt
     assert k_r * np.linalg.norm(theta) < 0.5 * 0.4 * r_eff * fn  # elastic
-    torque, spring = run_contact(m, steps, [0, 0, 1.0], w, fn, k_n, r_eff, inertia)
+    torque, spring = run_contact(m, steps, [0, 0, 1.0], w, fn=fn, k_n=k_n, r_eff=r_eff, inertia=inertia)
     np.testing.assert_allclose(spring, -k_r * theta, rtol=1e-12, atol=0)
     np.testing.assert_allclose(torque, -k_r * theta - 0.25 * 2 * math.sqrt(inertia * k_r) * w, rtol=1e-12, atol=0)
 

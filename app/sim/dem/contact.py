@@ -90,19 +90,23 @@ def tangential_force(model: ti.template(), wall: ti.template(), spring, n, vt, f
 
 
 @ti.func
-def rolling_torque(model: ti.template(), wall: ti.template(), roll_spring, n, w_rel, fn, k_n, r_eff, inertia):
+def rolling_torque(model: ti.template(), wall: ti.template(), roll_spring, n, w_rel, fn, k_n, damp_root, r_eff,
+                   gyration):
     """Rolling-resistance torque on grain i (its partner gets the opposite) and the updated spring torque.
 
     ``epsd`` is LIGGGHTS' ``rolling_model epsd`` (Ai et al. 2011: their model type C), with
     w_r = (w_i - w_j) less its component along n (torsion is not resisted) and the stored spring
-    torque M_k kept in the current tangent plane at its magnitude, as the tangential spring is:
+    torque M_k less its component along n (it follows the tangent plane as the contact turns):
       spring     M_k <- M_k - k_r w_r dt,          k_r = 2.25 k_n mu_r^2 R*^2   (k_n from ``normal_force``)
       plastic    |M_k| <= mu_r R* F_n (full mobilisation: M_k is scaled back and there is no damping)
       dashpot    M_d = -C_r w_r below the limit,   C_r = eta_r 2 sqrt(I_r k_r),
-                 I_r = 1.4 m_i r_i^2 m_j r_j^2 / (m_i r_i^2 + m_j r_j^2) (a wall: 1.4 m_i r_i^2), ``inertia``
+                 I_r = 1.4 m_i r_i^2 m_j r_j^2 / (m_i r_i^2 + m_j r_j^2) (a wall: 1.4 m_i r_i^2),
     and M = M_k + M_d. eta_r is contact.rolling_damping (LIGGGHTS' coefficientRollingViscousDamping).
-    One deviation: LIGGGHTS stores M_k unrotated; turning it with the contact keeps torsion unresisted
-    when the contact normal turns (a grain rolling over another)."""
+    Computed as C_r = 3 eta_r mu_r R* sqrt(m* k_n) sqrt(I_r / m*) from ``damp_root`` = sqrt(m* k_n) and
+    ``gyration`` = sqrt(I_r / m*) (sqrt(1.4) r for equal grains and for walls: no root per contact).
+    One deviation: LIGGGHTS keeps M_k as stored; dropping its normal part keeps torsion unresisted when
+    the contact normal turns (a grain rolling over another; the magnitude lost is second order in the
+    normal's turn per step)."""
     mu_r = ti.static(model.w_mu_roll if wall else model.mu_roll)
     tr = ti.Vector([0.0, 0.0, 0.0])
     limit = mu_r * r_eff * fn
@@ -113,11 +117,7 @@ def rolling_torque(model: ti.template(), wall: ti.template(), roll_spring, n, w_
     elif ti.static(model.rolling == ROLL_EPSD):
         eta_r = ti.static(model.w_roll_damping if wall else model.roll_damping)
         w_roll = w_rel - w_rel.dot(n) * n
-        mag2 = roll_spring.dot(roll_spring)
         roll_spring -= roll_spring.dot(n) * n
-        proj2 = roll_spring.dot(roll_spring)
-        if proj2 > 1e-60:
-            roll_spring *= ti.sqrt(mag2 / proj2)
         kr = ti.static(2.25 * mu_r * mu_r) * r_eff * r_eff * k_n
         roll_spring -= kr * w_roll * model.dt
         m2 = roll_spring.dot(roll_spring)
@@ -127,18 +127,18 @@ def rolling_torque(model: ti.template(), wall: ti.template(), roll_spring, n, w_
             tr = roll_spring
         else:
             if ti.static(eta_r > 0):
-                tr -= ti.static(2.0 * eta_r) * ti.sqrt(inertia * kr) * w_roll
+                tr -= ti.static(3.0 * eta_r * mu_r) * r_eff * damp_root * gyration * w_roll
     return tr, roll_spring
 
 
 @ti.func
-def contact(model: ti.template(), wall: ti.template(), n, delta, vrel, w_rel, r_eff, m_eff, inertia, spring,
+def contact(model: ti.template(), wall: ti.template(), n, delta, vrel, w_rel, r_eff, m_eff, gyration, spring,
             roll_spring):
     """One contact, the whole law in order: normal, then tangential (with friction), then rolling.
 
     Returns the force on grain i, the tangential force (its torque is arm x F_t, with the
-    caller's lever arms), the rolling torque on i, and the updated springs. ``inertia`` is the rolling
-    inertia I_r of the elastic-plastic model (see ``rolling_torque``; unused otherwise)."""
+    caller's lever arms), the rolling torque on i, and the updated springs. ``gyration`` is
+    sqrt(I_r / m*) of the elastic-plastic rolling model (see ``rolling_torque``; unused otherwise)."""
     vn = vrel.dot(n)
     fn, k_n, root_rd, damp_root = normal_force(model, wall, delta, vn, r_eff, m_eff)
     force = -fn * n
@@ -148,5 +148,5 @@ def contact(model: ti.template(), wall: ti.template(), n, delta, vrel, w_rel, r_
         ft, spring = tangential_force(model, wall, spring, n, vrel - vn * n, fn, root_rd, damp_root)
         force += ft
         if ti.static(model.rolling != 0):
-            tr, roll_spring = rolling_torque(model, wall, roll_spring, n, w_rel, fn, k_n, r_eff, inertia)
+            tr, roll_spring = rolling_torque(model, wall, roll_spring, n, w_rel, fn, k_n, damp_root, r_eff, gyration)
     return force, ft, tr, spring, roll_spring
