@@ -160,7 +160,7 @@ def dem_model(cfg: Config, der: Derived, n: int, walls: list, coupled: bool = Fa
         mu_roll=pc.rolling_friction, w_e_star=wc.e_star, w_g_star=wc.g_star, w_damping=wc.damping, w_mu=wc.friction,
         w_mu_roll=wc.rolling_friction, walls=tuple(walls), gravity=tuple(d.gravity), dt=der.dt, skin=der.skin,
         lo=lo, hi=hi, cell=cell, cells=cells, coupled=coupled, serial=serial,
-        history_slots=history)
+        history_slots=history, roll_damping=pc.rolling_damping, w_roll_damping=wc.rolling_damping)
 
 
 def flow_config(cfg: Config, walls: list):

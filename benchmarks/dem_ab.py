@@ -31,7 +31,7 @@ import dem_substep as bench  # noqa: E402
 from benchmarks_common import append_results  # noqa: E402
 
 
-def solver(pkg: str, n: int, poly: bool, precision: str):
+def solver(pkg: str, n: int, poly: bool, precision: str, rolling: bool = False):
     cfgmod = importlib.import_module(pkg + ".config")
     scenemod = importlib.import_module(pkg + ".scene")
     demmod = importlib.import_module(pkg + ".sim.dem")
@@ -44,7 +44,7 @@ def solver(pkg: str, n: int, poly: bool, precision: str):
     top = float(pos[:, 2].max()) + 4 * dmax
     grains = (f"diameter = 0.0\ndiameters = [{sizes[0]}, {sizes[1]}, {sizes[2]}]\nfractions = [0.3333, 0.3333, "
               f"0.3334]\nfractions_by = \"number\"" if poly else f"diameter = {bench.D}")
-    rolling = "rolling_friction = 0.1\nrolling_model = \"epsd\"\n" if poly else ""
+    rolling = "rolling_friction = 0.1\nrolling_model = \"epsd\"\n" if (poly or rolling) else ""
     text = (f"[run]\nduration = 1.0\nprecision = \"{precision}\"\nthreads = 1\n[domain]\nlo = [{-radius}, {-radius}, 0.0]\n"
             f"hi = [{radius}, {radius}, {top}]\n[vessel]\nshape = \"cylinder\"\nradius = {radius}\n[particles]\n{grains}\n"
             f"density = {bench.RHO}\ncount = {n}\n[contact]\nmodel = \"hertz_mindlin\"\nyoungs_modulus = {bench.E}\n"
@@ -65,6 +65,7 @@ def main(argv=None):
     ap.add_argument("--n", type=int, nargs="+", default=[10000])
     ap.add_argument("--precision", default="float32", choices=("float32", "float64"))
     ap.add_argument("--poly", action="store_true")
+    ap.add_argument("--rolling", action="store_true", help="monodisperse bed with epsd rolling (mu_r = 0.1)")
     ap.add_argument("--blocks", type=int, default=9)
     ap.add_argument("--substeps", type=int, default=100)
     ap.add_argument("--no-append", action="store_true")
@@ -81,7 +82,7 @@ def main(argv=None):
     run_a._current = run_b._current  # one Taichi for both: a second ti.init would drop the first's fields
     rows = []
     for n in a.n:
-        dems = {k: solver(k, n, a.poly, a.precision) for k in ("app_a", "app_b")}
+        dems = {k: solver(k, n, a.poly, a.precision, a.rolling) for k in ("app_a", "app_b")}
         for dem in dems.values():
             dem.advance(200)
         ti.sync()
@@ -97,7 +98,7 @@ def main(argv=None):
                 wall[k].append(1e3 * (time.perf_counter() - w0) / a.substeps)
         rc = [x / y for x, y in zip(cpu["app_a"], cpu["app_b"])]
         rw = [x / y for x, y in zip(wall["app_a"], wall["app_b"])]
-        rows.append({"N": n, "bed": "tri-disperse epsd" if a.poly else "monodisperse",
+        rows.append({"N": n, "bed": "tri-disperse epsd" if a.poly else ("monodisperse epsd" if a.rolling else "monodisperse"),
                      "A cpu ms/substep": f"{statistics.median(cpu['app_a']):.3f}",
                      "B cpu ms/substep": f"{statistics.median(cpu['app_b']):.3f}",
                      "A/B cpu (median of pairs, min-max)": f"{statistics.median(rc):.3f} ({min(rc):.2f}-{max(rc):.2f})",

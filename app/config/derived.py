@@ -97,6 +97,7 @@ class ContactPair:
     restitution: float
     friction: float
     rolling_friction: float
+    rolling_damping: float  # eta_r of the elastic-plastic rolling model
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,9 +138,10 @@ def size_distribution(cfg: Config) -> tuple[tuple[float, ...], tuple[float, ...]
     return (p.diameter,), (1.0,)
 
 
-def _pair(model, e_star, g_star, kn, kt_ratio, e, mu, mu_r) -> ContactPair:
+def _pair(model, e_star, g_star, kn, kt_ratio, e, mu, mu_r, eta_r) -> ContactPair:
     return ContactPair(model=model, e_star=e_star, g_star=g_star, kn=kn, kt=kt_ratio * kn,
-                       damping=damping_from_restitution(model, e), restitution=e, friction=mu, rolling_friction=mu_r)
+                       damping=damping_from_restitution(model, e), restitution=e, friction=mu, rolling_friction=mu_r,
+                       rolling_damping=eta_r)
 
 
 def derive(cfg: Config, file: str = "<preset>") -> Derived:
@@ -155,8 +157,11 @@ def derive(cfg: Config, file: str = "<preset>") -> Derived:
     wall_e = c.wall_restitution if c.wall_restitution is not None else c.restitution
     wall_mu = c.wall_friction if c.wall_friction is not None else c.friction
     wall_mur = c.wall_rolling_friction if c.wall_rolling_friction is not None else c.rolling_friction
-    pair = _pair(c.model, es, gs, c.normal_stiffness, c.tangential_stiffness_ratio, c.restitution, c.friction, c.rolling_friction)
-    wall = _pair(c.model, esw, gsw, c.normal_stiffness, c.tangential_stiffness_ratio, wall_e, wall_mu, wall_mur)
+    wall_etar = c.wall_rolling_damping if c.wall_rolling_damping is not None else c.rolling_damping
+    pair = _pair(c.model, es, gs, c.normal_stiffness, c.tangential_stiffness_ratio, c.restitution, c.friction,
+                 c.rolling_friction, c.rolling_damping)
+    wall = _pair(c.model, esw, gsw, c.normal_stiffness, c.tangential_stiffness_ratio, wall_e, wall_mu, wall_mur,
+                 wall_etar)
 
     v = cfg.dem.impact_speed
     if c.model == "hertz_mindlin":

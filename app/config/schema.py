@@ -88,11 +88,17 @@ class ContactConfig:
     friction: float = spec(0.5, doc="grain-grain Coulomb friction coefficient (0: frictionless, no history kept)", lo=0.0, hi=10.0)
     rolling_friction: float = spec(0.0, doc="grain-grain rolling friction coefficient (dimensionless)", lo=0.0, hi=1.0)
     rolling_model: str = spec("none", doc="rolling resistance: none, constant_torque, or epsd "
-                              "(elastic-plastic spring-dashpot)", choices=("none", "constant_torque", "epsd"))
+                              "(elastic-plastic spring-dashpot, LIGGGHTS' rolling_model epsd)",
+                              choices=("none", "constant_torque", "epsd"))
+    rolling_damping: float = spec(0.3, doc="grain-grain viscous damping ratio of the epsd rolling mode (dimensionless; "
+                                  "C_r = ratio x 2 sqrt(I_r k_r), 1 is critical; LIGGGHTS' "
+                                  "coefficientRollingViscousDamping, which has no default there)", lo=0.0, hi=1.0)
     wall_restitution: Optional[float] = spec(None, doc="grain-wall restitution (default: restitution)", lo=0.01, hi=1.0)
     wall_friction: Optional[float] = spec(None, doc="grain-wall friction (default: friction)", lo=0.0, hi=10.0)
     wall_rolling_friction: Optional[float] = spec(None, doc="grain-wall rolling friction (default: rolling_friction)",
                                                   lo=0.0, hi=1.0)
+    wall_rolling_damping: Optional[float] = spec(None, doc="grain-wall epsd rolling damping ratio (dimensionless; "
+                                                 "default: rolling_damping)", lo=0.0, hi=1.0)
     wall_youngs_modulus: Optional[float] = spec(None, unit="Pa", doc="Young's modulus of the walls "
                                                 "(default: the grains')", lo=1.0e3, hi=1.0e12)
     wall_poisson_ratio: Optional[float] = spec(None, doc="Poisson's ratio of the walls (default: the grains')", lo=0.0, hi=0.5)

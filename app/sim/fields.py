@@ -70,6 +70,8 @@ class DemModel:
     coupled: bool = False       # gas drag: per-grain drag coefficient, gas velocity and explicit force
     serial: bool = False        # one CPU thread: serial loops, atomics demoted to plain adds
     history_slots: int = 12     # springs per grain (contacts it owns); see ContactHistory
+    roll_damping: float = 0.0   # eta_r of the elastic-plastic rolling model, grain-grain
+    w_roll_damping: float = 0.0  # and grain-wall
 
     @property
     def has_history(self) -> bool:

@@ -14,8 +14,9 @@ m* = m_i and the wall's constants are chosen at compile time (``wall`` is static
   dimensionless strength as the normal one, capped by Coulomb |F_t| <= mu F_n (the
   spring is reset to the capped force, so sliding dissipates).
 - rolling (optional): constant torque mu_r R* F_n against the relative rolling
-  velocity, or an elastic-plastic spring (k_r = 2.25 mu_r^2 R*^2 dF_n/dd, capped at
-  mu_r R* F_n), after Ai et al. (2011) Powder Technol. 206:269.
+  velocity, or ``epsd``: the elastic-plastic spring-dashpot of Ai et al. (2011) Powder
+  Technol. 206:269-282 in the form of LIGGGHTS' ``rolling_model epsd``
+  (src/rolling_model_epsd.h, torsionTorque off, its default); see ``rolling_torque``.
 """
 import taichi as ti
 
@@ -24,15 +25,16 @@ from ..fields import ROLL_CONSTANT, ROLL_EPSD
 
 @ti.func
 def normal_force(model: ti.template(), wall: ti.template(), delta, ddelta, r_eff, m_eff):
-    """Normal force magnitude (>= 0), the local normal stiffness dF/dd and the two roots the tangential law
-    reuses: sqrt(R* d) and the damping factor sqrt(m* k_n) d^(1/4) (Hertz) or sqrt(m* k_n) (linear).
+    """Normal force magnitude (>= 0), the normal stiffness k_n = F_elastic / d (Hertz: 4/3 E* sqrt(R* d),
+    the secant, as LIGGGHTS' normal models hand to the rolling models; linear: k_n) and the two roots the
+    tangential law reuses: sqrt(R* d) and the damping factor sqrt(m* k_n) (both models).
 
     Written for few square roots: for equal grains R*, m* are compile-time constants, so only
     sqrt(d) and d^(1/4) are computed per contact."""
     e_star = ti.static(model.w_e_star if wall else model.e_star)
     damping = ti.static(model.w_damping if wall else model.damping)
     fn = 0.0
-    stiff = 0.0
+    k_n = 0.0
     root_rd = 0.0
     damp_root = 0.0
     if ti.static(model.hertz):
@@ -41,13 +43,13 @@ def normal_force(model: ti.template(), wall: ti.template(), delta, ddelta, r_eff
         kn = 4.0 / 3.0 * e_star * sr
         damp_root = ti.sqrt(m_eff * kn) * ti.sqrt(sd)
         fn = kn * delta * sd + damping * damp_root * ddelta
-        stiff = 1.5 * kn * sd
+        k_n = kn * sd
         root_rd = sr * sd
     else:
         damp_root = ti.sqrt(m_eff * model.kn)
         fn = model.kn * delta + 2.0 * damping * damp_root * ddelta
-        stiff = ti.cast(model.kn, float)
-    return ti.max(fn, 0.0), stiff, root_rd, damp_root
+        k_n = ti.cast(model.kn, float)
+    return ti.max(fn, 0.0), k_n, root_rd, damp_root
 
 
 @ti.func
@@ -88,8 +90,23 @@ def tangential_force(model: ti.template(), wall: ti.template(), spring, n, vt, f
 
 
 @ti.func
-def rolling_torque(model: ti.template(), wall: ti.template(), roll_spring, w_rel, fn, stiff, r_eff):
-    """Rolling-resistance torque on grain i and the updated elastic-plastic spring torque."""
+def rolling_torque(model: ti.template(), wall: ti.template(), roll_spring, n, w_rel, fn, k_n, damp_root, r_eff,
+                   gyration):
+    """Rolling-resistance torque on grain i (its partner gets the opposite) and the updated spring torque.
+
+    ``epsd`` is LIGGGHTS' ``rolling_model epsd`` (Ai et al. 2011: their model type C), with
+    w_r = (w_i - w_j) less its component along n (torsion is not resisted) and the stored spring
+    torque M_k less its component along n (it follows the tangent plane as the contact turns):
+      spring     M_k <- M_k - k_r w_r dt,          k_r = 2.25 k_n mu_r^2 R*^2   (k_n from ``normal_force``)
+      plastic    |M_k| <= mu_r R* F_n (full mobilisation: M_k is scaled back and there is no damping)
+      dashpot    M_d = -C_r w_r below the limit,   C_r = eta_r 2 sqrt(I_r k_r),
+                 I_r = 1.4 m_i r_i^2 m_j r_j^2 / (m_i r_i^2 + m_j r_j^2) (a wall: 1.4 m_i r_i^2),
+    and M = M_k + M_d. eta_r is contact.rolling_damping (LIGGGHTS' coefficientRollingViscousDamping).
+    Computed as C_r = 3 eta_r mu_r R* sqrt(m* k_n) sqrt(I_r / m*) from ``damp_root`` = sqrt(m* k_n) and
+    ``gyration`` = sqrt(I_r / m*) (sqrt(1.4) r for equal grains and for walls: no root per contact).
+    One deviation: LIGGGHTS keeps M_k as stored; dropping its normal part keeps torsion unresisted when
+    the contact normal turns (a grain rolling over another; the magnitude lost is second order in the
+    normal's turn per step)."""
     mu_r = ti.static(model.w_mu_roll if wall else model.mu_roll)
     tr = ti.Vector([0.0, 0.0, 0.0])
     limit = mu_r * r_eff * fn
@@ -98,23 +115,32 @@ def rolling_torque(model: ti.template(), wall: ti.template(), roll_spring, w_rel
         if wn > 1e-12:
             tr = -limit * w_rel / wn
     elif ti.static(model.rolling == ROLL_EPSD):
-        kr = 2.25 * mu_r * mu_r * r_eff * r_eff * stiff
-        roll_spring -= kr * w_rel * model.dt
-        mn = roll_spring.norm()
-        if mn > limit and mn > 1e-30:
-            roll_spring *= limit / mn
+        eta_r = ti.static(model.w_roll_damping if wall else model.roll_damping)
+        w_roll = w_rel - w_rel.dot(n) * n
+        roll_spring -= roll_spring.dot(n) * n
+        kr = ti.static(2.25 * mu_r * mu_r) * r_eff * r_eff * k_n
+        roll_spring -= kr * w_roll * model.dt
+        m2 = roll_spring.dot(roll_spring)
         tr = roll_spring
+        if m2 > limit * limit:
+            roll_spring *= limit / ti.sqrt(m2)
+            tr = roll_spring
+        else:
+            if ti.static(eta_r > 0):
+                tr -= ti.static(3.0 * eta_r * mu_r) * r_eff * damp_root * gyration * w_roll
     return tr, roll_spring
 
 
 @ti.func
-def contact(model: ti.template(), wall: ti.template(), n, delta, vrel, w_rel, r_eff, m_eff, spring, roll_spring):
+def contact(model: ti.template(), wall: ti.template(), n, delta, vrel, w_rel, r_eff, m_eff, gyration, spring,
+            roll_spring):
     """One contact, the whole law in order: normal, then tangential (with friction), then rolling.
 
     Returns the force on grain i, the tangential force (its torque is arm x F_t, with the
-    caller's lever arms), the rolling torque on i, and the updated springs."""
+    caller's lever arms), the rolling torque on i, and the updated springs. ``gyration`` is
+    sqrt(I_r / m*) of the elastic-plastic rolling model (see ``rolling_torque``; unused otherwise)."""
     vn = vrel.dot(n)
-    fn, stiff, root_rd, damp_root = normal_force(model, wall, delta, vn, r_eff, m_eff)
+    fn, k_n, root_rd, damp_root = normal_force(model, wall, delta, vn, r_eff, m_eff)
     force = -fn * n
     ft = ti.Vector([0.0, 0.0, 0.0])
     tr = ti.Vector([0.0, 0.0, 0.0])
@@ -122,5 +148,5 @@ def contact(model: ti.template(), wall: ti.template(), n, delta, vrel, w_rel, r_
         ft, spring = tangential_force(model, wall, spring, n, vrel - vn * n, fn, root_rd, damp_root)
         force += ft
         if ti.static(model.rolling != 0):
-            tr, roll_spring = rolling_torque(model, wall, roll_spring, w_rel, fn, stiff, r_eff)
+            tr, roll_spring = rolling_torque(model, wall, roll_spring, n, w_rel, fn, k_n, damp_root, r_eff, gyration)
     return force, ft, tr, spring, roll_spring

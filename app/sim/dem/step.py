@@ -90,8 +90,16 @@ def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template()
                         wj = state.omega[j]
                         vrel += (wi * arm_i + wj * arm_j).cross(n)
                         w_rel = wi - wj
+                    # sqrt(I_r / m*) of the epsd rolling mode, I_r = 1.4 m_i r_i^2 m_j r_j^2 / (m_i r_i^2 + m_j r_j^2)
+                    # (each grain about the contact point, Ai et al. 2011): sqrt(1.4) r for equal grains
+                    gyration = 0.0
+                    if ti.static(model.rolling == ROLL_EPSD):
+                        if ti.static(model.polydisperse):
+                            gyration = ti.sqrt(1.4 * ri * ri * rj * rj * (mi + mj) / (mi * ri * ri + mj * rj * rj))
+                        else:
+                            gyration = ti.static(1.4 ** 0.5 * model.radius)
                     f, ft, tr, spring, roll_spring = contact(model, False, n, delta, vrel, w_rel, ri * rj / rs,
-                                                             mi * mj / (mi + mj), spring, roll_spring)
+                                                             mi * mj / (mi + mj), gyration, spring, roll_spring)
                     if ti.static(model.has_history):
                         if h != NO_SPRING:
                             if ti.static(model.friction):
@@ -125,8 +133,8 @@ def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template()
                         spring = history.wall_tangential[w, i]
                     if ti.static(model.rolling == ROLL_EPSD):
                         roll_spring = history.wall_rolling[w, i]
-                    f, ft, tr, spring, roll_spring = contact(model, True, n, delta, vrel, wi, ri, mi, spring,
-                                                             roll_spring)
+                    f, ft, tr, spring, roll_spring = contact(model, True, n, delta, vrel, wi, ri, mi, 1.4 ** 0.5 * ri,
+                                                             spring, roll_spring)  # sqrt(I_r / m*), I_r = 1.4 m r^2
                     if ti.static(model.friction):
                         history.wall_tangential[w, i] = spring
                         torque_i += arm * n.cross(ft) + tr
