@@ -87,9 +87,9 @@ class MriProbe:
 
     def frame(self, sim) -> np.ndarray:
         dem = sim.dem
-        x = dem.state.x.to_numpy().astype(np.float64)
+        x = dem.read("position").astype(np.float64)
         r = np.asarray(dem.radii(), np.float64)
-        alive = dem.state.alive.to_numpy().astype(bool)
+        alive = dem.read("alive").astype(bool)
         return self.image.void(x[alive], r[alive])
 
     def attach(self, sim, runfile, guarded) -> None:

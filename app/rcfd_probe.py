@@ -40,7 +40,7 @@ def read_solvers(sim, what: str):
     if what == "face_velocity":
         return flow.face_velocities()
     if what == "grains":
-        return dem.state.x.to_numpy(), dem.radii(), dem.state.alive.to_numpy().astype(bool)
+        return dem.read("position"), dem.radii(), dem.read("alive").astype(bool)
     if what == "bed_height":
         return float(sim.diagnostics()["bed_height"])
     raise KeyError(what)

@@ -48,7 +48,7 @@ class BedMeasures:
         """Buoyant weight of the grains still in the domain over the open cross-section [Pa]."""
         mass = self._initial_mass
         if self.dem is not None:
-            mass = float(np.sum(self.dem.masses() * self.dem.state.alive.to_numpy()))
+            mass = float(np.sum(self.dem.masses() * self.dem.read("alive")))
         return mass * self.weight_factor / self.area if self.area > 0 else float("nan")
 
     def pressure_drop(self) -> float:
@@ -674,7 +674,7 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
 
     def snapshot(s):
         if dem is not None and last_snapshot["grains"] != s.step_count:
-            runfile.snapshot(s.time, dem.state.x.to_numpy(), dem.state.v.to_numpy(), dem.radii())
+            runfile.snapshot(s.time, dem.read("position"), dem.read("velocity"), dem.radii())
             last_snapshot["grains"] = s.step_count
 
     def gas_fields(s):

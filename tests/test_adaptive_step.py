@@ -62,7 +62,7 @@ def _settling_grain(split: int):
     sim.gas_split = split  # fixed: max_gas_split = 1 keeps it
     sim.run()
     assert sum(sim._piece_substeps(split)) == scene.derived.substeps
-    return -dem.state.v.to_numpy()[0, 2], dem.state.x.to_numpy()[0, 2]
+    return -dem.read("velocity")[0, 2], dem.read("position")[0, 2]
 
 
 def test_splitting_a_coupled_step_keeps_the_physics():

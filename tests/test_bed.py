@@ -33,7 +33,7 @@ def settled():
 def test_settled_bed_packing_overlap_and_containment(settled):
     scene, dem = settled
     d = dem.diagnostics()
-    x = dem.state.x.to_numpy()
+    x = dem.read("position")
     r = np.hypot(x[:, 0], x[:, 1])
     # every grain inside the vessel: none removed, and no wall penetration beyond the 1%-of-diameter
     # overlap allowed between grains (soft contacts overlap the wall under the bed's weight)

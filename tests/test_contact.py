@@ -35,11 +35,11 @@ def test_pair_restitution(model, e):
                   contact=contact, dem={"impact_speed": V})
 
     def separated():
-        x = dem.state.x.to_numpy()
+        x = dem.read("position")
         return x[1, 0] - x[0, 0] > 2 * R + 2 * gap
 
     run_until(dem, separated)
-    v = dem.state.v.to_numpy()
+    v = dem.read("velocity")
     assert (v[1, 0] - v[0, 0]) / V == pytest.approx(e, rel=0.02)
 
 
@@ -52,8 +52,8 @@ def test_wall_restitution(model, e):
         contact["normal_stiffness"] = 2000.0
     _, dem = make(positions=[[0, 0, -0.05 + R + gap]], velocities=[[0, 0, -V]], particles={"count": 1},
                   vessel={"shape": "box"}, contact=contact, dem={"impact_speed": V})
-    run_until(dem, lambda: dem.state.x.to_numpy()[0, 2] > -0.05 + R + gap)
-    assert dem.state.v.to_numpy()[0, 2] / V == pytest.approx(e, rel=0.02)
+    run_until(dem, lambda: dem.read("position")[0, 2] > -0.05 + R + gap)
+    assert dem.read("velocity")[0, 2] / V == pytest.approx(e, rel=0.02)
 
 
 @pytest.mark.parametrize("speed", [0.2, 2.0])
@@ -70,7 +70,7 @@ def test_hertz_contact_duration(speed):
     steps = 0
     while True:
         dem.advance(1)
-        x = dem.state.x.to_numpy()
+        x = dem.read("position")
         if x[1, 0] - x[0, 0] >= 2 * R:
             break
         steps += 1
@@ -85,10 +85,10 @@ def _incline(theta_deg, mu, seconds=0.05):
                   domain={"gravity": grav}, vessel={"shape": "box"},
                   contact={"friction": 0.3, "wall_friction": mu, "restitution": 0.5})
     dem.advance(int(0.005 / dem.m.dt))  # let the contact settle
-    t0_v = dem.state.v.to_numpy()[0, 0]
+    t0_v = dem.read("velocity")[0, 0]
     n = int(seconds / dem.m.dt)
     dem.advance(n)
-    return (dem.state.v.to_numpy()[0, 0] - t0_v) / (n * dem.m.dt), g, th
+    return (dem.read("velocity")[0, 0] - t0_v) / (n * dem.m.dt), g, th
 
 
 def test_sphere_rolls_without_slipping_below_the_friction_limit():
@@ -102,7 +102,7 @@ def test_sphere_slides_above_the_friction_limit():
 
 
 def _momenta(dem):
-    x, v, w = dem.state.x.to_numpy(), dem.state.v.to_numpy(), dem.state.omega.to_numpy()
+    x, v, w = dem.read("position"), dem.read("velocity"), dem.read("omega")
     m, r = dem.masses(), dem.radii()
     p = (m[:, None] * v).sum(0)
     L = (np.cross(x, m[:, None] * v) + (0.4 * m * r ** 2)[:, None] * w).sum(0)
@@ -122,6 +122,6 @@ def test_oblique_pair_conserves_momentum(model):
     p0, L0 = _momenta(dem)
     dem.advance(2000)
     p1, L1 = _momenta(dem)
-    assert np.linalg.norm(dem.state.v.to_numpy()[0] - np.asarray(v[0])) > 0.1  # they did collide
+    assert np.linalg.norm(dem.read("velocity")[0] - np.asarray(v[0])) > 0.1  # they did collide
     assert np.linalg.norm(p1 - p0) <= 1e-6 * np.linalg.norm(p0)
     assert np.linalg.norm(L1 - L0) <= 1e-6 * np.linalg.norm(L0)

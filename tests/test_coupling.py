@@ -52,9 +52,9 @@ def test_drag_on_grains_equals_minus_drag_on_gas(form):
     gf = flow.fields
     gf.u_gas.from_numpy(rng.normal(0, 0.5, gf.shape + (3,)))
     cp.step(1e-3)
-    K = dem.state.drag_coeff.to_numpy()
-    ug = dem.state.gas_velocity.to_numpy()
-    v = dem.state.v.to_numpy()
+    K = dem.read("drag_coeff")
+    ug = dem.read("gas_velocity")
+    v = dem.read("velocity")
     on_grains = (K[:, None] * (ug - v)).sum(0)
     vc = H ** 3 * gf.vol_frac.to_numpy()
     beta, us, u = gf.beta.to_numpy(), gf.us.to_numpy(), gf.u_gas.to_numpy()
@@ -115,8 +115,8 @@ def test_smoothed_drag_balances_for_a_uniform_gas_velocity():
     gf = flow.fields
     gf.u_gas.from_numpy(np.broadcast_to(np.array([0.1, -0.2, 0.5]), gf.shape + (3,)).copy())
     cp.step(1e-3)
-    K = dem.state.drag_coeff.to_numpy()
-    on_grains = (K[:, None] * (dem.state.gas_velocity.to_numpy() - dem.state.v.to_numpy())).sum(0)
+    K = dem.read("drag_coeff")
+    on_grains = (K[:, None] * (dem.read("gas_velocity") - dem.read("velocity"))).sum(0)
     vc = H ** 3 * gf.vol_frac.to_numpy()
     on_gas = ((gf.beta.to_numpy() * vc)[..., None] * (gf.us.to_numpy() - gf.u_gas.to_numpy())).sum((0, 1, 2))
     np.testing.assert_allclose(on_grains, -on_gas, rtol=1e-6, atol=1e-6 * np.abs(on_grains).max())

@@ -52,10 +52,10 @@ def test_rolling_resistance_decelerates_a_rolling_ball(model):
                   particles={"count": 1}, domain={"gravity": [0.0, 0.0, -g]}, vessel={"shape": "box"},
                   contact={"friction": 0.5, "rolling_friction": mu_r, "rolling_model": model, "restitution": 0.5})
     dem.advance(int(0.005 / dem.m.dt))
-    v1 = dem.state.v.to_numpy()[0, 0]
+    v1 = dem.read("velocity")[0, 0]
     n = int(0.04 / dem.m.dt)
     dem.advance(n)
-    a = (dem.state.v.to_numpy()[0, 0] - v1) / (n * dem.m.dt)
+    a = (dem.read("velocity")[0, 0] - v1) / (n * dem.m.dt)
     assert a == pytest.approx(-5 / 7 * mu_r * g, rel=0.05)
 
 
@@ -65,7 +65,7 @@ def test_grain_leaving_the_domain_is_counted_not_lost_silently():
     dem.advance(int(0.01 / dem.m.dt))
     d = dem.diagnostics()
     assert d["grains_removed"] == 1 and d["grains_alive"] == 1 and d["non_finite"] == 0
-    assert list(dem.state.alive.to_numpy()) == [0, 1]
+    assert list(dem.read("alive")) == [0, 1]
 
 
 def test_sampled_sdf_wall_matches_the_analytic_cylinder(tmp_path):
@@ -82,7 +82,7 @@ def test_sampled_sdf_wall_matches_the_analytic_cylinder(tmp_path):
                       vessel=vessel, contact={"restitution": 0.3, "wall_restitution": 0.8, "friction": 0.0},
                       dem={"impact_speed": 0.5})
         dem.advance(int(0.003 / dem.m.dt))
-        outcomes.append(dem.state.v.to_numpy()[0, 0])
+        outcomes.append(dem.read("velocity")[0, 0])
     assert outcomes[0] == pytest.approx(-0.8 * 0.5, rel=0.02)
     assert outcomes[1] == pytest.approx(outcomes[0], rel=0.01)  # trilinear SDF is exact for planes, close here
 

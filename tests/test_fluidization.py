@@ -94,6 +94,6 @@ def test_single_grain_reaches_schiller_naumann_terminal_velocity():
         cp.step(dt)
         flow.step(dt)
         dem.advance(scene.derived.substeps)
-    v = -dem.state.v.to_numpy()[0, 2]
+    v = -dem.read("velocity")[0, 2]
     print(f"terminal velocity {v:.4f} m/s, Schiller-Naumann {vt:.4f} m/s")
     assert v == pytest.approx(vt, rel=0.02)

@@ -74,7 +74,7 @@ def settled():
 
 
 def vertical_momentum(dem):
-    return float(np.sum(dem.masses() * dem.state.alive.to_numpy() * dem.state.v.to_numpy()[:, 2]))
+    return float(np.sum(dem.masses() * dem.read("alive") * dem.read("velocity")[:, 2]))
 
 
 def run_case(settled, U, duration, average_last):

@@ -61,7 +61,7 @@ def test_rolling_ball_stops_where_the_plastic_torque_says_and_springs_back_by_th
     dem, delta, k_r = on_floor(mu_r, eta_r, x0=-0.01)
     arm = R - 0.5 * delta
     w0 = v0 / arm
-    dem.set_grains(dem.state.x.to_numpy(), np.array([[v0, 0, 0]]), np.array([R]), np.array([[0, w0, 0]]))
+    dem.set_grains(dem.read("position"), np.array([[v0, 0, 0]]), np.array([R]), np.array([[0, w0, 0]]))
     torque = mu_r * R * MASS * G
     a = torque * arm / (0.4 * MASS * R * R + MASS * arm * arm)
     theta_y = torque / k_r
@@ -71,12 +71,12 @@ def test_rolling_ball_stops_where_the_plastic_torque_says_and_springs_back_by_th
     t_stop, s_stop = v_eff / a, v_eff ** 2 / (2 * a)
 
     dt, chunk = dem.m.dt, 10
-    x0 = dem.state.x.to_numpy()[0, 0]
+    x0 = dem.read("position")[0, 0]
     t, v_prev, x_prev = 0.0, v0, x0
     while True:
         dem.advance(chunk)
         t += chunk * dt
-        v, x = dem.state.v.to_numpy()[0, 0], dem.state.x.to_numpy()[0, 0]
+        v, x = dem.read("velocity")[0, 0], dem.read("position")[0, 0]
         if v <= 0:
             frac = v_prev / (v_prev - v)  # the zero crossing, linearly between the two samples
             t_cross = t - chunk * dt * (1 - frac)
@@ -91,8 +91,8 @@ def test_rolling_ball_stops_where_the_plastic_torque_says_and_springs_back_by_th
     xs, vs = [], []
     for _ in range(int(0.04 / dt) // chunk):
         dem.advance(chunk)
-        xs.append(dem.state.x.to_numpy()[0, 0])
-        vs.append(dem.state.v.to_numpy()[0, 0])
+        xs.append(dem.read("position")[0, 0])
+        vs.append(dem.read("velocity")[0, 0])
     rest = x_cross - R * theta_y
     if eta_r > 0:  # at rest where the spring is relaxed (a constant torque would make it chatter)
         assert abs(vs[-1]) < 1e-3 * v0
@@ -117,7 +117,7 @@ def test_rocking_ball_oscillates_at_the_rolling_springs_frequency_with_the_dampi
     mu_r, w0 = 0.05, 0.3
     dem, delta, k_r = on_floor(mu_r, eta_r)
     arm = R - 0.5 * delta
-    dem.set_grains(dem.state.x.to_numpy(), np.array([[w0 * arm, 0, 0]]), np.array([R]), np.array([[0, w0, 0]]))
+    dem.set_grains(dem.read("position"), np.array([[w0 * arm, 0, 0]]), np.array([R]), np.array([[0, w0, 0]]))
     omega_0 = math.sqrt(k_r / (1.4 * MASS * R * R))
     assert w0 / omega_0 < 0.2 * (mu_r * R * MASS * G / k_r)  # elastic: the amplitude is below theta_y
 
@@ -127,7 +127,7 @@ def test_rocking_ball_oscillates_at_the_rolling_springs_frequency_with_the_dampi
     ts, ws = np.empty(n), np.empty(n)
     for k in range(n):
         dem.advance(chunk)
-        ts[k], ws[k] = (k + 1) * chunk * dt, dem.state.omega.to_numpy()[0, 1]
+        ts[k], ws[k] = (k + 1) * chunk * dt, dem.read("omega")[0, 1]
     # first guesses from the record itself: the zero crossings' spacing and the first peak
     crossings = ts[1:][np.sign(ws[1:]) != np.sign(ws[:-1])]
     wd_guess = math.pi / np.mean(np.diff(crossings))
@@ -150,7 +150,7 @@ def test_spin_about_the_normal_meets_no_rolling_resistance():
     spin = 50.0
     dem, _, _ = on_floor(0.2, 0.3, omega=(0.0, 0.0, spin))
     dem.advance(int(0.02 / dem.m.dt))
-    w = dem.state.omega.to_numpy()[0]
+    w = dem.read("omega")[0]
     assert w[2] == pytest.approx(spin, rel=1e-9)
     assert abs(w[0]) < 1e-9 and abs(w[1]) < 1e-9
 

@@ -65,7 +65,7 @@ def pair_collision(dt_fraction: float, e: float = 0.9, v: float = 0.5, precision
     while steps < 200000:
         dem.advance(1)
         steps += 1
-        x = dem.state.x.to_numpy()
+        x = dem.read("position")
         sep = float(x[1, 0] - x[0, 0])
         # within a step the grains move at the step's end velocity (symplectic Euler), so the
         # separation is linear in time between two steps: interpolating its crossings of 2r is exact
@@ -78,7 +78,7 @@ def pair_collision(dt_fraction: float, e: float = 0.9, v: float = 0.5, precision
             break
         sep_before = sep
     wall = time.perf_counter() - t0
-    vel = dem.state.v.to_numpy()
+    vel = dem.read("velocity")
     e_measured = (vel[1, 0] - vel[0, 0]) / v
     return {"dt_fraction": dt_fraction, "dt": dt, "steps_per_contact": touching_steps,
             "restitution_error": abs(e_measured - e) / e, "wall_ms": 1e3 * wall,

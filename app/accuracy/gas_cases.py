@@ -105,7 +105,7 @@ def settling_grain(d: float, fluid_step: float, cell_size: float, precision: str
         dem.advance(scene.derived.substeps)
 
     wall = _timed_steps(step, n)
-    return {"speed": float(-dem.state.v.to_numpy()[0, 2]), "cost": wall / ((n - 1) * fluid_step)}
+    return {"speed": float(-dem.read("velocity")[0, 2]), "cost": wall / ((n - 1) * fluid_step)}
 
 
 def _terminal_velocity(settings: dict, size: str) -> dict:

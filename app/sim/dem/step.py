@@ -314,6 +314,27 @@ class DemSolver:
         builds = int(self.nlist.counters[BUILDS])
         self.nlist.counters.from_numpy(np.array([1, 0, 0, builds, 0], np.int32))  # rebuild at the next substep
 
+    _READABLE = {"position": ("state", "x"), "velocity": ("state", "v"), "omega": ("state", "omega"),
+                 "alive": ("state", "alive"), "force": ("state", "force"), "drag_coeff": ("state", "drag_coeff"),
+                 "gas_velocity": ("state", "gas_velocity"), "external_force": ("state", "external_force")}
+
+    def read(self, name: str) -> np.ndarray:
+        """One per-grain quantity as a numpy array indexed by grain id (the order ``set_grains`` was given):
+        position [m], velocity [m/s], omega [rad/s], alive, force [N], drag_coeff [kg/s], gas_velocity [m/s],
+        external_force [N], radius [m], mass [kg]. The only way code outside the DEM reads grains, so the
+        DEM may keep them in any memory order."""
+        if name == "radius":
+            return self.radii()
+        if name == "mass":
+            return self.masses()
+        if name not in self._READABLE:
+            raise KeyError(f"no per-grain quantity {name!r}; one of {sorted(self._READABLE) + ['mass', 'radius']}")
+        bundle, field = self._READABLE[name]
+        values = getattr(getattr(self, bundle), field, None)
+        if values is None:
+            raise KeyError(f"{name!r} is not held by this scene's DEM (no friction, or not coupled)")
+        return values.to_numpy()
+
     def radii(self) -> np.ndarray:
         if self.m.polydisperse:
             return self.fixed.radius.to_numpy()
