@@ -187,16 +187,20 @@ def gradient_quality(values: list[float], thresholds=THRESHOLDS) -> list[float]:
     """fbed's reading of the study's 'gradient quality score' (it names no formula): the sensitivity
     S = dM/d(alpha_s) (eq. 16; central differences, one-sided at the ends) scored as
     min(|S|, S_med) / max(|S|, S_med), S_med the median |S| over the thresholds: 1 at the median sensitivity,
-    towards 0 for excessive or insufficient sensitivity; > 0.3 is within a factor 3.3 of the median."""
+    towards 0 for excessive or insufficient sensitivity; > 0.3 is within a factor 3.3 of the median.
+    Thresholds whose metric is undefined (no bubble there: nan) get nan and the others are scored among
+    themselves (one empty threshold used to make every threshold's score nan, so all failed 'gradient')."""
     m = np.asarray(values, float)
     a = np.asarray(thresholds, float)
-    if m.size < 2 or not np.all(np.isfinite(m)):
-        return [math.nan] * m.size
-    s = np.abs(np.gradient(m, a))
+    ok = np.isfinite(m)
+    out = [math.nan] * m.size
+    if ok.sum() < 2:
+        return out
+    s = np.abs(np.gradient(m[ok], a[ok]))
     med = float(np.median(s))
-    if med == 0.0:
-        return [1.0 if x == 0.0 else 0.0 for x in s]
-    return [float(min(x, med) / max(x, med)) if x > 0 else 0.0 for x in s]
+    for i, x in zip(np.nonzero(ok)[0], s):
+        out[i] = (1.0 if x == 0.0 else 0.0) if med == 0.0 else (float(min(x, med) / max(x, med)) if x > 0 else 0.0)
+    return out
 
 
 def choose_threshold(rows: list[dict], velocity: bool = False) -> tuple[int, list[str]]:
