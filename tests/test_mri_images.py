@@ -15,18 +15,25 @@ diameter 2 sqrt(R^2 - w^2 / 16): 29.58 mm for the MRI's 10 mm slab, 29.39 mm for
 (12 mm; ``slab_layers`` takes the layers whose centres lie within 5 mm). Tolerances, from the digitisation of a
 30 mm disc: on 2 x 4 mm pixels about 33 boundary pixels, each off by up to half its area at random, give a
 standard deviation of about 1% in the diameter, on 3 mm cells about 1.2%; a disc centred on a cell centre is
-worse, its area a lattice-point count (4.9 cells of radius: 69 cells for 75.4, -4.3% in the diameter, seen at the
-second placement). So each placement within 5%, the mean of the four within 2% (measured over nine placements:
-MRI -2.3 ... +0.1%, mean -1.0%; grid -4.3 ... +1.1%, mean -0.5%).
+worse, its area a lattice-point count (4.9 cells of radius: 69 cells for 75.4, -4.3% in the diameter). So each
+placement within 5%. Both images also read the disc a little small on average, as their blur predicts: a blur of
+variance s^2 moves the half-level contour of a disc of radius a inward by s^2 / (2 a), and it averages the slab
+section's edge profile (the void fills the slab fully out to 13.4 mm, half of it at 14.7 mm, none at 15 mm),
+whose mean edge lies inside its half-level point: about -0.7% on the MRI's pixels, -1.7% on the grid (its
+trilinear deposit, variance h^2/6 per axis, and one smoothing pass, 2 h^2/7: s = 2.0 mm). Measured over nine
+placements: MRI -2.3 ... +0.1%, mean -1.0%; grid -4.3 ... +0.4%, mean -2.7%. So the mean of the four placements
+within 2.5% (MRI) and 4% (grid): the predicted bias plus three standard deviations of a mean of four.
 
 At the other thresholds the images blur the edge (the grid: trilinear deposit, variance h^2/6 per axis, and one
 smoothing pass, 2 h^2/7: sigma 2.0 mm; the MRI: the 2 x 4 mm pixels, sigma 0.6 and 1.2 mm), which moves the
 contour at a quarter of the bed's fraction (0.15) inward by 0.67 sigma and the one at two thirds (0.40) outward
-by 0.43 sigma; with the slab geometry (c > 3/4 and c > 1/3) that predicts -12% and +7% on the grid (measured
--10 ... -12% and +6 ... +9%) and about -5% and +3% on the MRI (measured -4 ... -8% and 0 ... +4%). So over the six
-thresholds one resolved, empty bubble's diameter grows with the threshold by less than 30% in either image (a
-predicted 19% on the grid plus the lattice count at both ends), and at every threshold each image finds that one
-bubble and nothing else: no noisy pixel of the packed emulsion counts as a bubble."""
+by 0.43 sigma; with the slab geometry (c > 3/4 and c > 1/3) that predicts -12% and +7% on the grid less the
+bias above (measured -11 ... -17% and +2 ... +5%) and about -5% and +3% on the MRI (measured -4 ... -8% and
+0 ... +4%). So over the six thresholds one resolved, empty bubble's diameter grows with the threshold by less
+than 30% in either image (a predicted 19% on the grid plus the lattice count at both ends; measured at most
+24%), and at every threshold each image finds that one bubble and nothing else: no noisy pixel of the packed emulsion counts as a bubble. A sharp image's bubble hardly
+moves with the solid-fraction scale (a 15% error in the MRI's normalisation moves it by about 1%), so the scale is
+checked on its own: the emulsion under the void reads the bed's 0.60 in both images."""
 import dataclasses
 import math
 
@@ -39,7 +46,9 @@ from app.probes_mri import MriImage
 from app.sim.coupling import Coupler
 from app.sim.dem import DemSolver
 from app.sim.flow import FlowSolver
-from dem_helpers import make
+from app.config import load_text
+from app.scene import Scene
+from dem_helpers import merged, toml_text
 
 pytestmark = pytest.mark.verification
 
@@ -66,15 +75,20 @@ def stratified_bed(centre, seed):
 
 def slab_images(p, r):
     """(MRI solid fraction on 2 x 4 mm pixels, grid slab solid fraction on 3 mm cells) of grains p, r."""
-    scene, _ = make(domain={"lo": [-HX, -HY, 0.0], "hi": [HX, HY, TOP], "gravity": [0.0, 0.0, -9.81]},
-                    vessel={"shape": "box"}, particles={"diameter": 1e-3, "density": 1015.0, "count": 10},
-                    gas={"cell_size": 0.003},
-                    coupling={"drag": "koch_hill", "smoothing_width": 1.5e-3, "eps_min": 0.35},  # as presets/mri_*
-                    boundary={"bottom": {"kind": "velocity_inlet", "velocity": [0.0, 0.0, 0.45]},
-                              "top": "pressure_outlet"},
-                    probes={"slab_width": 0.01, "mri_pixel": [0.002, 0.004]})
+    sections = merged(domain={"lo": [-HX, -HY, 0.0], "hi": [HX, HY, TOP], "gravity": [0.0, 0.0, -9.81]},
+                      vessel={"shape": "box"},
+                      particles={"diameters": [float(d) for d in CLASSES], "fractions": [float(f) for f in MASS],
+                                 "fractions_by": "mass", "density": 1015.0, "count": 10},
+                      gas={"cell_size": 0.003},
+                      coupling={"drag": "koch_hill", "smoothing_width": 1.5e-3, "eps_min": 0.35},  # as presets/mri_*
+                      boundary={"bottom": {"kind": "velocity_inlet", "velocity": [0.0, 0.0, 0.45]},
+                                "top": "pressure_outlet"},
+                      probes={"slab_width": 0.01, "mri_pixel": [0.002, 0.004]})
+    del sections["particles"]["diameter"]  # polydisperse, so the DEM keeps each grain's radius
+    scene = Scene(load_text(toml_text(sections), "test.toml"))
     dem = DemSolver(dataclasses.replace(scene.model, n=len(p)))
     dem.set_grains(p, None, r)
+    assert np.array_equal(dem.radii(), r)
     flow = FlowSolver(scene.flow)
     Coupler(scene.coupling, dem, flow).deposit(1e-3)
     probes = Probes(scene.cfg, flow, flow.fields.active.to_numpy())
@@ -87,6 +101,7 @@ def section(w, q=0.5):
     return 2.0 * math.sqrt(R * R - (0.5 * q * w) ** 2)
 
 
+MEAN_TOL = {"mri": 0.025, "grid": 0.04}  # the mean error at 0.30 over the placements (see the module doc)
 PLACEMENTS = (((0.0, 0.0, 0.030), 0), ((0.0013, -0.0007, 0.0317), 1), ((-0.0021, 0.0011, 0.0284), 2),
               ((0.0023, 0.0005, 0.0301), 3))  # m: bubble centres (x, y, z) and the beds' seeds
 
@@ -98,6 +113,11 @@ def test_both_slab_images_recover_a_known_spherical_void():
         mri_alpha, grid_alpha = slab_images(p, r)
         for name, alpha, dx, dz, w in (("mri", mri_alpha, 0.002, 0.004, 0.010),
                                        ("grid", grid_alpha, 0.003, 0.003, 0.012)):
+            # the scale: the emulsion below the void (4-8 mm up) reads the bed's 0.60 (the MRI's 30 pixels of one
+            # row, std 0.037 each: 0.007 on the mean; 0.02 is three of those)
+            zc = (np.arange(alpha.shape[1]) + 0.5) * dz
+            below = alpha[:, (zc > 0.003) & (zc < 0.008)]
+            assert below.mean() == pytest.approx(ALPHA, abs=0.02), (name, centre, below.mean())
             d = []
             for thr in mri.THRESHOLDS:
                 solid = mri.binarise(alpha, thr)
@@ -111,4 +131,4 @@ def test_both_slab_images_recover_a_known_spherical_void():
             at_half[name].append(err)
             assert all(b >= a for a, b in zip(d, d[1:])) and d[-1] / d[0] - 1.0 < 0.30, (name, centre, d)
     for name, errs in at_half.items():
-        assert abs(np.mean(errs)) < 0.02, (name, errs)
+        assert abs(np.mean(errs)) < MEAN_TOL[name], (name, errs)
