@@ -31,9 +31,10 @@ by 0.43 sigma; with the slab geometry (c > 3/4 and c > 1/3) that predicts -12% a
 bias above (measured -11 ... -17% and +2 ... +5%) and about -5% and +3% on the MRI (measured -4 ... -8% and
 0 ... +4%). So over the six thresholds one resolved, empty bubble's diameter grows with the threshold by less
 than 30% in either image (a predicted 19% on the grid plus the lattice count at both ends; measured at most
-24%), and at every threshold each image finds that one bubble and nothing else: no noisy pixel of the packed emulsion counts as a bubble. A sharp image's bubble hardly
-moves with the solid-fraction scale (a 15% error in the MRI's normalisation moves it by about 1%), so the scale is
-checked on its own: the emulsion under the void reads the bed's 0.60 in both images."""
+24%), and at every threshold each image finds that one bubble and nothing else: no noisy pixel of the packed
+emulsion counts as a bubble. A sharp image's bubble hardly moves with the solid-fraction scale (a 15% error in
+the MRI's normalisation moves it by about 1%), so the scale is checked on its own: the emulsion under the void
+reads the bed's 0.60 in both images."""
 import dataclasses
 import math
 

@@ -42,7 +42,8 @@ def per_threshold(run: pathlib.Path, t0: float) -> None:
         alpha = 1.0 - (np.where(mask[None], void, 1.0) if mask is not None else void)[keep]
         for thr in mri.THRESHOLDS:
             solid = alpha >= thr
-            d = [b["diameter"] for s in solid for b in mri.bubbles(s, dx, dz, mask, surface=mri.bed_height(s, dz, mask))]
+            d = [b["diameter"] for s in solid
+                 for b in mri.bubbles(s, dx, dz, mask, surface=mri.bed_height(s, dz, mask))]
             rows[thr] += [str(len(d)), f"{1e3 * np.mean(d):.2f}" if d else "-"]
     for thr, r in rows.items():
         print(f"| {thr:.2f} | " + " | ".join(r) + " |")
