@@ -86,11 +86,16 @@ class MriProbe:
         self.interval = cfg.probes.mri_interval
 
     def frame(self, sim) -> np.ndarray:
+        """The image of the live grains. The grains near the slab are picked in the read-back's own precision
+        (with 1 um to spare, far above float32's rounding at these coordinates) and only they are converted:
+        half the host time of converting all (0.21 -> 0.11 s for 1e6 grains, measured side by side on the
+        shared CPU), the same image (``void`` applies the exact test in float64)."""
         dem = sim.dem
-        x = dem.read("position").astype(np.float64)
+        x = dem.read("position")
         r = np.asarray(dem.radii(), np.float64)
-        alive = dem.read("alive").astype(bool)
-        return self.image.void(x[alive], r[alive])
+        near = dem.read("alive").astype(bool)
+        near &= np.abs(x[:, 1] - self.image.yc) < 0.5 * self.image.width + r + 1e-6
+        return self.image.void(x[near].astype(np.float64), r[near])
 
     def attach(self, sim, runfile, guarded) -> None:
         attrs = self.image.attrs()

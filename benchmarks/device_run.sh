@@ -17,7 +17,10 @@
 # MRI_LAW=koch_hill|di_felice|gidaspow|beetstra, from runs/mri_bed.h5 when present; MRI_SET adds --set overrides,
 # e.g. "--set run.duration=0.6" for a cost measurement), mri_sweep_start (the four laws in the background, like
 # verma_start; poll with mri_wait), mri_compare (fbed analyze of the sweep: the laws side by side), mri_umf (the
-# U_mf curves of the four laws in the 24 mm column).
+# U_mf curves of the four laws in the 24 mm column). Estimated (not measured) on one H200: 240-400 s per simulated
+# second of the 1e6-grain bed, so mri_prepare 2-4 min and a 0.3 s mri_law cost probe 2-3 min fit one command
+# together; a full law (3.1 s) is 13-21 min and fits no 10-minute command: cut it with MRI_SET (run.duration,
+# output.average_from) to (LIMIT - 60 s) / measured cost; validation/mri/README.md has the table.
 # Keep LIMIT_<stage> at least 40 s under the call's timeout: the packing below needs the time.
 # The accuracy and stiffness stages resume (--resume): to go on from rows already committed, copy them first,
 # e.g. `mkdir -p runs/accuracy_full && cp benchmarks/accuracy/full_gpu/accuracy.csv runs/accuracy_full/`, and

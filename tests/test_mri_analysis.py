@@ -123,6 +123,11 @@ def test_bootstrap_interval_covers_the_mean_and_ks_and_threshold_choice():
     # a metric that is flat then jumps: the jump's neighbours have excessive sensitivity
     q = mri.gradient_quality([1.0, 1.1, 1.2, 1.3, 3.0, 3.1])
     assert q[3] < 0.3 and q[4] < 0.3 and q[0] == pytest.approx(1.0)
+    # a threshold with no bubble (nan) is left out and the others are scored among themselves
+    # (regression: one nan made every score nan, so mri_small's grid slab failed 'gradient' at every threshold)
+    q = mri.gradient_quality([math.nan, 1.0, 1.1, 1.2, 1.3, 3.0])
+    assert math.isnan(q[0]) and q[1] == pytest.approx(1.0) and q[4] < 0.3 and q[5] < 0.3
+    assert all(math.isnan(x) for x in mri.gradient_quality([math.nan, 1.0, math.nan, math.nan, math.nan, math.nan]))
     rows = [dict(cv=10.0, ci_width_pct=w, ks_p=0.5, gradient_quality=g, mean=1.0, n=50)
             for w, g in ((12.0, 0.9), (5.0, 0.1), (8.0, 0.8), (4.0, 0.95))]
     rows[3]["cv"] = 45.0

@@ -30,6 +30,8 @@ The steps, each a function below:
   size class; the spectrum of the void fraction of the slab below the static height.
 
 Units: images in m (pixel sizes, origin), times in s; tables in mm and m/s as their headers say.
+The statistics (bootstrap, gradient quality, threshold choice) live in ``mri_stats``, the figures in
+``mri_figures``; both are reachable from here as before (``mri.bootstrap``, ...).
 """
 from __future__ import annotations
 
@@ -41,16 +43,13 @@ import pathlib
 import numpy as np
 from scipy import ndimage, signal, stats
 
-THRESHOLDS = (0.15, 0.20, 0.25, 0.30, 0.35, 0.40)  # solid-fraction thresholds of the study (Step 4)
+from . import mri_figures as mfig
+from .mri_stats import (CI_MAX, CV_MAX, GRADIENT_MIN, KS_MIN, N_BOOT, THRESHOLDS, V_RANGE,  # noqa: F401
+                        bootstrap, choose_threshold, gradient_quality)
+
 MIN_AREA = 4.0e-6         # m^2: smallest bubble (the study's 4 mm^2)
 OCCUPANCY = 0.10          # a row with more solid pixels than this fraction is inside the bed
 STATIC_HEIGHT = 0.130     # m: the static bed of the study
-N_BOOT = 10_000           # bootstrap resamples
-V_RANGE = (0.05, 0.80)    # m/s: the expected bubble velocities (Pigford, 1968), the study's criterion
-CV_MAX = 30.0             # %: the study's acceptance criteria (3.3.7)
-CI_MAX = 30.0             # % of the mean
-KS_MIN = 0.01
-GRADIENT_MIN = 0.3
 SIZE_CLASSES = (0.0, 0.010, 0.020, 0.030, 0.040, 0.060, 1.0)  # m: bubble-diameter classes for the velocities
 HEIGHT_BIN = 0.020        # m: bins of bubble centroid height for diameter against height
 EIGHT = np.ones((3, 3), bool)
@@ -157,73 +156,6 @@ def max_displacement(frame_dt: float, dx: float, dz: float, v_max: float = V_RAN
     return v_max * frame_dt + math.hypot(dx, dz)
 
 
-# ---------------------------------------------------------------- statistics
-def bootstrap(values, n_boot: int = N_BOOT, seed: int = 0) -> dict:
-    """Mean, median, max, std (n - 1), CV [%] of ``values`` and the 95% percentile intervals of the mean and the
-    median over n_boot resamples with replacement."""
-    v = np.asarray(values, float)
-    v = v[np.isfinite(v)]
-    out = dict(n=int(v.size))
-    if v.size == 0:
-        return out | dict(mean=math.nan, median=math.nan, max=math.nan, std=math.nan, cv=math.nan,
-                          mean_lo=math.nan, mean_hi=math.nan, median_lo=math.nan, median_hi=math.nan)
-    rng = np.random.default_rng(seed)
-    means, medians = np.empty(n_boot), np.empty(n_boot)
-    chunk = max(1, int(2e6 // max(v.size, 1)))
-    for a in range(0, n_boot, chunk):
-        b = min(n_boot, a + chunk)
-        s = v[rng.integers(0, v.size, size=(b - a, v.size))]
-        means[a:b] = s.mean(1)
-        medians[a:b] = np.median(s, 1)
-    mean = float(v.mean())
-    std = float(v.std(ddof=1)) if v.size > 1 else 0.0
-    return out | dict(mean=mean, median=float(np.median(v)), max=float(v.max()), std=std,
-                      cv=100.0 * std / abs(mean) if mean else math.inf,
-                      mean_lo=float(np.percentile(means, 2.5)), mean_hi=float(np.percentile(means, 97.5)),
-                      median_lo=float(np.percentile(medians, 2.5)), median_hi=float(np.percentile(medians, 97.5)))
-
-
-def gradient_quality(values: list[float], thresholds=THRESHOLDS) -> list[float]:
-    """fbed's reading of the study's 'gradient quality score' (it names no formula): the sensitivity
-    S = dM/d(alpha_s) (eq. 16; central differences, one-sided at the ends) scored as
-    min(|S|, S_med) / max(|S|, S_med), S_med the median |S| over the thresholds: 1 at the median sensitivity,
-    towards 0 for excessive or insufficient sensitivity; > 0.3 is within a factor 3.3 of the median."""
-    m = np.asarray(values, float)
-    a = np.asarray(thresholds, float)
-    if m.size < 2 or not np.all(np.isfinite(m)):
-        return [math.nan] * m.size
-    s = np.abs(np.gradient(m, a))
-    med = float(np.median(s))
-    if med == 0.0:
-        return [1.0 if x == 0.0 else 0.0 for x in s]
-    return [float(min(x, med) / max(x, med)) if x > 0 else 0.0 for x in s]
-
-
-def choose_threshold(rows: list[dict], velocity: bool = False) -> tuple[int, list[str]]:
-    """Index of the threshold chosen for one metric from its per-threshold rows (keys cv, ci_width_pct, ks_p,
-    gradient_quality, mean) and the criteria each row fails. Of the thresholds that pass every criterion the
-    one with the narrowest interval (the study's 'measurement precision') is chosen; with none passing, the one
-    failing fewest, then the narrowest. No measured value enters."""
-    fails = []
-    for r in rows:
-        f = []
-        if not (r["cv"] < CV_MAX):
-            f.append("cv")
-        if not (r["ci_width_pct"] < CI_MAX):
-            f.append("ci_width")
-        if not (r["ks_p"] > KS_MIN):
-            f.append("ks")
-        if not (r["gradient_quality"] > GRADIENT_MIN):
-            f.append("gradient")
-        if velocity and not (V_RANGE[0] <= r["mean"] <= V_RANGE[1]):
-            f.append("velocity_range")
-        if r["n"] < 2:
-            f.append("too_few")
-        fails.append(f)
-    key = [(len(f), r["ci_width_pct"] if np.isfinite(r["ci_width_pct"]) else math.inf) for f, r in zip(fails, rows)]
-    return int(min(range(len(rows)), key=lambda i: key[i])), [";".join(f) for f in fails]
-
-
 # ---------------------------------------------------------------- the image series
 def solid_images(void: np.ndarray) -> np.ndarray:
     return 1.0 - np.asarray(void, float)
@@ -273,20 +205,56 @@ def analyse(void: np.ndarray, times: np.ndarray, dx: float, dz: float, mask: np.
     nt, nx, nz = alpha.shape
     frame_dt = float(np.median(np.diff(times))) if nt > 1 else 1.0
     max_disp = max_displacement(frame_dt, dx, dz)
-    per = {}
-    for thr in thresholds:
-        solid = binarise(alpha, thr)
-        h = np.array([bed_height(solid[t], dz, mask) for t in range(nt)])
-        frames = [bubbles(solid[t], dx, dz, mask, surface=h[t]) for t in range(nt)]
-        tracks = track(frames, times, max_disp)
-        per[thr] = dict(height=h, frames=frames, tracks=tracks,
-                        diameter=np.array([b["diameter"] for bs in frames for b in bs]),
-                        aspect=np.array([b["aspect"] for bs in frames for b in bs]),
-                        velocity=np.array([t["vz"] for t in tracks]))
-    metrics = {"bed_height": "height", "bubble_diameter": "diameter", "aspect_ratio": "aspect",
-               "bubble_velocity": "velocity"}
+    per = {thr: _at_threshold(alpha, thr, times, dx, dz, mask, max_disp) for thr in thresholds}
+    table, chosen = _threshold_table(per, thresholds, n_boot)
+    # the final metrics, each at its own threshold
+    hb = per[chosen["bed_height"]]["height"]
+    dthr = chosen["bubble_diameter"]
+    vthr = chosen["bubble_velocity"]
+    pw, ps = radial_profiles(alpha, hb, dz, static_height, mask)
+    xc = (np.arange(nx) + 0.5) * dx - (0.5 * nx * dx if axis is None else axis)
+    zc = (np.arange(nz) + 0.5) * dz
+    below = zc < static_height
+    m = np.ones((nx, nz), bool) if mask is None else mask
+    mid = np.where(m[None] & below[None, None, :], 1.0 - alpha, 0.0).sum((1, 2)) / max(1, (m & below[None]).sum())
+    f, p, f_peak = spectrum(mid, frame_dt)
+    db = [b for bs in per[dthr]["frames"] for b in bs]
+    hstat = bootstrap(hb, n_boot)
+    return dict(table=table, chosen=chosen, frame_dt=frame_dt, max_disp=max_disp,
+                height=hb, height_stats=hstat, expansion_ratio=hstat["mean"] / static_height,
+                expansion_ratio_max=hstat["max"] / static_height,
+                diameter_stats=bootstrap(per[dthr]["diameter"], n_boot),
+                aspect_stats=bootstrap(per[chosen["aspect_ratio"]]["aspect"], n_boot),
+                velocity_stats=bootstrap(per[vthr]["velocity"], n_boot),
+                x=xc, radial_whole=pw, radial_static=ps, diameter_height=diameter_vs_height(db, nz * dz),
+                velocity_classes=velocity_classes(per[vthr]["tracks"], n_boot),
+                mid_void=mid, freq=f, power=p, f_peak=f_peak, f_resolution=1.0 / (nt * frame_dt),
+                static_height=static_height,
+                bubbles_at_diameter_threshold=db, times=times)
+
+
+METRICS = {"bed_height": "height", "bubble_diameter": "diameter", "aspect_ratio": "aspect",
+           "bubble_velocity": "velocity"}  # metric name: its key in a threshold's results
+
+
+def _at_threshold(alpha: np.ndarray, thr: float, times: np.ndarray, dx: float, dz: float, mask, max_disp: float):
+    """One threshold over the series: bed heights, bubbles per frame, tracks, and the per-metric samples."""
+    solid = binarise(alpha, thr)
+    h = np.array([bed_height(solid[t], dz, mask) for t in range(len(alpha))])
+    frames = [bubbles(solid[t], dx, dz, mask, surface=h[t]) for t in range(len(alpha))]
+    tracks = track(frames, times, max_disp)
+    return dict(height=h, frames=frames, tracks=tracks,
+                diameter=np.array([b["diameter"] for bs in frames for b in bs]),
+                aspect=np.array([b["aspect"] for bs in frames for b in bs]),
+                velocity=np.array([t["vz"] for t in tracks]))
+
+
+def _threshold_table(per: dict, thresholds, n_boot: int) -> tuple[list[dict], dict]:
+    """Per metric and threshold: bootstrap statistics, the interval's width, the KS p-value against the
+    neighbouring thresholds (the smaller), the gradient quality, the failed criteria; and the threshold chosen
+    per metric (``choose_threshold``)."""
     table, chosen = [], {}
-    for name, key in metrics.items():
+    for name, key in METRICS.items():
         rows = []
         for i, thr in enumerate(thresholds):
             b = bootstrap(per[thr][key], n_boot, seed=i)
@@ -306,43 +274,29 @@ def analyse(void: np.ndarray, times: np.ndarray, dx: float, dz: float, mask: np.
             r["chosen"] = r is rows[k]
         chosen[name] = thresholds[k]
         table += rows
-    # the final metrics, each at its own threshold
-    hb = per[chosen["bed_height"]]["height"]
-    dthr = chosen["bubble_diameter"]
-    vthr = chosen["bubble_velocity"]
-    pw, ps = radial_profiles(alpha, hb, dz, static_height, mask)
-    xc = (np.arange(nx) + 0.5) * dx - (0.5 * nx * dx if axis is None else axis)
-    zc = (np.arange(nz) + 0.5) * dz
-    below = zc < static_height
-    m = np.ones((nx, nz), bool) if mask is None else mask
-    mid = np.where(m[None] & below[None, None, :], 1.0 - alpha, 0.0).sum((1, 2)) / max(1, (m & below[None]).sum())
-    f, p, f_peak = spectrum(mid, frame_dt)
-    db = [b for bs in per[dthr]["frames"] for b in bs]
-    edges = np.arange(0.0, nz * dz + HEIGHT_BIN, HEIGHT_BIN)
-    dvh = []
-    for a, b_ in zip(edges[:-1], edges[1:]):
-        sel = [x["diameter"] for x in db if a <= x["z"] < b_]
+    return table, chosen
+
+
+def diameter_vs_height(found: list[dict], top: float) -> list[dict]:
+    """Bubbles' diameters in bins of HEIGHT_BIN of their centroid height from 0 to ``top`` [m]: n, mean, max, std."""
+    edges = np.arange(0.0, top + HEIGHT_BIN, HEIGHT_BIN)
+    out = []
+    for a, b in zip(edges[:-1], edges[1:]):
+        sel = [x["diameter"] for x in found if a <= x["z"] < b]
         if sel:
-            dvh.append(dict(z_lo=a, z_hi=b_, n=len(sel), mean=float(np.mean(sel)), max=float(np.max(sel)),
+            out.append(dict(z_lo=a, z_hi=b, n=len(sel), mean=float(np.mean(sel)), max=float(np.max(sel)),
                             std=float(np.std(sel, ddof=1)) if len(sel) > 1 else 0.0))
-    vcl = []
-    trs = per[vthr]["tracks"]
-    for a, b_ in zip(SIZE_CLASSES[:-1], SIZE_CLASSES[1:]):
-        sel = [t["vz"] for t in trs if a <= t["mean_diameter"] < b_]
+    return out
+
+
+def velocity_classes(tracks: list[dict], n_boot: int) -> list[dict]:
+    """Rise velocity (bootstrap statistics of vz) per bubble-diameter class of SIZE_CLASSES (track mean diameter)."""
+    out = []
+    for a, b in zip(SIZE_CLASSES[:-1], SIZE_CLASSES[1:]):
+        sel = [t["vz"] for t in tracks if a <= t["mean_diameter"] < b]
         if sel:
-            bs = bootstrap(sel, n_boot)
-            vcl.append(dict(d_lo=a, d_hi=b_, **bs))
-    hstat = bootstrap(hb, n_boot)
-    return dict(table=table, chosen=chosen, frame_dt=frame_dt, max_disp=max_disp,
-                height=hb, height_stats=hstat, expansion_ratio=hstat["mean"] / static_height,
-                expansion_ratio_max=hstat["max"] / static_height,
-                diameter_stats=bootstrap(per[dthr]["diameter"], n_boot),
-                aspect_stats=bootstrap(per[chosen["aspect_ratio"]]["aspect"], n_boot),
-                velocity_stats=bootstrap(per[vthr]["velocity"], n_boot),
-                x=xc, radial_whole=pw, radial_static=ps, diameter_height=dvh, velocity_classes=vcl,
-                mid_void=mid, freq=f, power=p, f_peak=f_peak, f_resolution=1.0 / (nt * frame_dt),
-                static_height=static_height,
-                bubbles_at_diameter_threshold=db, times=times)
+            out.append(dict(d_lo=a, d_hi=b, **bootstrap(sel, n_boot)))
+    return out
 
 
 # ---------------------------------------------------------------- run files, tables, figures
@@ -413,7 +367,7 @@ def write(res: dict, out: pathlib.Path, title: str = "") -> dict:
           _md(res["velocity_classes"], ["d_lo", "d_hi", "n", "mean", "mean_lo", "mean_hi", "std"]),
           "## Diameter against height (m)\n", _md(res["diameter_height"], ["z_lo", "z_hi", "n", "mean", "max"])]
     (out / "tables.md").write_text("\n".join(md))
-    plot(res, out, title)
+    mfig.plot(res, out, title)
     hs, ds, vs = res["height_stats"], res["diameter_stats"], res["velocity_stats"]
     return dict(bed_height_mean=hs["mean"], bed_height_mean_lo=hs["mean_lo"], bed_height_mean_hi=hs["mean_hi"],
                 bed_height_max=hs["max"], bed_height_std=hs["std"], expansion_ratio=res["expansion_ratio"],
@@ -421,46 +375,6 @@ def write(res: dict, out: pathlib.Path, title: str = "") -> dict:
                 bubble_diameter_mean_hi=ds["mean_hi"], bubble_diameter_max=ds["max"], bubble_count=ds["n"],
                 bubble_velocity_mean=vs["mean"], bubble_tracks=vs["n"], aspect_ratio_mean=res["aspect_stats"]["mean"],
                 void_frequency=res["f_peak"])
-
-
-def plot(res: dict, out: pathlib.Path, title: str = "") -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(2, 3, figsize=(14, 8))
-    t = res["times"]
-    ax[0, 0].plot(t, 1e3 * res["height"], "k-", lw=0.8)
-    ax[0, 0].axhline(1e3 * res["static_height"], color="0.5", ls="--", label="static")
-    ax[0, 0].set(xlabel="t [s]", ylabel="bed height [mm]", title=f"bed height (threshold {res['chosen']['bed_height']})")
-    ax[0, 0].legend(fontsize=8)
-    d = np.array([b["diameter"] for b in res["bubbles_at_diameter_threshold"]])
-    if d.size:
-        ax[0, 1].hist(1e3 * d, bins=20, color="tab:blue")
-    ax[0, 1].set(xlabel="equivalent diameter [mm]", ylabel="bubbles",
-                 title=f"bubble diameters (threshold {res['chosen']['bubble_diameter']})")
-    dh = res["diameter_height"]
-    if dh:
-        ax[0, 2].errorbar([1e3 * r["mean"] for r in dh], [0.5e3 * (r["z_lo"] + r["z_hi"]) for r in dh],
-                          xerr=[1e3 * r["std"] for r in dh], fmt="o-")
-    ax[0, 2].set(xlabel="mean diameter [mm]", ylabel="height [mm]", title="diameter against height")
-    x = 1e3 * res["x"]
-    ax[1, 0].plot(x, res["radial_whole"], "o-", label="whole bed")
-    ax[1, 0].plot(x, res["radial_static"], "s-", label="below static height")
-    ax[1, 0].set(xlabel="x [mm]", ylabel="solid fraction", title="radial profile")
-    ax[1, 0].legend(fontsize=8)
-    vc = res["velocity_classes"]
-    if vc:
-        ax[1, 1].bar([f"{1e3 * r['d_lo']:.0f}-{1e3 * r['d_hi']:.0f}" for r in vc], [r["mean"] for r in vc],
-                     yerr=[[r["mean"] - r["mean_lo"] for r in vc], [r["mean_hi"] - r["mean"] for r in vc]])
-    ax[1, 1].set(xlabel="bubble diameter class [mm]", ylabel="rise velocity [m/s]", title="velocity per size class")
-    ax[1, 2].semilogy(res["freq"][1:], res["power"][1:] + 1e-30, "k-")
-    ax[1, 2].set(xlabel="f [Hz]", ylabel="power", title=f"void fraction below static height: {res['f_peak']:.3g} Hz")
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(out / "mri.png", dpi=100)
-    plt.close(fig)
 
 
 SOURCES = (("mri", "synthetic MRI (grain volume on the MRI pixels)"),
@@ -528,25 +442,5 @@ def compare(sweep_dir) -> pathlib.Path:
     keys = list(dict.fromkeys(k for r in table for k in r))
     _write_csv(d / "mri_compare.csv", table, keys)
     (d / "mri_compare.md").write_text("# MRI figures of the sweep's cases (m, m/s, Hz)\n\n" + _md(table, keys))
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    labels = [" ".join(str(r[k]) for k in swept) or r["case"] for r in table]
-    panels = [("bed_height_mean", "mean bed height [mm]", 1e3), ("bed_height_max", "max bed height [mm]", 1e3),
-              ("bubble_diameter_mean", "mean bubble diameter [mm]", 1e3),
-              ("bubble_diameter_max", "max bubble diameter [mm]", 1e3),
-              ("bubble_velocity_mean", "mean bubble velocity [m/s]", 1.0), ("void_frequency", "frequency [Hz]", 1.0)]
-    fig, axs = plt.subplots(2, 3, figsize=(14, 7))
-    xs = np.arange(len(table))
-    for ax, (k, lab, s) in zip(axs.flat, panels):
-        for off, (src, _) in zip((-0.2, 0.2), SOURCES):
-            ax.bar(xs + off, [s * float(r.get(f"{src}_{k}", math.nan)) for r in table], 0.4, label=src)
-        ax.set_xticks(xs, labels, rotation=20, fontsize=8)
-        ax.set_ylabel(lab)
-    axs[0, 0].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(d / "mri_compare.png", dpi=100)
-    plt.close(fig)
+    mfig.compare(table, swept, [src for src, _ in SOURCES], d / "mri_compare.png")
     return d / "mri_compare.md"

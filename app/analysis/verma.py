@@ -40,6 +40,7 @@ import h5py
 import numpy as np
 
 from app.analysis import bubbles as bb
+from app.analysis import verma_figures as vfig
 
 # ---- run folder layout ------------------------------------------------------------------------
 RUN_FILE = "run.h5"
@@ -235,8 +236,30 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
     weight = float(summary[BED_WEIGHT_KEY])
     run = _read_run(run_dir / RUN_FILE, t_discard)
     t_cut = run["t_cut"]
+    planes = _plane_bubbles(run, threshold, factor)
+    pairs = _pair_velocities(run, threshold)
+    profile, tracks = _volume_bubbles(run, threshold, factor)
+    _add_tracked(pairs, tracks)
+    _write_rise_tables(out, pairs)
+    dp_w = _dp_over_weight(run, weight, t_cut)
+    table = _fill_table(_reference_columns(ref), planes, pairs, profile, run["vol"], dp_w)
+    columns = COLUMNS if ref is not None else COLUMNS[:1]
+    _write_tables(out, table, columns)
 
-    # ---- planes: bubble size and porosity values
+    figures = {
+        "diameter_vs_height": vfig.diameter(out, planes, profile, ref),
+        "porosity_pdf": vfig.pdf(out, planes, ref, PDF_BIN),
+        "pressure_drop": vfig.pressure(out, run["series_t"], run["dp"], weight, t_cut, dp_w),
+        "bubbles_3d": vfig.bubbles_3d(out, run, threshold, _mask_for, MAX_AREA_FRACTION),
+    }
+    for p in planes.values():
+        p.pop("values")
+    return {"table": table, "figures": figures, "planes": planes, "pairs": pairs, "profile": profile,
+            "tracks": tracks, "dp_over_weight": dp_w, "t_cut": t_cut, "out_dir": out}
+
+
+def _plane_bubbles(run: dict, threshold: float, factor: int) -> dict:
+    """Per plane (bottom to top): bubble size and porosity values."""
     planes = {}
     for name, p in sorted(run["planes"].items(), key=lambda kv: kv[1]["z"]):
         eps = p["porosity"]
@@ -246,8 +269,12 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
         vals = eps[:, m] if m is not None else eps.reshape(len(eps), -1)
         planes[name] = {"z": p["z"], "h": p["h"], "pair": p["pair"], "level": p["level"],
                         "De": De, "count": n, "values": vals.ravel()}
+    return planes
 
-    # ---- pairs: rise velocity
+
+def _pair_velocities(run: dict, threshold: float) -> dict:
+    """Per plane pair: the rise velocity by cross-correlation, and bubble noses and tails timed cell by cell
+    between the planes (a check on the correlation)."""
     pairs = {}
     by_pair = {}
     for name, p in run["planes"].items():
@@ -259,7 +286,6 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
         nt = min(len(lo["time"]), len(up["time"]))
         spacing = up["z"] - lo["z"]
         v = lag = float("nan")
-        # a check on the correlation: bubble noses and tails timed cell by cell between the planes
         edges = dict.fromkeys(("nose", "tail"), {"velocity": float("nan"), "count": 0})
         if nt >= 4:
             dt = float(np.median(np.diff(lo["time"][:nt])))
@@ -267,8 +293,12 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
             v, lag = bb.rise_velocity(lo["porosity"][:nt], up["porosity"][:nt], dt, spacing, mask=m)
             edges = bb.edge_velocities(lo["porosity"][:nt], up["porosity"][:nt], dt, spacing, threshold, mask=m)
         pairs[label] = {"z": lo["z"], "spacing": spacing, "velocity": v, "lag": lag, **edges}
+    return pairs
 
-    # ---- 3-D frames: diameter profile, and bubbles followed from frame to frame
+
+def _volume_bubbles(run: dict, threshold: float, factor: int):
+    """(diameter profile, tracks) from the 3-D frames: the diameter per layer, and bubbles followed from frame
+    to frame; (None, None) without 3-D frames."""
     profile = tracks = None
     vol = run["vol"]
     if vol is not None and len(vol["porosity"]):
@@ -283,8 +313,12 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
         if len(eps) >= 2:
             tracks = bb.track_bubbles(eps, vol["time"], h3, threshold, mask=m3)
             tracks["z"] = tracks["z"] + z0
+    return profile, tracks
 
-    # ---- and the centroids of bubbles followed through the 3-D frames within half a spacing of each pair
+
+def _add_tracked(pairs: dict, tracks) -> None:
+    """Each pair's 'tracked' velocity: the centroids of bubbles followed through the 3-D frames within half a
+    spacing of the pair."""
     for pr in pairs.values():
         pr["tracked"] = {"velocity": float("nan"), "median": float("nan"), "count": 0}
         if tracks is not None:
@@ -293,17 +327,20 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
             if band.any():
                 v = tracks["velocity"][band]
                 pr["tracked"] = {"velocity": float(v.mean()), "median": float(np.median(v)), "count": int(band.sum())}
-    _write_rise_tables(out, pairs)
 
-    # ---- pressure drop
-    dp_w = float("nan")
+
+def _dp_over_weight(run: dict, weight: float, t_cut: float) -> float:
+    """Mean pressure drop after t_cut over the bed's weight per area (nan without the series)."""
     if run["dp"] is not None and run["series_t"] is not None:
         sel = run["series_t"] >= t_cut
         if sel.any():
-            dp_w = float(np.mean(run["dp"][sel]) / weight)
+            return float(np.mean(run["dp"][sel]) / weight)
+    return float("nan")
 
-    # ---- table
-    table = _reference_columns(ref)
+
+def _fill_table(table: dict, planes: dict, pairs: dict, profile, vol, dp_w: float) -> dict:
+    """The fbed column of each row: the diameter at the lower plane nearest H (else the 3-D profile's layer),
+    the pair's rise velocity, the pressure drop over the weight."""
     plane_list = list(planes.values())
     pair_list = list(pairs.values())
     for key, _label, kind, H in ROWS:
@@ -324,19 +361,7 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
         else:
             val = dp_w
         table[key] = {"fbed": val, **table[key]}
-    columns = COLUMNS if ref is not None else COLUMNS[:1]
-    _write_tables(out, table, columns)
-
-    figures = {
-        "diameter_vs_height": _fig_diameter(out, planes, profile, ref),
-        "porosity_pdf": _fig_pdf(out, planes, ref),
-        "pressure_drop": _fig_pressure(out, run["series_t"], run["dp"], weight, t_cut, dp_w),
-        "bubbles_3d": _fig_3d(out, run, threshold),
-    }
-    for p in planes.values():
-        p.pop("values")
-    return {"table": table, "figures": figures, "planes": planes, "pairs": pairs, "profile": profile,
-            "tracks": tracks, "dp_over_weight": dp_w, "t_cut": t_cut, "out_dir": out}
+    return table
 
 
 # ---- output helpers ---------------------------------------------------------------------------
@@ -379,127 +404,6 @@ def _write_rise_tables(out: pathlib.Path, pairs: dict) -> None:
             cells.append(f"{_fmt(q.get('velocity', float('nan'))) or '-'} (n = {q.get('count', 0)})")
         lines.append(f"| {label} (z = {p['z']:.3f} m) | " + " | ".join(cells) + " |")
     (out / RISE_MD).write_text("\n".join(lines) + "\n")
-
-
-def _new_figure(figsize=(6.0, 4.5), **kw):
-    from matplotlib.figure import Figure  # no pyplot: no GUI backend, no global state
-
-    fig = Figure(figsize=figsize)
-    return fig, fig.add_subplot(**kw)
-
-
-def _save(fig, out: pathlib.Path, name: str) -> pathlib.Path:
-    path = out / f"{name}.png"
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    return path
-
-
-def _fig_diameter(out, planes, profile, ref):
-    fig, ax = _new_figure()
-    hmax = 0.2
-    if profile is not None:
-        ok = profile["count"] > 0
-        ax.plot(profile["z"][ok], 1e3 * profile["De"][ok], "-", color="C0", label="fbed (3-D layers)")
-        if ok.any():
-            hmax = max(hmax, float(profile["z"][ok].max()))
-    pz = [p["z"] for p in planes.values() if p["count"] > 0]
-    pd = [1e3 * p["De"] for p in planes.values() if p["count"] > 0]
-    if pz:
-        ax.plot(pz, pd, "o", color="C0", mfc="none", label="fbed (planes)")
-    if ref is not None:
-        x = ref.get("xray_bubble_diameter_vs_height")
-        if x:
-            ax.plot(x["H_m"], 1e3 * np.asarray(x["De_m"]), "s", color="k", label="X-ray (Verma 2014)")
-        t = ref.get("tfm_bubble_diameter_vs_height")
-        if t:
-            ax.plot(t["H_m"], 1e3 * np.asarray(t["De_m"]), "--", color="C2", label="TFM (Verma 2014)")
-    H = np.linspace(0.0, hmax, 200)
-    ax.plot(H, 1e3 * bb.darton(H), ":", color="C3", label="Darton")
-    ax.plot(H, 1e3 * bb.werther(H), "-.", color="C4", label="Werther")
-    ax.set_xlabel("height above distributor H [m]")
-    ax.set_ylabel("equivalent bubble diameter De [mm]")
-    ax.set_xlim(0.0, hmax)
-    ax.set_ylim(bottom=0.0)
-    ax.legend(fontsize=8)
-    return _save(fig, out, "diameter_vs_height")
-
-
-def _fig_pdf(out, planes, ref):
-    fig, ax = _new_figure()
-    for name, p in planes.items():
-        if p["values"].size:
-            c, d = bb.porosity_pdf(p["values"], PDF_BIN)
-            ax.plot(c, d, drawstyle="steps-mid", label=f"fbed z = {p['z']:.3f} m")
-    if ref is not None and "porosity_pdf_peaks" in ref:
-        pk = ref["porosity_pdf_peaks"]
-        for key, color, ls in (("xray_emulsion", "k", ":"), ("xray_bubble", "k", ":"),
-                               ("seed_000_emulsion", "C7", "--"), ("seed_000_bubble", "C7", "--")):
-            if key in pk:
-                ax.axvline(pk[key], color=color, ls=ls, lw=1)
-        ax.plot([], [], "k:", label="X-ray peaks")
-        ax.plot([], [], "--", color="C7", label="seed 000 peaks")
-    ax.set_xlabel("porosity [-]")
-    ax.set_ylabel(f"probability density (bin {PDF_BIN})")
-    ax.set_xlim(0.0, 1.0)
-    ax.legend(fontsize=8)
-    return _save(fig, out, "porosity_pdf")
-
-
-def _fig_pressure(out, t, dp, weight, t_cut, dp_w):
-    fig, ax = _new_figure(figsize=(7.0, 3.5))
-    if t is not None and dp is not None and len(t):
-        ax.plot(t, dp / weight, lw=0.8, color="C0", label="fbed")
-        ax.axvspan(float(t[0]), t_cut, color="0.9", label="discarded")
-        if math.isfinite(dp_w):
-            ax.axhline(dp_w, color="C1", label=f"mean {dp_w:.3f}")
-    ax.axhline(1.0, color="k", lw=0.8, ls=":", label="bed weight / area")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("dP / (bed weight / area) [-]")
-    ax.legend(fontsize=8)
-    return _save(fig, out, "pressure_drop")
-
-
-def _fig_3d(out, run, threshold):
-    vol = run["vol"]
-    if vol is None or vol.get("last") is None:
-        # no 3-D frames: the last frame of every plane, thresholded
-        fig, ax = _new_figure()
-        planes = sorted(run["planes"].values(), key=lambda p: p["z"])
-        if planes:
-            imgs = [np.asarray(p["porosity"][-1]) > threshold if len(p["porosity"]) else
-                    np.zeros(p["porosity"].shape[1:], bool) for p in planes]
-            ax.imshow(np.concatenate(imgs, axis=1).T, origin="lower", cmap="Greys")
-            ax.set_title("porosity > %.2f in the planes (last frame), bottom to top: left to right" % threshold,
-                         fontsize=8)
-        else:
-            ax.text(0.5, 0.5, "no porosity data", ha="center", va="center")
-        return _save(fig, out, "bubbles_3d")
-    eps = vol["last"]
-    h = vol["h"]
-    m = vol["mask"] if vol["mask"] is not None else _mask_for(run["mask"], eps.shape[:2])
-    inside = np.ones(eps.shape[:2], bool) if m is None else m
-    sel = (eps > threshold) & inside[:, :, None]
-    # layers where most of the cross-section is above threshold are the freeboard: not shown
-    frac = sel.sum(axis=(0, 1)) / max(int(inside.sum()), 1)
-    sel &= (frac <= MAX_AREA_FRACTION)[None, None, :]
-    i, j, k = np.nonzero(sel)
-    if i.size > 20000:
-        pick = np.random.default_rng(0).choice(i.size, 20000, replace=False)
-        i, j, k = i[pick], j[pick], k[pick]
-    o = list(vol["origin"]) + [0.0] * (3 - len(vol["origin"]))
-    x, y, z = (o[0] + (i + 0.5) * h, o[1] + (j + 0.5) * h, o[2] + (k + 0.5) * h)
-    fig, ax = _new_figure(figsize=(5.5, 6.0), projection="3d")
-    ax.scatter(x, y, z, c=z, s=4, cmap="viridis", depthshade=False)
-    nx, ny, nz = eps.shape
-    ax.set_xlim(o[0], o[0] + nx * h)
-    ax.set_ylim(o[1], o[1] + ny * h)
-    ax.set_zlim(o[2], o[2] + nz * h)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_zlabel("z [m]")
-    ax.set_title(f"cells with porosity > {threshold:.2f}, t = {vol['last_time']:.3f} s", fontsize=9)
-    return _save(fig, out, "bubbles_3d")
 
 
 def main(argv=None) -> int:

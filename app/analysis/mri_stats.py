@@ -1,0 +1,86 @@
+"""The statistics of the MRI pipeline (``app.analysis.mri``; seed 002, Section 3.3.3 and 3.3.7): bootstrap
+intervals, the gradient quality score and the choice of a threshold per metric from the study's acceptance
+criteria alone. Plain numpy; also reachable as ``app.analysis.mri.bootstrap`` etc."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+THRESHOLDS = (0.15, 0.20, 0.25, 0.30, 0.35, 0.40)  # solid-fraction thresholds of the study (Step 4)
+N_BOOT = 10_000           # bootstrap resamples
+V_RANGE = (0.05, 0.80)    # m/s: the expected bubble velocities (Pigford, 1968), the study's criterion
+CV_MAX = 30.0             # %: the study's acceptance criteria (3.3.7)
+CI_MAX = 30.0             # % of the mean
+KS_MIN = 0.01
+GRADIENT_MIN = 0.3
+
+
+def bootstrap(values, n_boot: int = N_BOOT, seed: int = 0) -> dict:
+    """Mean, median, max, std (n - 1), CV [%] of ``values`` and the 95% percentile intervals of the mean and the
+    median over n_boot resamples with replacement."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    out = dict(n=int(v.size))
+    if v.size == 0:
+        return out | dict(mean=math.nan, median=math.nan, max=math.nan, std=math.nan, cv=math.nan,
+                          mean_lo=math.nan, mean_hi=math.nan, median_lo=math.nan, median_hi=math.nan)
+    rng = np.random.default_rng(seed)
+    means, medians = np.empty(n_boot), np.empty(n_boot)
+    chunk = max(1, int(2e6 // max(v.size, 1)))
+    for a in range(0, n_boot, chunk):
+        b = min(n_boot, a + chunk)
+        s = v[rng.integers(0, v.size, size=(b - a, v.size))]
+        means[a:b] = s.mean(1)
+        medians[a:b] = np.median(s, 1)
+    mean = float(v.mean())
+    std = float(v.std(ddof=1)) if v.size > 1 else 0.0
+    return out | dict(mean=mean, median=float(np.median(v)), max=float(v.max()), std=std,
+                      cv=100.0 * std / abs(mean) if mean else math.inf,
+                      mean_lo=float(np.percentile(means, 2.5)), mean_hi=float(np.percentile(means, 97.5)),
+                      median_lo=float(np.percentile(medians, 2.5)), median_hi=float(np.percentile(medians, 97.5)))
+
+
+def gradient_quality(values: list[float], thresholds=THRESHOLDS) -> list[float]:
+    """fbed's reading of the study's 'gradient quality score' (it names no formula): the sensitivity
+    S = dM/d(alpha_s) (eq. 16; central differences, one-sided at the ends) scored as
+    min(|S|, S_med) / max(|S|, S_med), S_med the median |S| over the thresholds: 1 at the median sensitivity,
+    towards 0 for excessive or insufficient sensitivity; > 0.3 is within a factor 3.3 of the median.
+    Thresholds whose metric is undefined (no bubble there: nan) get nan and the others are scored among
+    themselves (one empty threshold used to make every threshold's score nan, so all failed 'gradient')."""
+    m = np.asarray(values, float)
+    a = np.asarray(thresholds, float)
+    ok = np.isfinite(m)
+    out = [math.nan] * m.size
+    if ok.sum() < 2:
+        return out
+    s = np.abs(np.gradient(m[ok], a[ok]))
+    med = float(np.median(s))
+    for i, x in zip(np.nonzero(ok)[0], s):
+        out[i] = (1.0 if x == 0.0 else 0.0) if med == 0.0 else (float(min(x, med) / max(x, med)) if x > 0 else 0.0)
+    return out
+
+
+def choose_threshold(rows: list[dict], velocity: bool = False) -> tuple[int, list[str]]:
+    """Index of the threshold chosen for one metric from its per-threshold rows (keys cv, ci_width_pct, ks_p,
+    gradient_quality, mean) and the criteria each row fails. Of the thresholds that pass every criterion the
+    one with the narrowest interval (the study's 'measurement precision') is chosen; with none passing, the one
+    failing fewest, then the narrowest. No measured value enters."""
+    fails = []
+    for r in rows:
+        f = []
+        if not (r["cv"] < CV_MAX):
+            f.append("cv")
+        if not (r["ci_width_pct"] < CI_MAX):
+            f.append("ci_width")
+        if not (r["ks_p"] > KS_MIN):
+            f.append("ks")
+        if not (r["gradient_quality"] > GRADIENT_MIN):
+            f.append("gradient")
+        if velocity and not (V_RANGE[0] <= r["mean"] <= V_RANGE[1]):
+            f.append("velocity_range")
+        if r["n"] < 2:
+            f.append("too_few")
+        fails.append(f)
+    key = [(len(f), r["ci_width_pct"] if np.isfinite(r["ci_width_pct"]) else math.inf) for f, r in zip(fails, rows)]
+    return int(min(range(len(rows)), key=lambda i: key[i])), [";".join(f) for f in fails]
