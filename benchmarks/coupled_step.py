@@ -14,16 +14,10 @@ Appends to benchmarks/RESULTS.md.
 from __future__ import annotations
 
 import argparse
-import pathlib
 import statistics
-import sys
 import time
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-
-from benchmarks_common import append_results  # noqa: E402
+from app.bench.common import append_results
 
 H, CELLS_ACROSS, D = 3.125e-3, 32, 1e-3
 

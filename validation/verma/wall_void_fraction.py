@@ -21,7 +21,7 @@ def main() -> None:
 
     from scipy.spatial import cKDTree
 
-    from app.accuracy import bed_cases as bc
+    from app.bench import bed_cases as bc
     from app.config import load_text
     from app.scene import Scene
     from app.sim import runtime

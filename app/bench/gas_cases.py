@@ -15,8 +15,18 @@ import pathlib
 import time
 
 import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.optimize import brentq
 
-from . import Case, Unavailable
+from ..config.loader import build
+from ..scene import Scene
+from ..sim import flow as gas
+from ..sim import runtime
+from ..sim.coupling import Coupler
+from ..sim.dem import DemSolver
+from ..sim.flow import FlowSolver
+from ..sim.geometry import CylinderWall
+from .cases import Case, Unavailable
 
 MU, RHO_G, G = 1.8e-5, 1.2, 9.81  # air [Pa s], [kg/m^3]; gravity [m/s^2]
 TOLERANCES = (1e-3, 1e-6, 1e-8)  # pressure-solve tolerances swept (1e-6: the schema's default)
@@ -24,8 +34,6 @@ TOLERANCES = (1e-3, 1e-6, 1e-8)  # pressure-solve tolerances swept (1e-6: the sc
 
 def _timed_steps(step, n: int) -> float:
     """Wall seconds of steps 2..n of ``step()`` (the first, the warm-up, is left off the clock)."""
-    from ..sim import runtime
-
     step()
     runtime.sync()
     t0 = time.perf_counter()
@@ -37,12 +45,6 @@ def _timed_steps(step, n: int) -> float:
 
 def _coupled(sections: dict, positions: np.ndarray, radius: float):
     """(scene, dem, flow, coupler) of a coupled scene given as preset sections, grains placed at rest."""
-    from ..config.loader import build
-    from ..scene import Scene
-    from ..sim.coupling import Coupler
-    from ..sim.dem import DemSolver
-    from ..sim.flow import FlowSolver
-
     radii = np.full(len(positions), radius)
     grains = {"position": positions, "velocity": np.zeros_like(positions), "radius": radii}
     scene = Scene(build(sections, "<accuracy>"), "<accuracy>", initial=grains)
@@ -65,16 +67,12 @@ def _settling_force(v: float, d: float, rho_p: float) -> float:
 
 def schiller_naumann_terminal(d: float, rho_p: float) -> float:
     """Terminal speed [m/s]: where the net force vanishes (brentq, as tests/test_fluidization.py)."""
-    from scipy.optimize import brentq
-
     return brentq(_settling_force, 1e-9, 100.0, args=(d, rho_p), xtol=1e-14, rtol=1e-12)
 
 
 def schiller_naumann_speed(d: float, rho_p: float, t: float) -> float:
     """Falling speed [m/s] at time t [s] of a grain released at rest: m dv/dt = the net force above,
     integrated to 1e-10 (what the coupled run must reproduce: it has no added mass or history force)."""
-    from scipy.integrate import solve_ivp
-
     mass = rho_p * math.pi * d ** 3 / 6
     sol = solve_ivp(lambda _, v: [_settling_force(max(v[0], 0.0), d, rho_p) / mass], (0.0, t), [0.0],
                     method="LSODA", rtol=1e-10, atol=1e-12)
@@ -191,16 +189,13 @@ def pipe_flow(cells_across: int, tolerance: float, axis_offset: float = 0.0) -> 
     to 1% by then (from rest it would take three times as long). ``axis_offset`` [cells] shifts the
     axis off a cell centre. Returns the RMS error of the axial velocity over the open faces, relative
     to the exact centreline value."""
-    from ..sim import flow
-    from ..sim.geometry import CylinderWall
-
     h = 1.0 / cells_across
     c = (cells_across / 2 + 1.5 + axis_offset) * h
     wall_ = CylinderWall(center=(c, c), radius=0.5)
-    per = flow.periodic()
-    cfg = flow.FlowConfig(shape=(cells_across + 3, cells_across + 3, 1), h=h, rho=1.0, mu=PIPE_MU,
+    per = gas.periodic()
+    cfg = gas.FlowConfig(shape=(cells_across + 3, cells_across + 3, 1), h=h, rho=1.0, mu=PIPE_MU,
                           gravity=(0, 0, 0), bcs={"z-": per, "z+": per}, walls=(wall_,), tol=tolerance)
-    s = flow.FlowSolver(cfg)
+    s = FlowSolver(cfg)
     xyz = s.grid.face_centres(2)
     r2 = (xyz[..., 0] - c) ** 2 + (xyz[..., 1] - c) ** 2
     u_exact = np.maximum(PIPE_FORCE / (4 * PIPE_MU) * (0.25 - r2), 0.0)
@@ -245,16 +240,14 @@ def lid_driven_cavity(n: int = 64, re: float = 100.0, lid_speed: float = 1.0, si
     n x n cells (one periodic cell in y), walls at x = 0, size and z = 0, the top (z+) lid
     moving at ``lid_speed`` along +x; Re = rho U L / mu sets mu; no gravity.
     """
-    from ..sim import flow
-
     if n < 2 or re <= 0 or lid_speed == 0 or size <= 0:
         raise ValueError("cavity: need n >= 2, re > 0, lid_speed != 0, size > 0")
     mu = rho * abs(lid_speed) * size / re
-    bcs = {"x-": flow.wall(), "x+": flow.wall(), "y-": flow.periodic(), "y+": flow.periodic(), "z-": flow.wall(),
-           "z+": flow.moving_wall((lid_speed, 0.0, 0.0))}
+    bcs = {"x-": gas.wall(), "x+": gas.wall(), "y-": gas.periodic(), "y+": gas.periodic(), "z-": gas.wall(),
+           "z+": gas.moving_wall((lid_speed, 0.0, 0.0))}
     kw = dict(shape=(n, 1, n), h=size / n, rho=rho, mu=mu, gravity=(0.0, 0.0, 0.0), bcs=bcs, tol=1e-6)
     kw.update(overrides)
-    return flow.FlowConfig(**kw)
+    return gas.FlowConfig(**kw)
 
 
 def cavity_centrelines(solver):
@@ -278,9 +271,7 @@ def cavity_flow(cells: int, tolerance: float, convection: str, lid_cfl: float, r
     """Re = 100 lid-driven unit cavity (lid 1 m/s) from rest to ``seconds`` at steps of ``lid_cfl`` cells
     per step at the lid: RMS difference from Ghia's centreline velocities (u on x = 1/2, w on z = 1/2,
     all their points). 10 s, as the preset: the flow then drifts by ~1e-3 per second."""
-    from ..sim import flow
-
-    s = flow.FlowSolver(lid_driven_cavity(cells, re=100.0, tol=tolerance, convection=convection))
+    s = FlowSolver(lid_driven_cavity(cells, re=100.0, tol=tolerance, convection=convection))
     dt = lid_cfl / cells
     n = round(seconds / dt)
     wall = _timed_steps(lambda: s.step(dt), n)
