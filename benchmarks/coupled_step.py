@@ -62,31 +62,20 @@ top = "pressure_outlet"
 
 
 def measure(n, repeats, precision, threads):
-    import taichi as ti
-
-    from app.sim.coupling import Coupler
-    from app.sim.dem import DemSolver
-    from app.sim.flow import FlowSolver
+    from app.scene import build_simulation
 
     sc = scene_for(n, precision, threads)
-    dem = DemSolver(sc.model)
-    dem.set_grains(sc.initial["position"], None, sc.initial["radius"])
-    flow = FlowSolver(sc.flow)
-    cp = Coupler(sc.coupling, dem, flow)
-    dt = sc.cfg.run.step
+    sim = build_simulation(sc)
     for _ in range(20):
-        cp.step(dt)
-        flow.step(dt)
-        dem.advance(sc.derived.substeps)
+        sim.step()
+    # each timed step through Simulation.step (the one coupling order), every phase synchronised at its end
+    sim.timing, sim.timing_every = True, 1
     parts = {"coupling": [], "gas": [], "dem": []}
     for _ in range(repeats):
-        for name, fn in (("coupling", lambda: cp.step(dt)), ("gas", lambda: flow.step(dt)),
-                         ("dem", lambda: dem.advance(sc.derived.substeps))):
-            ti.sync()
-            t0 = time.perf_counter()
-            fn()
-            ti.sync()
-            parts[name].append(time.perf_counter() - t0)
+        sim.phase_seconds = {}
+        sim.step()
+        for name in parts:
+            parts[name].append(sim.phase_seconds[name])
     med = {k: 1e3 * statistics.median(v) for k, v in parts.items()}
     total = sum(med.values())
     return {"N": n, "gas cells": "x".join(map(str, sc.flow.shape)), "substeps": sc.derived.substeps,
