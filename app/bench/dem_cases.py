@@ -11,8 +11,7 @@ import numpy as np
 from scipy.special import beta
 
 from ..config import load_text
-from ..scene import Scene
-from ..sim.dem import DemSolver
+from ..scene import Scene, build_simulation
 from .cases import Case
 
 PAIR = """
@@ -52,11 +51,11 @@ def pair_collision(dt_fraction: float, e: float = 0.9, v: float = 0.5, precision
     interpolated between steps [s] (contact_duration) with the exact elastic Hertz one (hertz_duration:
     the reference when e = 1)."""
     text = PAIR.format(precision=precision, e=e, f=dt_fraction, v=v, E=youngs_modulus)
-    scene = Scene(load_text(text, "pair.toml"), "pair.toml")
-    dem = DemSolver(scene.model)
     r, gap = 1.0e-3, 1.0e-9
-    dem.set_grains(np.array([[-r - gap, 0, 0], [r + gap, 0, 0]]), np.array([[v / 2, 0, 0], [-v / 2, 0, 0]]),
-                   np.full(2, r))
+    grains = {"position": np.array([[-r - gap, 0, 0], [r + gap, 0, 0]]),
+              "velocity": np.array([[v / 2, 0, 0], [-v / 2, 0, 0]]), "radius": np.full(2, r)}
+    scene = Scene(load_text(text, "pair.toml"), "pair.toml", initial=grains)
+    dem = build_simulation(scene).dem   # stepped one DEM step at a time: the contact is resolved step by step
     dt = scene.derived.dt
     steps, touching_steps = 0, 0
     sep_before = 2 * (r + gap)

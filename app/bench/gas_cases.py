@@ -19,11 +19,9 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 from ..config.loader import build
-from ..scene import Scene
+from ..scene import Scene, build_simulation
 from ..sim import flow as gas
 from ..sim import runtime
-from ..sim.coupling import Coupler
-from ..sim.dem import DemSolver
 from ..sim.flow import FlowSolver
 from ..sim.geometry import CylinderWall
 from .cases import Case, Unavailable
@@ -43,15 +41,12 @@ def _timed_steps(step, n: int) -> float:
     return time.perf_counter() - t0
 
 
-def _coupled(sections: dict, positions: np.ndarray, radius: float):
-    """(scene, dem, flow, coupler) of a coupled scene given as preset sections, grains placed at rest."""
+def _coupled(sections: dict, positions: np.ndarray, radius: float, frozen: bool = False):
+    """The Simulation of a coupled scene given as preset sections, grains placed at rest (``frozen``: they feel
+    the drag but never move); ``sim.step()`` is one fluid step of run.step."""
     radii = np.full(len(positions), radius)
     grains = {"position": positions, "velocity": np.zeros_like(positions), "radius": radii}
-    scene = Scene(build(sections, "<accuracy>"), "<accuracy>", initial=grains)
-    dem = DemSolver(scene.model)
-    dem.set_grains(positions, None, radii)
-    flow = FlowSolver(scene.flow)
-    return scene, dem, flow, Coupler(scene.coupling, dem, flow)
+    return build_simulation(Scene(build(sections, "<accuracy>"), "<accuracy>", initial=grains), frozen=frozen)
 
 
 # ------------------------------------------------------------------------------------ terminal velocity
@@ -94,16 +89,10 @@ def settling_grain(d: float, fluid_step: float, cell_size: float, precision: str
         "coupling": {"drag": "schiller_naumann"},
         "boundary": {"top": "pressure_outlet"},
     }
-    scene, dem, flow, cp = _coupled(sections, np.array([[0.004, 0.004, 0.22]]), d / 2)
+    sim = _coupled(sections, np.array([[0.004, 0.004, 0.22]]), d / 2)
     n = max(2, round(seconds / fluid_step))
-
-    def step():
-        cp.step(fluid_step)
-        flow.step(fluid_step)
-        dem.advance(scene.derived.substeps)
-
-    wall = _timed_steps(step, n)
-    return {"speed": float(-dem.read("velocity")[0, 2]), "cost": wall / ((n - 1) * fluid_step)}
+    wall = _timed_steps(sim.step, n)
+    return {"speed": float(-sim.dem.read("velocity")[0, 2]), "cost": wall / ((n - 1) * fluid_step)}
 
 
 def _terminal_velocity(settings: dict, size: str) -> dict:
@@ -153,19 +142,14 @@ def frozen_bed(cell_size: float, tolerance: float, precision: str, velocities, s
         "boundary": {"bottom": {"kind": "velocity_inlet", "velocity": [0.0, 0.0, velocities[0]]},
                      "top": "pressure_outlet", "x-": side, "x+": side, "y-": side, "y+": side},
     }
-    _, _, flow, cp = _coupled(sections, pos, d / 2)
+    sim = _coupled(sections, pos, d / 2, frozen=True)
     eps = 1 - math.pi / 6
-    nx, ny, _ = flow.config.shape
+    nx, ny, _ = sim.flow.config.shape
     ratios, wall = [], 0.0
     for U in velocities:
-        flow.set_inlet_profile("bottom", np.full((nx, ny), U))
-
-        def step():
-            cp.step(1e-3)
-            flow.step(1e-3)
-
-        wall += _timed_steps(step, steps)
-        p = flow.pressure()
+        sim.flow.set_inlet_profile("bottom", np.full((nx, ny), U))
+        wall += _timed_steps(sim.step, steps)
+        p = sim.flow.pressure()
         dp = p[:, :, 0].mean() - p[:, :, -1].mean() - RHO_G * G * (p.shape[2] - 1) * cell_size
         ratios.append(dp / (ergun_gradient(U, eps, d) * ERGUN_LAYERS * d))
     return {"ratios": ratios, "cost": wall / (len(velocities) * (steps - 1))}
