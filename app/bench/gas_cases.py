@@ -18,6 +18,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
+from ..config import load
 from ..config.loader import build
 from ..scene import Scene, build_simulation
 from ..sim import flow as gas
@@ -216,26 +217,22 @@ def ghia_reference() -> dict:
     return json.loads(path.read_text())
 
 
-# ---- the lid-driven cavity (a verification scene; it was in the gas solver)
-def lid_driven_cavity(n: int = 64, re: float = 100.0, lid_speed: float = 1.0, size: float = 1.0, rho: float = 1.0,
-                      **overrides):
-    """Square lid-driven cavity (Ghia et al. 1982 set-up) in the vertical x-z plane.
+CAVITY_PRESET = pathlib.Path(__file__).resolve().parents[2] / "presets" / "validation" / "cavity.toml"
 
-    n x n cells (one periodic cell in y), walls at x = 0, size and z = 0, the top (z+) lid
-    moving at ``lid_speed`` along +x; Re = rho U L / mu sets mu; no gravity.
-    """
-    if n < 2 or re <= 0 or lid_speed == 0 or size <= 0:
-        raise ValueError("cavity: need n >= 2, re > 0, lid_speed != 0, size > 0")
-    mu = rho * abs(lid_speed) * size / re
-    bcs = {"x-": gas.wall(), "x+": gas.wall(), "y-": gas.periodic(), "y+": gas.periodic(), "z-": gas.wall(),
-           "z+": gas.moving_wall((lid_speed, 0.0, 0.0))}
-    kw = dict(shape=(n, 1, n), h=size / n, rho=rho, mu=mu, gravity=(0.0, 0.0, 0.0), bcs=bcs, tol=1e-6)
-    kw.update(overrides)
-    return gas.FlowConfig(**kw)
+
+def cavity_scene(cells: int, tolerance: float, convection: str, dt: float, seconds: float) -> Scene:
+    """The shipped Re = 100 cavity (presets/validation/cavity.toml: the unit square in the x-z plane, one periodic
+    cell in y, the lid sliding at 1 m/s along x) at ``cells`` cells a side, run for ``seconds`` at steps of ``dt``
+    [s] with the pressure ``tolerance`` and the ``convection`` scheme, in Taichi's current precision."""
+    h = 1.0 / cells
+    overrides = [f"domain.hi=[1.0, {h!r}, 1.0]", f"gas.cell_size={h!r}", f"gas.tolerance={tolerance!r}",
+                 f'gas.convection="{convection}"', f"run.step={dt!r}", f"run.duration={seconds!r}",
+                 f'run.precision="{runtime.current()[1]}"']
+    return Scene(load(CAVITY_PRESET, overrides), str(CAVITY_PRESET))
 
 
 def cavity_centrelines(solver):
-    """(z, u on x = L/2) and (x, w on z = L/2) of a :func:`lid_driven_cavity` solver (n even),
+    """(z, u on x = L/2) and (x, w on z = L/2) of a cavity's gas solver (:func:`cavity_scene`, n even),
     wall values included, both coordinates scaled by the cavity size."""
     n = solver.config.shape[0]
     h = solver.config.h
@@ -255,11 +252,11 @@ def cavity_flow(cells: int, tolerance: float, convection: str, lid_cfl: float, r
     """Re = 100 lid-driven unit cavity (lid 1 m/s) from rest to ``seconds`` at steps of ``lid_cfl`` cells
     per step at the lid: RMS difference from Ghia's centreline velocities (u on x = 1/2, w on z = 1/2,
     all their points). 10 s, as the preset: the flow then drifts by ~1e-3 per second."""
-    s = FlowSolver(lid_driven_cavity(cells, re=100.0, tol=tolerance, convection=convection))
     dt = lid_cfl / cells
+    sim = build_simulation(cavity_scene(cells, tolerance, convection, dt, seconds))
     n = round(seconds / dt)
-    wall = _timed_steps(lambda: s.step(dt), n)
-    (zc, uc), (xc, wc) = cavity_centrelines(s)
+    wall = _timed_steps(sim.step, n)
+    (zc, uc), (xc, wc) = cavity_centrelines(sim.flow)
     ru, rv = ref["u_on_vertical_centreline"], ref["v_on_horizontal_centreline"]
     diff = np.concatenate([np.interp(ru["y"], zc, uc) - ru["u"], np.interp(rv["x"], xc, wc) - rv["v"]])
     return {"error": float(np.sqrt(np.mean(diff ** 2))), "cost": wall / ((n - 1) * dt)}
