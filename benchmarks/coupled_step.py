@@ -15,17 +15,16 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import time
 
 from app.bench.common import append_results
+from app.config import load_text
+from app.scene import Scene, build_simulation
+from app.sim import runtime
 
 H, CELLS_ACROSS, D = 3.125e-3, 32, 1e-3
 
 
 def scene_for(n: int, precision: str, threads: int):
-    from app.config import load_text
-    from app.scene import Scene
-
     width = CELLS_ACROSS * H
     bed = n * (3.14159 / 6 * D ** 3) / 0.45 / (width * width)  # loose-lattice depth
     nz = int(max(32, 2 * round(1.6 * bed / H / 2)))
@@ -62,8 +61,6 @@ top = "pressure_outlet"
 
 
 def measure(n, repeats, precision, threads):
-    from app.scene import build_simulation
-
     sc = scene_for(n, precision, threads)
     sim = build_simulation(sc)
     for _ in range(20):
@@ -92,8 +89,6 @@ def main(argv=None):
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--no-append", action="store_true")
     a = ap.parse_args(argv)
-    from app.sim import runtime
-
     arch = runtime.init(a.arch, a.precision, a.threads or None)
     rows = []
     for n in a.sizes:
