@@ -147,8 +147,7 @@ def main(argv: list[str] | None = None) -> int:
             return run(args.preset, args.overrides, out=args.out, arch=args.arch, viewer=ViewerController)
         if args.command == "bench":
             if args.kind == "accuracy":
-                from .accuracy import all_cases
-                from .accuracy.runner import accuracy
+                from .bench.accuracy import accuracy, all_cases
 
                 names = [c.name for c in all_cases()]
                 unknown = sorted(set(args.cases or []) - set(names))
@@ -158,11 +157,11 @@ def main(argv: list[str] | None = None) -> int:
                 return accuracy(args.out, args.cases, args.size, args.arch, 1 if args.arch == "cpu" else None,
                                 resume=args.resume)
             if args.kind == "stiffness":
-                from .accuracy.stiffness import stiffness
+                from .bench.stiffness import stiffness
 
                 return stiffness(args.out, args.size, args.arch, 1 if args.arch == "cpu" else None,
                                  resume=args.resume)
-            from .bench import SCENES, stress
+            from .bench.stress import SCENES, stress
 
             unknown = sorted(set(args.scenes or []) - {sc.name for sc in SCENES})
             if unknown:

@@ -266,19 +266,14 @@ def restore_gas(flow, coupler, gas_arrays: dict) -> None:
                                    if k.startswith("coupling_")})
 
 
-def load_prepared(cfg, sim, dem, flow, coupler, arrays, gas_arrays, meta) -> None:
-    """Start from a prepared state: its grains (full contact state when the models match),
-    its gas (when it has one) and its clock."""
+def load_prepared(cfg, sim, flow, coupler, gas_arrays, meta) -> None:
+    """Start from a prepared state: its gas (when it has one) and its clock (its grains, with their full contact
+    state when the models match, were placed by build_simulation from the Scene's initial grains)."""
     t = float(meta["time"])
     steps = t / cfg.run.step
     if abs(steps - round(steps)) > 1e-6:
         raise ConfigError(f"the prepared state's time {t:g} s is not a whole number of steps of {cfg.run.step:g} s",
                           cfg.source or "", "run.step", hint="use the preparation preset's run.step")
-    if dem is not None and arrays is not None:
-        try:
-            dem.load_state_arrays(arrays)
-        except (KeyError, ValueError):  # other contact model: positions and velocities carry over, history restarts
-            dem.set_grains(arrays["position"], arrays["velocity"], arrays["radius"], None, arrays.get("alive"))
     if flow is not None and gas_arrays is not None:
         restore_gas(flow, coupler, gas_arrays)
     sim.step_count = int(round(steps))
@@ -572,10 +567,10 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
     from .sim import runtime
 
     used_arch = runtime.init(arch, cfg.run.precision, cfg.run.threads or None)
-    from .scene import Scene
-    from .sim.dem import DemSolver, NeighborOverflow
+    from .scene import Scene, build_simulation
+    from .sim.dem import NeighborOverflow
     from .sim.fields import bytes_per_grain
-    from .sim.simulation import Guard, Simulation, Unstable
+    from .sim.simulation import Guard, Unstable
 
     arrays = gas_arrays = meta = None
     prepared = False
@@ -592,33 +587,15 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
         note = cpu_estimate_note(preset_path, scene.n, der.substeps, max(0, steps_left))
         if note:
             log(note)
-    dem = DemSolver(scene.model) if scene.model is not None else None
-    flow = None
-    if scene.flow is not None:
-        from .sim.flow import FlowSolver
-
-        try:
-            flow = FlowSolver(scene.flow)
-        except ValueError as err:
-            raise ConfigError(str(err), str(preset_path), "gas", hint="check [gas] and [boundary]") from None
-    coupler = None
-    if dem is not None and flow is not None:
-        from .sim.coupling import Coupler
-
-        coupler = Coupler(scene.coupling, dem, flow)
-    sim = Simulation(dem, cfg.run.step, der.substeps if der else 0, cfg.run.duration, flow=flow, coupler=coupler)
-    sim.timing = True  # the split of the wall time per phase, sampled (see Simulation._lap)
-    if flow is not None:
-        sim.max_gas_cfl, sim.max_gas_split, sim.notify = cfg.gas.max_cfl, cfg.gas.max_split, log
+    if resume and scene.model is not None and arrays is None:
+        raise ConfigError("the checkpoint does not hold this preset's grains", str(ckpt), "--resume",
+                          hint="resume with the run's own config.toml")
+    sim = build_simulation(scene, notify=log, timing=True)  # the grains placed from the checkpoint when resuming
+    dem, flow, coupler = sim.dem, sim.flow, sim.coupler
     if prepared:
-        load_prepared(cfg, sim, dem, flow, coupler, arrays, gas_arrays, meta)
+        load_prepared(cfg, sim, flow, coupler, gas_arrays, meta)
         sim.fresh = True
     if resume:
-        if dem is not None and (arrays is None or len(arrays["position"]) != scene.n):
-            raise ConfigError("the checkpoint does not hold this preset's grains", str(ckpt), "--resume",
-                              hint="resume with the run's own config.toml")
-        if dem is not None:
-            dem.load_state_arrays(arrays)
         if flow is not None:
             if gas_arrays is None:
                 raise ConfigError("the checkpoint holds no gas state", str(ckpt), "--resume",
@@ -628,23 +605,13 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
         sim.fresh = False  # its start was recorded by the run it continues (even one stopped at step 0)
         if sim.step_count >= sim.total_steps:
             log(f"{out_dir}: already at t = {sim.time:g} s >= run.duration; extend it with --set run.duration=...")
-    schedule = None
-    if flow is not None:
-        try:
-            schedule = InletSchedule(cfg.boundary, scene.flow.shape, scene.flow.h, scene.flow.origin)
-        except ValueError as err:
-            raise ConfigError(str(err), str(preset_path), "boundary") from None
-        if schedule.faces:
-            sim.before_step.append(schedule)
+    schedule = sim.inlets
     renderer = None
     if viewer is not None and dem is None:
         raise ConfigError("the viewer draws grains: this scene has none", str(preset_path), "particles")
     if dem is not None and (cfg.video.enabled or viewer is not None):
         renderer = make_renderer(cfg, scene, dem, flow, name,
                                  show_window=viewer is not None and getattr(viewer, "show_window", True))
-    if not resume and not prepared and dem is not None:
-        init = scene.initial
-        dem.set_grains(init["position"], init.get("velocity"), init["radius"], init.get("omega"))
 
     if overwrite and not resume and out_dir.is_dir():
         remove_outputs(out_dir, cfg.video.file)

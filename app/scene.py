@@ -2,8 +2,13 @@
 
 Owns: building the vessel walls, the number and sizes of grains, the initial placement
 (lattice filler or an earlier run's bed), and the compile-time ``DemModel`` (friction or
-not, rolling model, mono- or polydisperse). The physics lives in ``app.sim``; this
-module only assembles it.
+not, rolling model, mono- or polydisperse): the ``Scene`` (plain numpy, no Taichi memory).
+Then ``build_simulation(scene)``, the one assembly of the solvers: the DEM solver when the
+scene has grains, the gas solver when it has gas, the coupler when it has both, the inlet
+schedule, and the Simulation that steps them in the one coupling order (``Simulation.step``).
+Everything that runs a scene (``fbed run``, ``fbed view``, the benches, the validation
+scripts, the tests of more than one solver) builds it here. The physics lives in ``app.sim``;
+this module only assembles it.
 """
 from __future__ import annotations
 
@@ -16,8 +21,11 @@ from .config import ConfigError, resolve_path
 from .config.derived import Derived, derive
 from .config.schema import Config
 from .io import store
-from .sim import geometry
+from .schedule import InletSchedule
+from .sim import coupling, drag, flow, geometry
+from .sim.dem import DemSolver
 from .sim.fields import HISTORY_SLOTS, ROLL_CONSTANT, ROLL_EPSD, DemModel, slots_bound
+from .sim.simulation import Simulation
 
 ROLLING = {"none": 0, "constant_torque": ROLL_CONSTANT, "epsd": ROLL_EPSD}
 CELLS_PER_GRAIN = 4  # cap on the cell list's size (4 bytes per cell)
@@ -154,7 +162,7 @@ def dem_model(cfg: Config, der: Derived, n: int, walls: list, coupled: bool = Fa
     r = der.diameters[0] / 2
     pc, wc = der.pair, der.wall
     return DemModel(
-        n=n, slots=slots, polydisperse=der.polydisperse, radius=r, mass=der.density * 4 / 3 * math.pi * r ** 3,
+        n=n, slots=slots, polydisperse=der.polydisperse, radius=r, mass=float(der.mass(2 * r)),
         density=der.density, hertz=pc.model == "hertz_mindlin", friction=der.friction, rolling=ROLLING[der.rolling],
         e_star=pc.e_star, g_star=pc.g_star, kn=pc.kn, kt=pc.kt, damping=pc.damping, mu=pc.friction,
         mu_roll=pc.rolling_friction, w_e_star=wc.e_star, w_g_star=wc.g_star, w_damping=wc.damping, w_mu=wc.friction,
@@ -165,8 +173,6 @@ def dem_model(cfg: Config, der: Derived, n: int, walls: list, coupled: bool = Fa
 
 def flow_config(cfg: Config, walls: list):
     """The gas solver's set-up from [gas], [boundary], [domain] and the vessel walls."""
-    from .sim import flow
-
     g, d = cfg.gas, cfg.domain
     shape = tuple(int(round((d.hi[a] - d.lo[a]) / g.cell_size)) for a in range(3))
     bcs = {face: flow.BC(b.kind, tuple(b.velocity), b.pressure) for face, b in cfg.boundary}
@@ -179,8 +185,6 @@ def flow_config(cfg: Config, walls: list):
 
 
 def coupling_model(cfg: Config):
-    from .sim import coupling, drag
-
     c = cfg.coupling
     return coupling.CouplingModel(law=drag.law_of(c.drag), model_b=cfg.gas.pressure_form == "gas",
                                   eps_min=c.eps_min, gas_density=cfg.gas.density, gas_viscosity=cfg.gas.viscosity,
@@ -195,7 +199,9 @@ class Scene:
     ``flow`` (the gas solver's set-up) is None for a grains-only scene."""
 
     def __init__(self, cfg: Config, file: str = "<preset>", initial: dict | None = None, serial: bool = False):
-        """``serial``: kernels run on one CPU thread (plain adds instead of atomics)."""
+        """``initial``: the grains given (a checkpoint's full DEM state, or position, radius and optionally
+        velocity, omega, alive); their number replaces particles.count. ``serial``: kernels run on one CPU
+        thread (plain adds instead of atomics)."""
         self.cfg = cfg
         self.file = file
         self.walls = build_walls(cfg)
@@ -205,7 +211,7 @@ class Scene:
             return
         self.derived = derive(cfg, file)
         rng = np.random.default_rng(cfg.run.seed)
-        if initial is not None:  # resuming: the checkpoint supplies the grains
+        if initial is not None:  # resuming (the checkpoint supplies the grains), or grains placed by the caller
             self.initial = initial
             n = len(initial["position"])
         elif cfg.particles.initial_state:
@@ -236,3 +242,52 @@ class Scene:
         self.n = n
         self.model = dem_model(cfg, self.derived, n, self.walls, coupled=cfg.gas is not None, serial=serial)
         self.coupling = coupling_model(cfg) if cfg.gas is not None else None
+
+
+def place_grains(dem: DemSolver, initial: dict) -> None:
+    """Put a scene's initial grains into the DEM: a full state (a checkpoint's) exactly, contact springs and
+    neighbour list included; from another contact model, or given as plain arrays, positions, velocities,
+    radii (and omega, alive) with the contact history restarted."""
+    omega = initial.get("omega")
+    if "nl_partner" in initial:
+        try:
+            dem.load_state_arrays(initial)
+            return
+        except (KeyError, ValueError):  # another contact model: positions and velocities carry over, history
+            omega = None                # (spins included) restarts
+    dem.set_grains(initial["position"], initial.get("velocity"), initial["radius"], omega, initial.get("alive"))
+
+
+def build_simulation(scene: Scene, frozen: bool = False, notify=None, timing: bool = False) -> Simulation:
+    """The one assembly of a scene's solvers into a Simulation (after ``runtime.init``).
+
+    Allocates what the scene needs and nothing else: the DEM solver with the scene's initial grains placed
+    (grains only), the gas solver (gas only), the coupler (both), the inlet schedule (scheduled inlets, a
+    before-step hook: ``sim.inlets``); the clock is ``run.step`` x ``run.duration`` with the DEM's substeps, and
+    the adaptive fluid step is set from gas.max_cfl / gas.max_split. ``frozen``: the grains are deposited and
+    feel the drag every step but never move (the Simulation holds no DEM to advance: a fixed bed; the DEM
+    solver is ``sim.coupler.dem``). ``notify``: the run's log for the Simulation's notes; ``timing``: the
+    sampled per-phase wall time (``Simulation.wall_split``). A gas set-up the solver refuses is a ConfigError
+    naming [gas] or [boundary]."""
+    cfg, der = scene.cfg, scene.derived
+    dem = None
+    if scene.model is not None:
+        dem = DemSolver(scene.model)
+        place_grains(dem, scene.initial)
+    gas = inlets = coupler = None
+    if scene.flow is not None:
+        try:
+            gas = flow.FlowSolver(scene.flow)
+        except ValueError as err:
+            raise ConfigError(str(err), scene.file, "gas", hint="check [gas] and [boundary]") from None
+        try:
+            inlets = InletSchedule(cfg.boundary, scene.flow.shape, scene.flow.h, scene.flow.origin)
+        except ValueError as err:
+            raise ConfigError(str(err), scene.file, "boundary") from None
+        if not inlets.faces:
+            inlets = None
+    if dem is not None and gas is not None:
+        coupler = coupling.Coupler(scene.coupling, dem, gas)
+    split = dict(max_gas_cfl=cfg.gas.max_cfl, max_gas_split=cfg.gas.max_split) if gas is not None else {}
+    return Simulation(None if frozen else dem, cfg.run.step, der.substeps if der else 0, cfg.run.duration,
+                      flow=gas, coupler=coupler, inlets=inlets, notify=notify, timing=timing, **split)

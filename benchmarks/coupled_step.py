@@ -14,24 +14,17 @@ Appends to benchmarks/RESULTS.md.
 from __future__ import annotations
 
 import argparse
-import pathlib
 import statistics
-import sys
-import time
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-
-from benchmarks_common import append_results  # noqa: E402
+from app.bench.common import append_results
+from app.config import load_text
+from app.scene import Scene, build_simulation
+from app.sim import runtime
 
 H, CELLS_ACROSS, D = 3.125e-3, 32, 1e-3
 
 
 def scene_for(n: int, precision: str, threads: int):
-    from app.config import load_text
-    from app.scene import Scene
-
     width = CELLS_ACROSS * H
     bed = n * (3.14159 / 6 * D ** 3) / 0.45 / (width * width)  # loose-lattice depth
     nz = int(max(32, 2 * round(1.6 * bed / H / 2)))
@@ -68,31 +61,18 @@ top = "pressure_outlet"
 
 
 def measure(n, repeats, precision, threads):
-    import taichi as ti
-
-    from app.sim.coupling import Coupler
-    from app.sim.dem import DemSolver
-    from app.sim.flow import FlowSolver
-
     sc = scene_for(n, precision, threads)
-    dem = DemSolver(sc.model)
-    dem.set_grains(sc.initial["position"], None, sc.initial["radius"])
-    flow = FlowSolver(sc.flow)
-    cp = Coupler(sc.coupling, dem, flow)
-    dt = sc.cfg.run.step
+    sim = build_simulation(sc)
     for _ in range(20):
-        cp.step(dt)
-        flow.step(dt)
-        dem.advance(sc.derived.substeps)
+        sim.step()
+    # each timed step through Simulation.step (the one coupling order), every phase synchronised at its end
+    sim.timing, sim.timing_every = True, 1
     parts = {"coupling": [], "gas": [], "dem": []}
     for _ in range(repeats):
-        for name, fn in (("coupling", lambda: cp.step(dt)), ("gas", lambda: flow.step(dt)),
-                         ("dem", lambda: dem.advance(sc.derived.substeps))):
-            ti.sync()
-            t0 = time.perf_counter()
-            fn()
-            ti.sync()
-            parts[name].append(time.perf_counter() - t0)
+        sim.phase_seconds = {}
+        sim.step()
+        for name in parts:
+            parts[name].append(sim.phase_seconds[name])
     med = {k: 1e3 * statistics.median(v) for k, v in parts.items()}
     total = sum(med.values())
     return {"N": n, "gas cells": "x".join(map(str, sc.flow.shape)), "substeps": sc.derived.substeps,
@@ -109,8 +89,6 @@ def main(argv=None):
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--no-append", action="store_true")
     a = ap.parse_args(argv)
-    from app.sim import runtime
-
     arch = runtime.init(a.arch, a.precision, a.threads or None)
     rows = []
     for n in a.sizes:

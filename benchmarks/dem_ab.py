@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT / "benchmarks" / "liggghts"))
 import numpy as np  # noqa: E402
 
 import dem_substep as bench  # noqa: E402
-from benchmarks_common import append_results  # noqa: E402
+from app.bench.common import append_results  # noqa: E402
 
 
 def solver(pkg: str, n: int, poly: bool, precision: str, rolling: bool = False):

@@ -49,7 +49,7 @@ sys.path.insert(0, str(ROOT / "benchmarks" / "liggghts"))
 
 import numpy as np  # noqa: E402
 
-from benchmarks_common import append_results, count_contacts, interleaved, median_ratio  # noqa: E402
+from app.bench.common import append_results, count_contacts, interleaved, median_ratio  # noqa: E402
 
 D, RHO, E, NU, REST, MU, DT = 2e-3, 2500.0, 5e6, 0.3, 0.9, 0.5, 2e-6
 POUR_REST, POUR_DT = 0.5, 2e-5  # the pour only: a damped, longer-step fall (the result is just a start)

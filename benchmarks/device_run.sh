@@ -27,6 +27,7 @@
 # carry runs/accuracy_full on that first call only (a carried path replaces the device's copy: later calls would
 # lose the rows measured since); a stage cut off by its limit goes on when the same stage is called again.
 set -uo pipefail
+export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"  # the scripts import app as installed: here, this checkout's
 L=runs/devout; mkdir -p $L  # inside runs/ (git-ignored): the device keeps it between calls
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$L/gpu.txt" 2>&1
 [ -d runs/reference ] && export FBED_REFERENCE=$PWD/runs/reference  # X-ray, Ghia: for the analyses' reference columns

@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import numpy as np  # noqa: E402
 
-from benchmarks_common import append_results  # noqa: E402
+from app.bench.common import append_results  # noqa: E402
 
 H, DT, U_IN = 0.006, 1e-3, 0.5
 

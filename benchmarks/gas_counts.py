@@ -15,12 +15,14 @@ import pathlib
 import statistics
 import sys
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-sys.path.insert(0, str(ROOT / "tests"))
+from flow_throughput import DT, scene, shuffle_bed  # benchmarks/, this script's folder
 
-from benchmarks_common import append_results  # noqa: E402
+from app.bench.common import append_results
+from app.sim import runtime
+
+# the kernel counter is a test double of tests/ (it wraps Taichi's kernels, so it cannot live outside app/sim)
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
+from kernel_counter import KernelCounter  # noqa: E402
 
 
 def gas_modules():
@@ -37,10 +39,6 @@ def main(argv=None) -> int:
     ap.add_argument("--label", default="", help="what is counted (e.g. before / after)")
     ap.add_argument("--dry", action="store_true")
     args = ap.parse_args(argv)
-    from app.sim import runtime
-    from flow_throughput import DT, scene, shuffle_bed
-    from kernel_counter import KernelCounter
-
     arch = runtime.init(args.arch, args.precision)
     rows = []
     for g in args.grids:

@@ -20,17 +20,13 @@ import importlib.util
 import pathlib
 import statistics
 import subprocess
-import sys
 import tempfile
 import time
 
 import numpy as np
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-
-from benchmarks_common import append_results  # noqa: E402
+from app.bench.common import ROOT, append_results
+from app.io import store as current_store
 
 SERIES = ["time", "kinetic_energy", "kinetic_energy_rotational", "max_overlap", "max_speed", "grains_alive",
           "grains_removed", "bed_height", "gas_max_speed", "gas_cfl", "pressure_iterations", "pressure_residual",
@@ -39,8 +35,7 @@ SERIES = ["time", "kinetic_energy", "kinetic_energy_rotational", "max_overlap", 
 
 def load_store(rev: str | None):
     if rev is None:
-        from app.io import store
-        return store
+        return current_store
     text = subprocess.run(["git", "show", f"{rev}:app/io/store.py"], cwd=ROOT, capture_output=True, text=True,
                           check=True).stdout
     path = pathlib.Path(tempfile.mkdtemp()) / f"store_{rev}.py"
@@ -94,7 +89,7 @@ def main() -> None:
 
 
 def gas_reads(arch: str, repeats: int, calls: int = 200) -> list[dict]:
-    from app.sim import flow, runtime
+    from app.sim import flow, runtime  # Taichi only for --gas: the writers' timing is host-only
     from app.sim.geometry import CylinderWall
 
     runtime.init(arch, "float32")

@@ -15,17 +15,15 @@ Appends a table to benchmarks/RESULTS.md.
 from __future__ import annotations
 
 import argparse
-import pathlib
 import statistics
-import sys
 import time
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+from dem_throughput import bed, fbed_scene  # benchmarks/, this script's folder
 
-from benchmarks_common import append_results  # noqa: E402
-from dem_throughput import bed, fbed_scene  # noqa: E402
+from app.bench.common import append_results
+from app.gui.render import Renderer, ViewSettings
+from app.sim import runtime
+from app.sim.dem import DemSolver
 
 
 def main(argv=None):
@@ -39,14 +37,7 @@ def main(argv=None):
     ap.add_argument("--substeps-per-step", type=int, default=73)
     ap.add_argument("--dry", action="store_true")
     a = ap.parse_args(argv)
-    from app.sim import runtime
-
     arch = runtime.init(a.arch, "float32")
-    import taichi as ti
-
-    from app.gui.render import Renderer, ViewSettings
-    from app.sim.dem import DemSolver
-
     rows = []
     for n in a.sizes:
         pos, radius = bed(n)
@@ -54,11 +45,11 @@ def main(argv=None):
         dem = DemSolver(scene.model)
         dem.set_grains(pos, radius=scene.initial["radius"])
         dem.advance(20)
-        ti.sync()
+        runtime.sync()
         t0 = time.perf_counter()
         for _ in range(3):
             dem.advance(20)
-        ti.sync()
+        runtime.sync()
         substep = (time.perf_counter() - t0) / 60
         for view in ("perspective", "slab"):
             r = Renderer(dem, None, scene.walls, scene.cfg.domain.lo, scene.cfg.domain.hi,

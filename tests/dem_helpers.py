@@ -43,6 +43,20 @@ def merged(**changes) -> dict:
     return cfg
 
 
+def scene_of(initial=None, **changes) -> Scene:
+    """The Scene of BASE updated with ``changes``; ``initial``: its grains (position, radius, velocity ...)."""
+    return Scene(load_text(toml_text(merged(**changes)), "test.toml"), "test.toml", initial=initial)
+
+
+def grains(position, radius, velocity=None) -> dict:
+    """Initial grains for ``scene_of``: positions [m] and radii [m] (one radius for all, or one each)."""
+    position = np.asarray(position, float)
+    out = {"position": position, "radius": np.broadcast_to(np.asarray(radius, float), len(position)).copy()}
+    if velocity is not None:
+        out["velocity"] = np.asarray(velocity, float)
+    return out
+
+
 def make(positions=None, velocities=None, omega=None, radius=None, **changes):
     """Build (scene, dem) from BASE updated with ``changes``; optionally place the grains."""
     scene = Scene(load_text(toml_text(merged(**changes)), "test.toml"))

@@ -1,4 +1,4 @@
-"""The coupled-bed accuracy cases (app/accuracy/bed_cases.py) on a tiny bed: the physics they rest on.
+"""The coupled-bed accuracy cases (app/bench/bed_cases.py) on a tiny bed: the physics they rest on.
 
 One tiny bed (800 glass beads of 3 mm in a 28 mm cylinder, settled with the gas off, then the inlet ramped to
 2 U_mf as in the bench) is run once at fbed's defaults (float64, as every test); the caches go into a
@@ -13,7 +13,7 @@ import os
 import numpy as np
 import pytest
 
-from app.accuracy import bed_cases as bc
+from app.bench import bed_cases as bc
 
 pytestmark = pytest.mark.verification
 

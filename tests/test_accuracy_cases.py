@@ -1,4 +1,4 @@
-"""The accuracy bench's cases (app.accuracy.dem_cases, gas_cases): each measure called with a settings
+"""The accuracy bench's cases (app.bench.dem_cases, gas_cases): each measure called with a settings
 dict must give the error the physics predicts, and the runner must write its files.
 
 Runs in float64 on the CPU (conftest); measured values at the time of writing are quoted next to
@@ -8,8 +8,9 @@ import math
 
 import pytest
 
-from app.accuracy import Unavailable, all_cases
-from app.accuracy.dem_cases import pair_collision
+from app.bench.accuracy import all_cases
+from app.bench.cases import Unavailable
+from app.bench.dem_cases import pair_collision
 
 pytestmark = pytest.mark.bench
 
@@ -37,7 +38,7 @@ def test_contact_time_is_second_order_in_the_step_and_small_at_the_default():
 def test_hertz_reference_uses_the_exact_coefficient():
     """(4/5)(15/16)^(2/5) B(2/5, 1/2) = 2.8683; fbed's step picker rounds it to 2.868."""
     from app.config import load_text
-    from app.accuracy.dem_cases import PAIR, hertz_duration_exact
+    from app.bench.dem_cases import PAIR, hertz_duration_exact
 
     cfg = load_text(PAIR.format(precision="float64", e=1.0, f=0.05, v=0.5, E=5e6), "pair.toml")
     m_eff = 2500 * 4 / 3 * math.pi * 1e-9 / 2
@@ -95,7 +96,7 @@ def test_runner_writes_csv_plot_and_recommended_settings(tmp_path):
     """contact_time's cost is a step count, not a clock: its recommendation is deterministic. The
     cheapest dt_fraction within 1% is 0.1 (0.53%; 0.2 gives 2.1%), so the presets' 0.05 (0.13%, twice
     the steps) is not on the knee."""
-    from app.accuracy.runner import accuracy
+    from app.bench.accuracy import accuracy
 
     assert accuracy(out=str(tmp_path), names=["contact_time"], size="small", arch="cpu") == 0
     rows = (tmp_path / "accuracy.csv").read_text().splitlines()
@@ -112,8 +113,8 @@ def test_knee_picks_the_cheapest_of_equal_errors_when_none_is_within_tolerance()
     """Ergun at 4 mm cells: no tolerance value brings the error under 5% (the cell size sets it), so
     the errors tie within rounding; the knee must then pick the cheapest, not the value whose error
     happens to be 1e-9 smaller. A clearly better value (2% smaller error) still wins over cost."""
-    from app.accuracy import Case
-    from app.accuracy.runner import knee
+    from app.bench.accuracy import knee
+    from app.bench.cases import Case
 
     case = Case(name="t", title="", error_label="", cost_label="", knobs={"tolerance": (1e-3, 1e-8)},
                 defaults={"tolerance": 1e-6}, tolerance=0.05, measure=lambda settings, size: {})
@@ -132,7 +133,8 @@ def test_a_default_is_on_the_knee_across_cases_only_where_a_case_binds_it(monkey
     B measured it dearer than the default (a bed's cost scatters). Knob j: the cheaper value passes the only
     case that sweeps it and no reason is on record (a candidate to change), or one is (it is quoted). Knob t: the
     default fails case A's tolerance and a cheaper value is as accurate, which counts as passing."""
-    from app.accuracy import Case, runner
+    from app.bench import accuracy as runner
+    from app.bench.cases import Case
 
     def case(name, knobs, defaults, tol=0.05):
         return Case(name=name, title="", error_label="", cost_label="", knobs=knobs, defaults=defaults,
@@ -168,7 +170,7 @@ def test_a_default_is_on_the_knee_across_cases_only_where_a_case_binds_it(monkey
 def test_stiffness_knee_is_the_softest_modulus_from_which_every_stiffer_one_is_close():
     """The study's knee: the softest modulus from which it and every stiffer one are within 5% (SETTLED) of the
     stiffest run. A soft modulus that lands within 5% while a stiffer one does not (scatter) is not the knee."""
-    from app.accuracy import stiffness
+    from app.bench import stiffness
 
     def row(e, height, cost):
         return {"youngs_modulus": e, "status": "finished", "cost": cost, "max_overlap_pct": 1.0,
@@ -186,7 +188,8 @@ def test_stiffness_knee_is_the_softest_modulus_from_which_every_stiffer_one_is_c
 def _fake_bench(monkeypatch, calls, before=None):
     """The runner's only case: its measure is arithmetic (error = dt_fraction^2, cost = 1/dt_fraction) and
     counts its calls; ``before(n)``, with n the calls so far, runs first (to interrupt the bench)."""
-    from app.accuracy import Case, runner
+    from app.bench import accuracy as runner
+    from app.bench.cases import Case
 
     def measure(settings, size):
         if before:
@@ -205,7 +208,8 @@ def test_resume_measures_only_what_an_interrupted_bench_had_not(tmp_path, monkey
     records none for the stopped run and ends with 130; --resume measures only the missing points, and the
     report covers them all. Resuming at another size is refused with the file and the fix named."""
     from app import cli
-    from app.accuracy import Interrupted, runner
+    from app.bench import accuracy as runner
+    from app.bench.cases import Interrupted
 
     def stopped_on_the_third(n):
         if n == 2:
@@ -239,7 +243,8 @@ def test_resume_measures_only_what_an_interrupted_bench_had_not(tmp_path, monkey
 def test_an_interrupted_bed_run_is_neither_a_row_nor_memoised(monkeypatch):
     """A bed run stopped by a signal ends 'interrupted' (exit 130): the bench must not record it as a setting
     that failed, nor hand its figures to the next case that shares the run."""
-    from app.accuracy import Interrupted, bed_cases
+    from app.bench import bed_cases
+    from app.bench.cases import Interrupted
 
     runs = []
     monkeypatch.setattr(bed_cases, "bed_text", lambda size, settings, start=None: "")
@@ -253,7 +258,8 @@ def test_an_interrupted_bed_run_is_neither_a_row_nor_memoised(monkeypatch):
 
 def test_stiffness_resume_keeps_the_measured_moduli(tmp_path, monkeypatch):
     """The stiffness study writes each modulus's row at once; --resume runs only the moduli missing."""
-    from app.accuracy import Interrupted, stiffness
+    from app.bench import stiffness
+    from app.bench.cases import Interrupted
 
     calls = []
 
@@ -285,7 +291,7 @@ def test_sigterm_ends_the_bench_with_its_rows_and_report(tmp_path, monkeypatch):
     import signal
     import threading
 
-    from app.accuracy import runner
+    from app.bench import accuracy as runner
 
     if threading.current_thread() is not threading.main_thread():
         pytest.skip("signals are delivered to the main thread only")

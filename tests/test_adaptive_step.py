@@ -5,12 +5,10 @@ O(dt) error."""
 import numpy as np
 import pytest
 
-from app.sim.coupling import Coupler
-from app.sim.dem import DemSolver
-from app.sim.flow import FlowSolver
+from app.scene import build_simulation
 from app.sim.simulation import Simulation
 
-from dem_helpers import make
+from dem_helpers import grains, scene_of
 from flow_helpers import jet_solver
 
 pytestmark = pytest.mark.verification
@@ -49,16 +47,16 @@ def _settling_grain(split: int):
     """One 0.1 mm glass grain falling through still air (test_fluidization's terminal-velocity scene),
     run for 0.1 s with every fluid step cut into ``split`` pieces."""
     d = 1e-4
-    scene, _ = make(
+    scene = scene_of(
+        grains([[0.004, 0.004, 0.3]], d / 2),
         domain={"lo": [-0.02, -0.02, 0.0], "hi": [0.02, 0.02, 0.32], "gravity": [0.0, 0.0, -9.81]},
         vessel={"shape": "box"}, particles={"diameter": d, "density": 2500.0, "count": 1},
-        contact={"youngs_modulus": 1e3, "friction": 0.0}, run={"step": 2e-3},
-        gas={"cell_size": 8e-3, "viscosity": 1.8e-5, "density": 1.2, "pressure_form": "shared"},
+        contact={"youngs_modulus": 1e3, "friction": 0.0}, run={"step": 2e-3, "duration": 0.1},
+        gas={"cell_size": 8e-3, "viscosity": 1.8e-5, "density": 1.2, "pressure_form": "shared",
+             "max_split": 1},  # the split fixed: the adaptive step off
         coupling={"drag": "schiller_naumann"}, boundary={"top": "pressure_outlet"})
-    dem = DemSolver(scene.model)
-    dem.set_grains([[0.004, 0.004, 0.3]], None, [d / 2])
-    fl = FlowSolver(scene.flow)
-    sim = Simulation(dem, 2e-3, scene.derived.substeps, 0.1, flow=fl, coupler=Coupler(scene.coupling, dem, fl))
+    sim = build_simulation(scene)
+    dem = sim.dem
     sim.gas_split = split  # fixed: max_gas_split = 1 keeps it
     sim.run()
     assert sum(sim._piece_substeps(split)) == scene.derived.substeps

@@ -1,4 +1,4 @@
-"""The fbed / LIGGGHTS benchmark's fairness helpers (benchmarks/benchmarks_common.py, liggghts_pour.py).
+"""The fbed / LIGGGHTS benchmark's fairness helpers (app/bench/common.py, liggghts_pour.py).
 
 The contact count both codes are judged by is checked against a brute-force count; the run order is
 the documented A B A B; and, where LIGGGHTS is installed, a small poured bed checks that the helper
@@ -11,13 +11,12 @@ import sys
 import numpy as np
 import pytest
 
+from app.bench.common import count_contacts, interleaved, median_ratio
+
 pytestmark = pytest.mark.bench
 
 BENCH = pathlib.Path(__file__).resolve().parents[1] / "benchmarks"
-sys.path.insert(0, str(BENCH))
-sys.path.insert(0, str(BENCH / "liggghts"))
-
-from benchmarks_common import count_contacts, interleaved, median_ratio  # noqa: E402
+sys.path.insert(0, str(BENCH / "liggghts"))  # liggghts_pour: a script of benchmarks/liggghts/
 
 
 def brute_force(pos, r, R, floor_z):

@@ -78,11 +78,11 @@ def test_stop_and_resume_matches_a_straight_run(tmp_path):
     probe = (
         "import sys, numpy as np\n"
         "from app.sim import runtime; runtime.init('cpu', 'float64', 1)\n"
-        "from app import config; from app.scene import Scene; from app.sim.dem import DemSolver\n"
+        "from app import config; from app.scene import Scene, build_simulation\n"
         "from app.io import store\n"
         f"a, meta = store.read_state(r'{split}/checkpoint.h5')\n"
         f"cfg = config.load(r'{split}/config.toml')\n"
-        "dem = DemSolver(Scene(cfg, initial=a).model); dem.load_state_arrays(a)\n"
+        "dem = build_simulation(Scene(cfg, initial=a)).dem\n"
         "b = dem.state_arrays()\n"
         "assert set(a) == set(b), set(a) ^ set(b)\n"
         "bad = [k for k in a if not np.array_equal(a[k], b[k])]\n"

@@ -2,11 +2,9 @@
 import numpy as np
 import pytest
 
-from app.sim.coupling import Coupler
-from app.sim.dem import DemSolver
-from app.sim.flow import FlowSolver
+from app.scene import build_simulation
 
-from dem_helpers import make
+from dem_helpers import grains, scene_of
 
 pytestmark = pytest.mark.verification
 
@@ -14,22 +12,21 @@ R_VESSEL, H = 0.011, 0.002
 
 
 def coupled(n=400, smoothing=0.0, form="shared", seed=1):
-    scene, _ = make(
+    rng = np.random.default_rng(seed)
+    # grains scattered through the vessel, many touching the cylinder wall
+    r = np.sqrt(rng.uniform(0, 1, n)) * (R_VESSEL - 0.5e-3)
+    th = rng.uniform(0, 2 * np.pi, n)
+    pos = np.column_stack([r * np.cos(th), r * np.sin(th), rng.uniform(0.001, 0.039, n)])
+    scene = scene_of(
+        grains(pos, 0.5e-3, rng.normal(0, 0.1, (n, 3))),
         domain={"lo": [-0.012, -0.012, 0.0], "hi": [0.012, 0.012, 0.04], "gravity": [0.0, 0.0, -9.81]},
         vessel={"shape": "cylinder", "radius": R_VESSEL},
         particles={"diameter": 1e-3, "density": 2500.0, "count": n},
         gas={"cell_size": H, "pressure_form": form},
         coupling={"drag": "gidaspow", "smoothing_width": smoothing},
         boundary={"bottom": {"kind": "velocity_inlet", "velocity": [0.0, 0.0, 0.2]}, "top": "pressure_outlet"})
-    rng = np.random.default_rng(seed)
-    # grains scattered through the vessel, many touching the cylinder wall
-    r = np.sqrt(rng.uniform(0, 1, n)) * (R_VESSEL - 0.5e-3)
-    th = rng.uniform(0, 2 * np.pi, n)
-    pos = np.column_stack([r * np.cos(th), r * np.sin(th), rng.uniform(0.001, 0.039, n)])
-    dem = DemSolver(scene.model)
-    dem.set_grains(pos, rng.normal(0, 0.1, (n, 3)), np.full(n, 0.5e-3))
-    flow = FlowSolver(scene.flow)
-    return scene, dem, flow, Coupler(scene.coupling, dem, flow)
+    sim = build_simulation(scene)
+    return scene, sim.dem, sim.flow, sim.coupler
 
 
 @pytest.mark.parametrize("smoothing", [0.0, 0.003])
@@ -81,23 +78,20 @@ def test_uniform_bed_stays_uniform_in_wall_cut_cells_with_smoothing():
     seen at 0.66 m/s superficial in the Boyce rig). Tolerances: grain centres keep a radius from the
     wall, so cut cells hold up to ~0.1 less solid than the interior; the drag falls with eps (Wen-Yu:
     about eps^-3.65 times the slip terms), so slivers may read down to about half the interior's beta."""
-    import dataclasses
-
     R, h, d = 0.0119, 0.002, 0.4e-3
     a = d * (np.pi / 6 / 0.3) ** (1 / 3)
     xs = np.arange(-R, R, a) + a / 2
     X, Y, Z = np.meshgrid(xs, xs, np.arange(a / 2, 0.01, a), indexing="ij")
     keep = np.sqrt(X ** 2 + Y ** 2) < R - d / 2
     pos = np.stack([X[keep], Y[keep], Z[keep]], -1)
-    scene, _ = make(domain={"lo": [-0.012, -0.012, 0.0], "hi": [0.012, 0.012, 0.04], "gravity": [0.0, 0.0, -9.81]},
-                    vessel={"shape": "cylinder", "radius": R}, particles={"diameter": d, "density": 2500.0, "count": 10},
-                    gas={"cell_size": h, "min_open_fraction": 0.0},  # keep the slivers: they are under test
-                    coupling={"drag": "wen_yu", "smoothing_width": 0.002},
-                    boundary={"bottom": {"kind": "velocity_inlet", "velocity": [0.0, 0.0, 0.2]}, "top": "pressure_outlet"})
-    dem = DemSolver(dataclasses.replace(scene.model, n=len(pos)))
-    dem.set_grains(pos, None, np.full(len(pos), d / 2))
-    flow = FlowSolver(scene.flow)
-    cp = Coupler(scene.coupling, dem, flow)
+    scene = scene_of(grains(pos, d / 2),
+                     domain={"lo": [-0.012, -0.012, 0.0], "hi": [0.012, 0.012, 0.04], "gravity": [0.0, 0.0, -9.81]},
+                     vessel={"shape": "cylinder", "radius": R}, particles={"diameter": d, "density": 2500.0, "count": 10},
+                     gas={"cell_size": h, "min_open_fraction": 0.0},  # keep the slivers: they are under test
+                     coupling={"drag": "wen_yu", "smoothing_width": 0.002},
+                     boundary={"bottom": {"kind": "velocity_inlet", "velocity": [0.0, 0.0, 0.2]}, "top": "pressure_outlet"})
+    sim = build_simulation(scene)
+    flow, cp = sim.flow, sim.coupler
     cp.step(1e-3)
     assert cp.clipped_cells == 0
     layers = slice(1, 4)  # inside the bed, away from its floor and top

@@ -195,7 +195,7 @@ def test_lid_driven_cavity_re100_matches_ghia(reference_dir):
     assert scene.model is None and scene.flow.mu == pytest.approx(0.01)
     s = flow.FlowSolver(scene.flow)
     _advance(s, round(cfg.run.duration / cfg.run.step), cfg.run.step)
-    from app.accuracy.gas_cases import cavity_centrelines
+    from app.bench.gas_cases import cavity_centrelines
 
     (zc, uc), (xc, wc) = cavity_centrelines(s)
     ru, rv = ref["u_on_vertical_centreline"], ref["v_on_horizontal_centreline"]

@@ -6,11 +6,9 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from app.sim.coupling import Coupler
-from app.sim.dem import DemSolver
-from app.sim.flow import FlowSolver
+from app.scene import build_simulation
 
-from dem_helpers import make
+from dem_helpers import grains, scene_of
 
 pytestmark = pytest.mark.verification
 
@@ -39,22 +37,17 @@ def test_frozen_packed_bed_pressure_drop_is_ergun(form):
     eps = 1 - math.pi / 6
     results = []
     for U in (0.05, 0.1, 0.2):
-        scene, _ = make(
+        scene = scene_of(
+            grains(pos, d / 2), run={"step": 1e-3, "duration": 0.15},
             domain={"lo": [-width / 2, -width / 2, 0.0], "hi": [width / 2, width / 2, 0.08], "gravity": [0.0, 0.0, -9.81]},
             vessel={"shape": "box"}, particles={"diameter": d, "density": 2500.0, "count": n},
             gas={"cell_size": h, "pressure_form": form, "viscosity": MU, "density": RHO_G},
             coupling={"drag": "gidaspow", "eps_min": 0.3},
             boundary={"bottom": {"kind": "velocity_inlet", "velocity": [0.0, 0.0, U]}, "top": "pressure_outlet",
                       "x-": "free_slip", "x+": "free_slip", "y-": "free_slip", "y+": "free_slip"})
-        dem = DemSolver(scene.model)
-        dem.set_grains(pos, None, np.full(n, d / 2))
-        flow = FlowSolver(scene.flow)
-        cp = Coupler(scene.coupling, dem, flow)
-        dt = 1e-3
-        for _ in range(150):
-            cp.step(dt)
-            flow.step(dt)
-        p = flow.pressure()
+        sim = build_simulation(scene, frozen=True)  # 150 fluid steps of 1 ms through grains that never move
+        sim.run()
+        p = sim.flow.pressure()
         dz = (p.shape[2] - 1) * h
         dp = p[:, :, 0].mean() - p[:, :, -1].mean() - RHO_G * 9.81 * dz
         expected = ergun_gradient(U, eps, d) * layers * d
@@ -68,18 +61,16 @@ def test_single_grain_reaches_schiller_naumann_terminal_velocity():
     ~1% of its speed); after ~6 relaxation times its speed is within 2% of the terminal velocity
     from (m - rho_g V) g = C_D (pi d^2 / 8) rho_g v^2, C_D = 24/Re (1 + 0.15 Re^0.687)."""
     d, rho_p, h = 1e-4, 2500.0, 8e-3
-    scene, _ = make(
+    scene = scene_of(
+        grains([[0.004, 0.004, 0.3]], d / 2),
         domain={"lo": [-0.02, -0.02, 0.0], "hi": [0.02, 0.02, 0.32], "gravity": [0.0, 0.0, -9.81]},
         vessel={"shape": "box"}, particles={"diameter": d, "density": rho_p, "count": 1},
         contact={"youngs_modulus": 1e3, "friction": 0.0},  # never touches anything: softest contacts, longest step
-        run={"step": 2e-3},
+        run={"step": 2e-3, "duration": 0.4},  # the grain's relaxation time v_t/g ~ 0.06 s is 30 steps
         gas={"cell_size": h, "viscosity": MU, "density": RHO_G, "pressure_form": "shared"},
         coupling={"drag": "schiller_naumann"},
         boundary={"top": "pressure_outlet"})
-    dem = DemSolver(scene.model)
-    dem.set_grains([[0.004, 0.004, 0.3]], None, [d / 2])
-    flow = FlowSolver(scene.flow)
-    cp = Coupler(scene.coupling, dem, flow)
+    sim = build_simulation(scene)
     vol = math.pi * d ** 3 / 6
     m = rho_p * vol
 
@@ -89,11 +80,7 @@ def test_single_grain_reaches_schiller_naumann_terminal_velocity():
         return (m - RHO_G * vol) * 9.81 - cd * math.pi * d ** 2 / 8 * RHO_G * v * v
 
     vt = brentq(residual, 1e-4, 10)
-    dt = 2e-3  # the grain's relaxation time v_t/g ~ 0.06 s is 30 steps
-    for _ in range(200):
-        cp.step(dt)
-        flow.step(dt)
-        dem.advance(scene.derived.substeps)
-    v = -dem.read("velocity")[0, 2]
+    sim.run()  # 200 fluid steps
+    v = -sim.dem.read("velocity")[0, 2]
     print(f"terminal velocity {v:.4f} m/s, Schiller-Naumann {vt:.4f} m/s")
     assert v == pytest.approx(vt, rel=0.02)

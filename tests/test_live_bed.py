@@ -16,13 +16,8 @@ from scipy.optimize import brentq
 
 from app.config import load_text
 from app.run import BedMeasures
-from app.schedule import InletSchedule
-from app.scene import Scene
+from app.scene import Scene, build_simulation
 from app.sim import drag
-from app.sim.coupling import Coupler
-from app.sim.dem import DemSolver
-from app.sim.flow import FlowSolver
-from app.sim.simulation import Simulation
 
 from dem_helpers import merged, toml_text
 
@@ -47,18 +42,8 @@ def build(U, duration, initial=None):
                               "top": "pressure_outlet"})
     cfg = load_text(toml_text(merged(**sections)), "live.toml")
     scene = Scene(cfg, "live.toml", initial=initial)
-    dem = DemSolver(scene.model)
-    if initial is None:
-        dem.set_grains(scene.initial["position"], None, scene.initial["radius"])
-    else:
-        dem.load_state_arrays(initial)
-    flow = FlowSolver(scene.flow)
-    cp = Coupler(scene.coupling, dem, flow)
-    sim = Simulation(dem, cfg.run.step, scene.derived.substeps, cfg.run.duration, flow=flow, coupler=cp)
-    sched = InletSchedule(cfg.boundary, scene.flow.shape, scene.flow.h, scene.flow.origin)
-    if sched.faces:
-        sim.before_step.append(sched)
-    return scene, dem, flow, sim
+    sim = build_simulation(scene)
+    return scene, sim.dem, sim.flow, sim
 
 
 def bed_height(dem):

@@ -3,10 +3,10 @@
 Each scene runs as its own `fbed run` process with a wall-clock limit. It must finish with finite
 series, no grain outside the walls and the gas divergence below 1e-3 (mass conserved), or stop
 with exit 3, a message naming the setting to change, and its outputs kept; never a NaN in
-run.h5, a traceback or a hang (app/bench.py judges each)."""
+run.h5, a traceback or a hang (app/bench/stress.py judges each)."""
 import pytest
 
-from app.bench import SCENES, run_scene
+from app.bench.stress import SCENES, run_scene
 
 pytestmark = pytest.mark.stress
 
@@ -27,7 +27,7 @@ def test_stress_scene_ends_as_specified(scene, tmp_path):
 def test_accuracy_restitution_error_falls_with_the_step_and_is_small_at_the_default():
     """Symplectic Euler's rebound error is O(dt / t_c): it must fall as the step shrinks, and at the
     default dt_fraction = 0.05 stay below 1% (measured 0.30%; test_contact.py allows 2% for e = 0.5-0.9)."""
-    from app.accuracy.dem_cases import DT_FRACTIONS, pair_collision
+    from app.bench.dem_cases import DT_FRACTIONS, pair_collision
 
     rows = [pair_collision(f, precision="float64") for f in DT_FRACTIONS]
     errors = [r["restitution_error"] for r in rows]

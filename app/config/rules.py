@@ -6,9 +6,24 @@ from .schema import Config
 
 
 def check(cfg: Config, file: str, text: str) -> None:
+    """Raise ConfigError on the first rule ``cfg`` (read from ``file``, whose ``text`` locates the key's line)
+    breaks; the rules are checked in a fixed order (domain and vessel, rCFD, gas and boundaries, grains and
+    contacts, output and video, probes), so the same preset always names the same key."""
     def fail(section, key, message, hint=""):
         raise ConfigError(message, file, f"{section}.{key}", find_line(text, section, key), hint)
 
+    _domain_and_vessel(cfg, fail)
+    _rcfd(cfg, fail)
+    if cfg.particles is None and cfg.gas is None:
+        raise ConfigError("nothing to simulate: the preset has neither [particles] nor [gas]", file, "particles",
+                          None, "add a [particles] section (grains) and/or a [gas] section (gas flow)")
+    _gas_and_boundaries(cfg, fail)
+    _particles_and_contact(cfg, fail)
+    _output_and_video(cfg, fail)
+    _probes(cfg, fail)
+
+
+def _domain_and_vessel(cfg: Config, fail) -> None:
     d = cfg.domain
     for a, (lo, hi) in enumerate(zip(d.lo, d.hi)):
         if hi <= lo:
@@ -32,9 +47,11 @@ def check(cfg: Config, file: str, text: str) -> None:
     if v.floor is not None and v.lid is not None and v.lid <= v.floor:
         fail("vessel", "lid", f"the lid ({v.lid:g} m) must be above the floor ({v.floor:g} m)")
 
+
+def _rcfd(cfg: Config, fail) -> None:
     pr = cfg.probes
     if pr.rcfd_from >= 0:
-        from ..rcfd.database import parse_tag
+        from ..rcfd.database import parse_tag  # h5py and scipy.sparse: only for rCFD scenes
 
         try:
             parse_tag(pr.rcfd_tag)
@@ -43,9 +60,9 @@ def check(cfg: Config, file: str, text: str) -> None:
         if cfg.gas is None or cfg.particles is None:
             fail("probes", "rcfd_from", "rCFD frames need both grains and gas", "set probes.rcfd_from = -1")
 
-    if cfg.particles is None and cfg.gas is None:
-        raise ConfigError("nothing to simulate: the preset has neither [particles] nor [gas]", file, "particles",
-                          None, "add a [particles] section (grains) and/or a [gas] section (gas flow)")
+
+def _gas_and_boundaries(cfg: Config, fail) -> None:
+    d = cfg.domain
     g = cfg.gas
     if g is not None:
         for a in range(3):
@@ -60,66 +77,78 @@ def check(cfg: Config, file: str, text: str) -> None:
             if lo_p != hi_p:
                 fail("boundary", ax + "-", f"periodic boundaries come in pairs: set both {ax}- and {ax}+ periodic")
         for face, b in faces.items():
-            axis = "xyz".index(face[0])
-            inlet_only = [k for k in ("schedule", "jet_radius", "jet_duration", "jet_ramp", "jet_start")
-                          if getattr(b, k)] + (["jet_velocity"] if any(b.jet_velocity) else [])
-            if inlet_only and b.kind != "velocity_inlet":
-                fail("boundary", face, f"{inlet_only[0]} applies to a velocity_inlet, not to a {b.kind}")
-            if b.schedule:
-                rows = b.schedule
-                ok = all(isinstance(r, list) and len(r) == 2 and all(isinstance(v, (int, float)) and
-                                                                       not isinstance(v, bool) for v in r) for r in rows)
-                if not ok:
-                    fail("boundary", face, "schedule must be a list of [time (s), fraction] pairs",
-                         "e.g. schedule = [[0.0, 0.0], [0.3, 0.0], [0.35, 1.0]]")
-                times = [r[0] for r in rows]
-                if any(t1 <= t0 for t0, t1 in zip(times, times[1:])):
-                    fail("boundary", face, "schedule times must increase", "sort the [time, fraction] pairs by time")
-                if b.start or b.ramp:
-                    fail("boundary", face, "give either schedule or start/ramp, not both")
-            if any(b.jet_velocity) and b.jet_radius <= 0:
-                fail("boundary", face, "a jet needs jet_radius > 0 m (the face cells within it blow)")
-            if b.jet_duration and b.jet_duration < 2 * b.jet_ramp:
-                fail("boundary", face, f"jet_duration ({b.jet_duration:g} s) is shorter than its two ramps "
-                     f"(2 x {b.jet_ramp:g} s)")
-            if b.kind == "moving_wall" and b.velocity[axis] != 0:
-                fail("boundary", face, f"a moving wall slides along itself: its {face[0]} velocity must be 0")
+            _boundary_face(face, b, fail)
     elif cfg.boundary:
         fail("boundary", cfg.boundary[0][0], "boundary conditions need a [gas] section")
+
+
+def _boundary_face(face: str, b, fail) -> None:
+    axis = "xyz".index(face[0])
+    inlet_only = [k for k in ("schedule", "jet_radius", "jet_duration", "jet_ramp", "jet_start")
+                  if getattr(b, k)] + (["jet_velocity"] if any(b.jet_velocity) else [])
+    if inlet_only and b.kind != "velocity_inlet":
+        fail("boundary", face, f"{inlet_only[0]} applies to a velocity_inlet, not to a {b.kind}")
+    if b.schedule:
+        rows = b.schedule
+        ok = all(isinstance(r, list) and len(r) == 2 and all(isinstance(v, (int, float)) and
+                                                               not isinstance(v, bool) for v in r) for r in rows)
+        if not ok:
+            fail("boundary", face, "schedule must be a list of [time (s), fraction] pairs",
+                 "e.g. schedule = [[0.0, 0.0], [0.3, 0.0], [0.35, 1.0]]")
+        times = [r[0] for r in rows]
+        if any(t1 <= t0 for t0, t1 in zip(times, times[1:])):
+            fail("boundary", face, "schedule times must increase", "sort the [time, fraction] pairs by time")
+        if b.start or b.ramp:
+            fail("boundary", face, "give either schedule or start/ramp, not both")
+    if any(b.jet_velocity) and b.jet_radius <= 0:
+        fail("boundary", face, "a jet needs jet_radius > 0 m (the face cells within it blow)")
+    if b.jet_duration and b.jet_duration < 2 * b.jet_ramp:
+        fail("boundary", face, f"jet_duration ({b.jet_duration:g} s) is shorter than its two ramps "
+             f"(2 x {b.jet_ramp:g} s)")
+    if b.kind == "moving_wall" and b.velocity[axis] != 0:
+        fail("boundary", face, f"a moving wall slides along itself: its {face[0]} velocity must be 0")
+
+
+def _particles_and_contact(cfg: Config, fail) -> None:
+    d = cfg.domain
     p = cfg.particles
-    if p is not None:
-        if p.diameters:
-            if p.diameter:
-                fail("particles", "diameter", "give either diameter (monodisperse) or diameters (a size distribution), not both")
-            if len(p.fractions) != len(p.diameters):
-                fail("particles", "fractions", f"{len(p.fractions)} fractions for {len(p.diameters)} diameters",
-                     "give one fraction per diameter")
-            if any(not isinstance(x, float) or x <= 0 for x in p.diameters):
-                fail("particles", "diameters", "every diameter must be a number > 0 (m)")
-            if any(not isinstance(x, float) or x < 0 for x in p.fractions) or sum(p.fractions) <= 0:
-                fail("particles", "fractions", "fractions must be numbers >= 0 with a positive sum")
-        elif p.diameter <= 0:
-            fail("particles", "diameter", "grains need a diameter > 0 m", "set particles.diameter (m) or particles.diameters")
-        dmax = max(p.diameters) if p.diameters else p.diameter
-        width = min(h - l for l, h in zip(d.lo, d.hi))
-        if dmax >= width:
-            fail("particles", "diameter", f"grains of {dmax:g} m do not fit in a domain {width:g} m wide")
-        sources = sum([p.count > 0, p.bed_height > 0, bool(p.initial_state)])
-        if sources == 0:
-            fail("particles", "count", "say how many grains: count, bed_height (m) or initial_state (a bed.h5)")
-        if sources > 1:
-            fail("particles", "count", "give only one of count, bed_height and initial_state")
-        c = cfg.contact
-        if c.model == "linear" and c.normal_stiffness <= 0:
-            fail("contact", "normal_stiffness", "the linear model needs normal_stiffness > 0 N/m")
-        rolling = c.rolling_friction > 0 or (c.wall_rolling_friction or 0) > 0
-        if rolling and c.rolling_model == "none":
-            fail("contact", "rolling_model", "rolling_friction is set but rolling_model = 'none'",
-                 "choose 'constant_torque' or 'epsd', or set rolling_friction = 0")
-        if c.rolling_model != "none" and not rolling:
-            fail("contact", "rolling_friction", f"rolling_model = '{c.rolling_model}' needs rolling_friction > 0")
-        if c.rolling_model != "none" and c.friction == 0 and (c.wall_friction or 0) == 0:
-            fail("contact", "friction", "rolling resistance needs friction > 0 (grains must be able to roll)")
+    if p is None:
+        return
+    if p.diameters:
+        if p.diameter:
+            fail("particles", "diameter", "give either diameter (monodisperse) or diameters (a size distribution), not both")
+        if len(p.fractions) != len(p.diameters):
+            fail("particles", "fractions", f"{len(p.fractions)} fractions for {len(p.diameters)} diameters",
+                 "give one fraction per diameter")
+        if any(not isinstance(x, float) or x <= 0 for x in p.diameters):
+            fail("particles", "diameters", "every diameter must be a number > 0 (m)")
+        if any(not isinstance(x, float) or x < 0 for x in p.fractions) or sum(p.fractions) <= 0:
+            fail("particles", "fractions", "fractions must be numbers >= 0 with a positive sum")
+    elif p.diameter <= 0:
+        fail("particles", "diameter", "grains need a diameter > 0 m", "set particles.diameter (m) or particles.diameters")
+    dmax = max(p.diameters) if p.diameters else p.diameter
+    width = min(h - l for l, h in zip(d.lo, d.hi))
+    if dmax >= width:
+        fail("particles", "diameter", f"grains of {dmax:g} m do not fit in a domain {width:g} m wide")
+    sources = sum([p.count > 0, p.bed_height > 0, bool(p.initial_state)])
+    if sources == 0:
+        fail("particles", "count", "say how many grains: count, bed_height (m) or initial_state (a bed.h5)")
+    if sources > 1:
+        fail("particles", "count", "give only one of count, bed_height and initial_state")
+    c = cfg.contact
+    if c.model == "linear" and c.normal_stiffness <= 0:
+        fail("contact", "normal_stiffness", "the linear model needs normal_stiffness > 0 N/m")
+    rolling = c.rolling_friction > 0 or (c.wall_rolling_friction or 0) > 0
+    if rolling and c.rolling_model == "none":
+        fail("contact", "rolling_model", "rolling_friction is set but rolling_model = 'none'",
+             "choose 'constant_torque' or 'epsd', or set rolling_friction = 0")
+    if c.rolling_model != "none" and not rolling:
+        fail("contact", "rolling_friction", f"rolling_model = '{c.rolling_model}' needs rolling_friction > 0")
+    if c.rolling_model != "none" and c.friction == 0 and (c.wall_friction or 0) == 0:
+        fail("contact", "friction", "rolling resistance needs friction > 0 (grains must be able to roll)")
+
+
+def _output_and_video(cfg: Config, fail) -> None:
     if cfg.output.particles_interval and cfg.output.particles_interval < cfg.run.step:
         fail("output", "particles_interval", f"shorter than run.step ({cfg.run.step:g} s)")
     vid = cfg.video
@@ -133,6 +162,10 @@ def check(cfg: Config, file: str, text: str) -> None:
         if (lo, hi) != (0.0, 0.0) and hi <= lo:
             fail("video", "color_range", f"the upper end ({hi:g}) must exceed the lower end ({lo:g})",
                  "give [low, high], or [0, 0] for automatic")
+
+
+def _probes(cfg: Config, fail) -> None:
+    d = cfg.domain
     pr = cfg.probes
     if (pr.slab_interval or pr.planes_interval or pr.volume_interval) and cfg.gas is None:
         fail("probes", "slab_interval" if pr.slab_interval else "planes_interval" if pr.planes_interval

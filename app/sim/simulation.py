@@ -39,11 +39,16 @@ class Hook:
 
 
 class Simulation:
-    def __init__(self, dem, step: float, substeps: int, duration: float, flow=None, coupler=None):
+    def __init__(self, dem, step: float, substeps: int, duration: float, flow=None, coupler=None, inlets=None,
+                 max_gas_cfl: float = float("inf"), max_gas_split: int = 1, notify: Callable | None = None,
+                 timing: bool = False):
+        """``inlets``: a before-step hook setting the inlet profiles (app.schedule.InletSchedule, whose live
+        controls the viewer uses), or None; the rest as the attributes of the same names below."""
         self.dem = dem
         self.flow = flow
         self.coupler = coupler
-        self.before_step: list[Callable] = []  # called with the simulation before each step (inlet schedules)
+        self.inlets = inlets
+        self.before_step: list[Callable] = [inlets] if inlets is not None else []  # called before each step
         self.flow_info = None  # StepInfo of the last gas step
         self.step_dt = step
         self.substeps = substeps
@@ -56,7 +61,7 @@ class Simulation:
         # whether the at-start callbacks fire (None: when starting at step 0; a run started from a
         # prepared state at a later step is fresh too, a resumed one is not)
         self.fresh: bool | None = None
-        self.timing = False  # per-phase wall times (coupling, gas, dem, callbacks) into phase_seconds
+        self.timing = timing  # per-phase wall times (coupling, gas, dem, callbacks) into phase_seconds
         self.timing_every = 25  # ... measured on every 25th step only (see _lap)
         self._timed = False
         self._lap_start = 0.0  # wall clock at the start of the current phase (sampled steps)
@@ -64,12 +69,12 @@ class Simulation:
         self.callback_seconds = 0.0  # summed over every step
         self.steps_timed = 0
         self.steps_sampled = 0
-        self.max_gas_cfl = float("inf")  # adapt above this CFL (gas.max_cfl)
-        self.max_gas_split = 1          # most pieces a step may split into (gas.max_split)
+        self.max_gas_cfl = max_gas_cfl      # adapt above this CFL (gas.max_cfl)
+        self.max_gas_split = max_gas_split  # most pieces a step may split into (gas.max_split)
         self.gas_split = 1              # pieces of the current step
         self.gas_split_peak = 1
         self.gas_split_changes = 0
-        self.notify: Callable[[str], None] | None = None  # the run's log (solvers never print)
+        self.notify: Callable[[str], None] | None = notify  # the run's log (solvers never print)
 
     def wall_split(self) -> dict[str, float]:
         """Estimated wall seconds per phase over the timed steps: coupling, gas and DEM scaled up

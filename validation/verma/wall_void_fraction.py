@@ -17,31 +17,23 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", ".."))
 
 
 def main() -> None:
-    import dataclasses
-
     from scipy.spatial import cKDTree
 
-    from app.accuracy import bed_cases as bc
+    from app.bench import bed_cases as bc
     from app.config import load_text
-    from app.scene import Scene
+    from app.scene import Scene, build_simulation
     from app.sim import runtime
 
     runtime.init("cpu", "float64", 1)
-    from app.sim.coupling import Coupler
-    from app.sim.dem import DemSolver
-    from app.sim.flow import FlowSolver
-
     bed_file = bc.settled_bed("small")
-    grains = bc.read_grains(bed_file)
-    pos, rad = grains["position"], grains["radius"]
     settings = dict(bc.DEFAULTS, precision="float64")
     text = bc.scene_text(bc.SIZES["small"], settings, f'initial_state = "{bed_file}"', u=1.0, plane=0.02)
     cfg = load_text(text, str(bed_file.parent / "wall_check.toml"))
-    scene = Scene(cfg, str(bed_file.parent / "wall_check.toml"))
-    dem = DemSolver(dataclasses.replace(scene.model, n=len(pos)))
-    dem.set_grains(pos, None, rad)
-    flow = FlowSolver(scene.flow)
-    Coupler(scene.coupling, dem, flow).step(1e-3)
+    scene = Scene(cfg, str(bed_file.parent / "wall_check.toml"))  # the settled bed's grains (those in the domain)
+    pos, rad = scene.initial["position"], scene.initial["radius"]
+    sim = build_simulation(scene)
+    sim.coupler.deposit(1e-3)  # one deposit: the grid's gas fraction of the settled bed
+    flow = sim.flow
     vf = flow.fields.vol_frac.to_numpy()
     eps = flow.fields.eps.to_numpy()
     active = flow.fields.active.to_numpy().astype(bool)

@@ -15,8 +15,17 @@ import pathlib
 import time
 
 import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.optimize import brentq
 
-from . import Case, Unavailable
+from ..config import load
+from ..config.loader import build
+from ..scene import Scene, build_simulation
+from ..sim import flow as gas
+from ..sim import runtime
+from ..sim.flow import FlowSolver
+from ..sim.geometry import CylinderWall
+from .cases import Case, Unavailable
 
 MU, RHO_G, G = 1.8e-5, 1.2, 9.81  # air [Pa s], [kg/m^3]; gravity [m/s^2]
 TOLERANCES = (1e-3, 1e-6, 1e-8)  # pressure-solve tolerances swept (1e-6: the schema's default)
@@ -24,8 +33,6 @@ TOLERANCES = (1e-3, 1e-6, 1e-8)  # pressure-solve tolerances swept (1e-6: the sc
 
 def _timed_steps(step, n: int) -> float:
     """Wall seconds of steps 2..n of ``step()`` (the first, the warm-up, is left off the clock)."""
-    from ..sim import runtime
-
     step()
     runtime.sync()
     t0 = time.perf_counter()
@@ -35,21 +42,12 @@ def _timed_steps(step, n: int) -> float:
     return time.perf_counter() - t0
 
 
-def _coupled(sections: dict, positions: np.ndarray, radius: float):
-    """(scene, dem, flow, coupler) of a coupled scene given as preset sections, grains placed at rest."""
-    from ..config.loader import build
-    from ..scene import Scene
-    from ..sim.coupling import Coupler
-    from ..sim.dem import DemSolver
-    from ..sim.flow import FlowSolver
-
+def _coupled(sections: dict, positions: np.ndarray, radius: float, frozen: bool = False):
+    """The Simulation of a coupled scene given as preset sections, grains placed at rest (``frozen``: they feel
+    the drag but never move); ``sim.step()`` is one fluid step of run.step."""
     radii = np.full(len(positions), radius)
     grains = {"position": positions, "velocity": np.zeros_like(positions), "radius": radii}
-    scene = Scene(build(sections, "<accuracy>"), "<accuracy>", initial=grains)
-    dem = DemSolver(scene.model)
-    dem.set_grains(positions, None, radii)
-    flow = FlowSolver(scene.flow)
-    return scene, dem, flow, Coupler(scene.coupling, dem, flow)
+    return build_simulation(Scene(build(sections, "<accuracy>"), "<accuracy>", initial=grains), frozen=frozen)
 
 
 # ------------------------------------------------------------------------------------ terminal velocity
@@ -65,16 +63,12 @@ def _settling_force(v: float, d: float, rho_p: float) -> float:
 
 def schiller_naumann_terminal(d: float, rho_p: float) -> float:
     """Terminal speed [m/s]: where the net force vanishes (brentq, as tests/test_fluidization.py)."""
-    from scipy.optimize import brentq
-
     return brentq(_settling_force, 1e-9, 100.0, args=(d, rho_p), xtol=1e-14, rtol=1e-12)
 
 
 def schiller_naumann_speed(d: float, rho_p: float, t: float) -> float:
     """Falling speed [m/s] at time t [s] of a grain released at rest: m dv/dt = the net force above,
     integrated to 1e-10 (what the coupled run must reproduce: it has no added mass or history force)."""
-    from scipy.integrate import solve_ivp
-
     mass = rho_p * math.pi * d ** 3 / 6
     sol = solve_ivp(lambda _, v: [_settling_force(max(v[0], 0.0), d, rho_p) / mass], (0.0, t), [0.0],
                     method="LSODA", rtol=1e-10, atol=1e-12)
@@ -96,16 +90,10 @@ def settling_grain(d: float, fluid_step: float, cell_size: float, precision: str
         "coupling": {"drag": "schiller_naumann"},
         "boundary": {"top": "pressure_outlet"},
     }
-    scene, dem, flow, cp = _coupled(sections, np.array([[0.004, 0.004, 0.22]]), d / 2)
+    sim = _coupled(sections, np.array([[0.004, 0.004, 0.22]]), d / 2)
     n = max(2, round(seconds / fluid_step))
-
-    def step():
-        cp.step(fluid_step)
-        flow.step(fluid_step)
-        dem.advance(scene.derived.substeps)
-
-    wall = _timed_steps(step, n)
-    return {"speed": float(-dem.read("velocity")[0, 2]), "cost": wall / ((n - 1) * fluid_step)}
+    wall = _timed_steps(sim.step, n)
+    return {"speed": float(-sim.dem.read("velocity")[0, 2]), "cost": wall / ((n - 1) * fluid_step)}
 
 
 def _terminal_velocity(settings: dict, size: str) -> dict:
@@ -155,19 +143,14 @@ def frozen_bed(cell_size: float, tolerance: float, precision: str, velocities, s
         "boundary": {"bottom": {"kind": "velocity_inlet", "velocity": [0.0, 0.0, velocities[0]]},
                      "top": "pressure_outlet", "x-": side, "x+": side, "y-": side, "y+": side},
     }
-    _, _, flow, cp = _coupled(sections, pos, d / 2)
+    sim = _coupled(sections, pos, d / 2, frozen=True)
     eps = 1 - math.pi / 6
-    nx, ny, _ = flow.config.shape
+    nx, ny, _ = sim.flow.config.shape
     ratios, wall = [], 0.0
     for U in velocities:
-        flow.set_inlet_profile("bottom", np.full((nx, ny), U))
-
-        def step():
-            cp.step(1e-3)
-            flow.step(1e-3)
-
-        wall += _timed_steps(step, steps)
-        p = flow.pressure()
+        sim.flow.set_inlet_profile("bottom", np.full((nx, ny), U))
+        wall += _timed_steps(sim.step, steps)
+        p = sim.flow.pressure()
         dp = p[:, :, 0].mean() - p[:, :, -1].mean() - RHO_G * G * (p.shape[2] - 1) * cell_size
         ratios.append(dp / (ergun_gradient(U, eps, d) * ERGUN_LAYERS * d))
     return {"ratios": ratios, "cost": wall / (len(velocities) * (steps - 1))}
@@ -191,16 +174,13 @@ def pipe_flow(cells_across: int, tolerance: float, axis_offset: float = 0.0) -> 
     to 1% by then (from rest it would take three times as long). ``axis_offset`` [cells] shifts the
     axis off a cell centre. Returns the RMS error of the axial velocity over the open faces, relative
     to the exact centreline value."""
-    from ..sim import flow
-    from ..sim.geometry import CylinderWall
-
     h = 1.0 / cells_across
     c = (cells_across / 2 + 1.5 + axis_offset) * h
     wall_ = CylinderWall(center=(c, c), radius=0.5)
-    per = flow.periodic()
-    cfg = flow.FlowConfig(shape=(cells_across + 3, cells_across + 3, 1), h=h, rho=1.0, mu=PIPE_MU,
+    per = gas.periodic()
+    cfg = gas.FlowConfig(shape=(cells_across + 3, cells_across + 3, 1), h=h, rho=1.0, mu=PIPE_MU,
                           gravity=(0, 0, 0), bcs={"z-": per, "z+": per}, walls=(wall_,), tol=tolerance)
-    s = flow.FlowSolver(cfg)
+    s = FlowSolver(cfg)
     xyz = s.grid.face_centres(2)
     r2 = (xyz[..., 0] - c) ** 2 + (xyz[..., 1] - c) ** 2
     u_exact = np.maximum(PIPE_FORCE / (4 * PIPE_MU) * (0.25 - r2), 0.0)
@@ -237,28 +217,22 @@ def ghia_reference() -> dict:
     return json.loads(path.read_text())
 
 
-# ---- the lid-driven cavity (a verification scene; it was in the gas solver)
-def lid_driven_cavity(n: int = 64, re: float = 100.0, lid_speed: float = 1.0, size: float = 1.0, rho: float = 1.0,
-                      **overrides):
-    """Square lid-driven cavity (Ghia et al. 1982 set-up) in the vertical x-z plane.
+CAVITY_PRESET = pathlib.Path(__file__).resolve().parents[2] / "presets" / "validation" / "cavity.toml"
 
-    n x n cells (one periodic cell in y), walls at x = 0, size and z = 0, the top (z+) lid
-    moving at ``lid_speed`` along +x; Re = rho U L / mu sets mu; no gravity.
-    """
-    from ..sim import flow
 
-    if n < 2 or re <= 0 or lid_speed == 0 or size <= 0:
-        raise ValueError("cavity: need n >= 2, re > 0, lid_speed != 0, size > 0")
-    mu = rho * abs(lid_speed) * size / re
-    bcs = {"x-": flow.wall(), "x+": flow.wall(), "y-": flow.periodic(), "y+": flow.periodic(), "z-": flow.wall(),
-           "z+": flow.moving_wall((lid_speed, 0.0, 0.0))}
-    kw = dict(shape=(n, 1, n), h=size / n, rho=rho, mu=mu, gravity=(0.0, 0.0, 0.0), bcs=bcs, tol=1e-6)
-    kw.update(overrides)
-    return flow.FlowConfig(**kw)
+def cavity_scene(cells: int, tolerance: float, convection: str, dt: float, seconds: float) -> Scene:
+    """The shipped Re = 100 cavity (presets/validation/cavity.toml: the unit square in the x-z plane, one periodic
+    cell in y, the lid sliding at 1 m/s along x) at ``cells`` cells a side, run for ``seconds`` at steps of ``dt``
+    [s] with the pressure ``tolerance`` and the ``convection`` scheme, in Taichi's current precision."""
+    h = 1.0 / cells
+    overrides = [f"domain.hi=[1.0, {h!r}, 1.0]", f"gas.cell_size={h!r}", f"gas.tolerance={tolerance!r}",
+                 f'gas.convection="{convection}"', f"run.step={dt!r}", f"run.duration={seconds!r}",
+                 f'run.precision="{runtime.current()[1]}"']
+    return Scene(load(CAVITY_PRESET, overrides), str(CAVITY_PRESET))
 
 
 def cavity_centrelines(solver):
-    """(z, u on x = L/2) and (x, w on z = L/2) of a :func:`lid_driven_cavity` solver (n even),
+    """(z, u on x = L/2) and (x, w on z = L/2) of a cavity's gas solver (:func:`cavity_scene`, n even),
     wall values included, both coordinates scaled by the cavity size."""
     n = solver.config.shape[0]
     h = solver.config.h
@@ -278,13 +252,11 @@ def cavity_flow(cells: int, tolerance: float, convection: str, lid_cfl: float, r
     """Re = 100 lid-driven unit cavity (lid 1 m/s) from rest to ``seconds`` at steps of ``lid_cfl`` cells
     per step at the lid: RMS difference from Ghia's centreline velocities (u on x = 1/2, w on z = 1/2,
     all their points). 10 s, as the preset: the flow then drifts by ~1e-3 per second."""
-    from ..sim import flow
-
-    s = flow.FlowSolver(lid_driven_cavity(cells, re=100.0, tol=tolerance, convection=convection))
     dt = lid_cfl / cells
+    sim = build_simulation(cavity_scene(cells, tolerance, convection, dt, seconds))
     n = round(seconds / dt)
-    wall = _timed_steps(lambda: s.step(dt), n)
-    (zc, uc), (xc, wc) = cavity_centrelines(s)
+    wall = _timed_steps(sim.step, n)
+    (zc, uc), (xc, wc) = cavity_centrelines(sim.flow)
     ru, rv = ref["u_on_vertical_centreline"], ref["v_on_horizontal_centreline"]
     diff = np.concatenate([np.interp(ru["y"], zc, uc) - ru["u"], np.interp(rv["x"], xc, wc) - rv["v"]])
     return {"error": float(np.sqrt(np.mean(diff ** 2))), "cost": wall / ((n - 1) * dt)}

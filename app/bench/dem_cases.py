@@ -8,8 +8,11 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from scipy.special import beta
 
-from . import Case
+from ..config import load_text
+from ..scene import Scene, build_simulation
+from .cases import Case
 
 PAIR = """
 [run]
@@ -47,16 +50,12 @@ def pair_collision(dt_fraction: float, e: float = 0.9, v: float = 0.5, precision
     the contact took, the wall time of the substeps (one thread), and the touching interval
     interpolated between steps [s] (contact_duration) with the exact elastic Hertz one (hertz_duration:
     the reference when e = 1)."""
-    from ..config import load_text
-    from ..scene import Scene
-    from ..sim.dem import DemSolver
-
     text = PAIR.format(precision=precision, e=e, f=dt_fraction, v=v, E=youngs_modulus)
-    scene = Scene(load_text(text, "pair.toml"), "pair.toml")
-    dem = DemSolver(scene.model)
     r, gap = 1.0e-3, 1.0e-9
-    dem.set_grains(np.array([[-r - gap, 0, 0], [r + gap, 0, 0]]), np.array([[v / 2, 0, 0], [-v / 2, 0, 0]]),
-                   np.full(2, r))
+    grains = {"position": np.array([[-r - gap, 0, 0], [r + gap, 0, 0]]),
+              "velocity": np.array([[v / 2, 0, 0], [-v / 2, 0, 0]]), "radius": np.full(2, r)}
+    scene = Scene(load_text(text, "pair.toml"), "pair.toml", initial=grains)
+    dem = build_simulation(scene).dem   # stepped one DEM step at a time: the contact is resolved step by step
     dt = scene.derived.dt
     steps, touching_steps = 0, 0
     sep_before = 2 * (r + gap)
@@ -90,8 +89,6 @@ def hertz_duration_exact(cfg, radius: float, speed: float) -> float:
     """Elastic Hertz contact duration [s] of two equal grains of ``radius`` [m] meeting at ``speed``
     [m/s], with the exact coefficient (4/5) (15/16)^(2/5) B(2/5, 1/2) = 2.86827 (app.config.derived
     rounds it to 2.868 to pick the step; the reference must not carry that rounding)."""
-    from scipy.special import beta
-
     c = cfg.contact
     m_eff = cfg.particles.density * 4.0 / 3.0 * np.pi * radius ** 3 / 2
     e_star = c.youngs_modulus / (2 * (1 - c.poisson_ratio ** 2))

@@ -1,9 +1,10 @@
-"""`fbed bench accuracy`: run time against error, one cost knob at a time.
+"""The accuracy bench's case record: what a verification case declares.
 
 Owns: the :class:`Case` record (a verification case with an exact or published answer, the knobs
-that trade its cost against its error, and the acceptable error that defines the knee), the
-registry of cases (one module per family: :mod:`.dem_cases`, :mod:`.gas_cases`, :mod:`.bed_cases`)
-and the runner (:mod:`.runner`: sweeps, CSV, Pareto plots, the recommended-settings table).
+that trade its cost against its error, and the acceptable error that defines the knee) and the two
+exceptions a measure may raise. The families (one module each: :mod:`.dem_cases`, :mod:`.gas_cases`,
+:mod:`.bed_cases`) register their cases in ``CASES``; the runner (:mod:`.accuracy`: the registry,
+sweeps, CSV, Pareto plots, the recommended-settings table) collects them.
 
 A case's ``measure(settings, size)`` builds and runs its scene with ``settings`` (every knob of the
 case at its default except the one swept) at ``size`` ('small': seconds to a minute on a CPU core;
@@ -39,19 +40,3 @@ class Case:
     measure: Callable[[dict, str], dict]
     note: str = ""              # one line for the table: the reference's own uncertainty, caveats
 
-
-def all_cases() -> list[Case]:
-    """Every registered case, in a stable order (DEM, gas, then coupled beds)."""
-    out: list[Case] = []
-    from . import dem_cases
-
-    out += dem_cases.CASES
-    for mod in ("gas_cases", "bed_cases"):
-        try:
-            m = __import__(f"{__name__}.{mod}", fromlist=["CASES"])
-        except ModuleNotFoundError as err:  # a family not written yet
-            if err.name != f"{__name__}.{mod}":
-                raise
-            continue
-        out += m.CASES
-    return out

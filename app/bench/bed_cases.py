@@ -15,8 +15,8 @@ A bed this small (15 grains, 6 gas cells across) slugs rather than bubbles, and 
 what the window holds is the bed's start-up (the first slug), which is also why it is reproducible enough to
 compare settings with (the perturbed twin measures how reproducible: see ``reference``).
 
-Each run goes through :func:`app.run.run` in this process (Taichi as the runner started it) in a temporary
-folder. Its cost is the stepping wall time per simulated second after the first ``WARM_UP`` seconds: the
+Each run goes through :func:`app.run.run` in this process (Taichi as the runner started it; the reference runs
+restart it at their own precision and hand it back) in a temporary folder; :mod:`.bed_figures` reads its files. Its cost is the stepping wall time per simulated second after the first ``WARM_UP`` seconds: the
 run.h5 wall_time series is ``Simulation.wall_elapsed`` (the steps only, not the writers), and kernel
 compilation happens on the first steps. On the CPU it is scaled by the share of a core the run got, so other
 jobs on the machine inflate it less (not entirely: they also slow the core's caches; repeated benches on a busy
@@ -35,29 +35,26 @@ import hashlib
 import io
 import json
 import math
-import os
 import pathlib
 import resource
-import subprocess
-import sys
 import tempfile
 import time
 
 import numpy as np
 
-from . import Case, Interrupted
 from ..config.schema import ContactConfig, DemConfig, GasConfig, RunConfig
+from ..io import store
+from ..run import run
+from ..sim import runtime
+from .bed_figures import (DENSITY, DIAMETER, DRAG, GAS_DENSITY, GAS_VISCOSITY, GRAVITY, INLET_RAMP,  # noqa: F401
+                          WARM_UP, bulk_voidage, fixed_bed_umf, predicted_umf, voidage_profile, window_stats)
+from .cases import Case, Interrupted
 
-DIAMETER, DENSITY = 3.0e-3, 2500.0   # [m], [kg/m^3]: glass; 3 mm for a DEM step a CPU core can afford
-GAS_DENSITY, GAS_VISCOSITY = 1.2, 1.8e-5
-GRAVITY = 9.81
-DRAG = "wen_yu"
+# the bed's material, drag law and inlet ramp, and the figures, are bed_figures' (imported above; the tests and
+# the stiffness study read them from here)
 U_OVER_UMF = 2.0                     # the inlet's final velocity over the predicted U_mf
-INLET_RAMP = 0.1                     # [s] the inlet rises linearly from 0 over this time (slow: a fixed-bed curve)
-WARM_UP = 0.02                       # [s] steps left out of the cost (kernel compilation)
 SERIES_INTERVAL = 1.0e-3             # [s]
 SNAPSHOT_INTERVAL = 0.01             # [s] grain snapshots (the floor's force, the momentum) and 3-D void fraction
-UMF_FIT = (0.3, 0.7)                 # fixed-bed points fitted, as fractions of the predicted U_mf
 PERTURBATION = 1.0e-6                # [m] random displacement of the perturbed twin's grains (0.03% of d)
 
 
@@ -150,8 +147,6 @@ volume_interval = {snapshots}
 
 def _taichi() -> tuple[str, str, int]:
     """(arch, precision, threads) Taichi was started with (by the runner, a test or the stiffness study)."""
-    from ..sim import runtime
-
     started = runtime.current()
     if started is None:
         raise RuntimeError("Taichi is not started: app.sim.runtime.init(...) first (the accuracy runner does)")
@@ -180,8 +175,6 @@ def scene_text(bed: Bed, settings: dict, grains: str, u: float | None = None, pl
 def run_scene(text: str, folder: pathlib.Path) -> dict:
     """Run preset ``text`` in this process with the current Taichi (the text's precision must be Taichi's);
     return its summary with ``exit`` and ``log`` (the run's messages, kept off the terminal)."""
-    from ..run import run
-
     arch, precision, _ = _taichi()
     if f'precision = "{precision}"' not in text:
         raise RuntimeError(f"the scene's precision differs from Taichi's ({precision}): the runner sets both")
@@ -213,28 +206,18 @@ class _Clock:
         return min(1.0, (self._cpu() - self.cpu0) / max(time.perf_counter() - self.wall0, 1e-9))
 
 
-def run_process(text: str, folder: pathlib.Path) -> float:
-    """Run preset ``text`` as `fbed run` in its own process (its own precision; this process's Taichi untouched);
-    returns the share of a CPU core it got (see _Clock)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "scene.toml").write_text(text)
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(pathlib.Path(__file__).resolve().parents[2]) + os.pathsep + env.get("PYTHONPATH", "")
-    clock = _Clock(resource.RUSAGE_CHILDREN)
-    r = subprocess.run([sys.executable, "-m", "app", "run", str(folder / "scene.toml"), "--out", str(folder / "run"),
-                        "--overwrite", "--arch", _taichi()[0]], capture_output=True, text=True, env=env)
-    if r.returncode in (130, -2, -15):  # stopped by Ctrl-C or SIGTERM (the signal reaches its process group)
+def run_alone(text: str, folder: pathlib.Path, precision: str) -> float:
+    """Run preset ``text`` (of ``precision``, on one thread) in this process, Taichi restarted for it where its
+    settings differ and handed back as it was afterwards; returns the share of a CPU core it got (see _Clock).
+    A run stopped by a signal raises Interrupted; one that fails, RuntimeError with its messages."""
+    with runtime.kept():
+        runtime.init(_taichi()[0], precision, 1)
+        summary = run_scene(text, folder)
+    if summary["status"] == "interrupted":
         raise Interrupted(f"{folder}: the run was stopped by a signal")
-    if r.returncode != 0:
-        raise RuntimeError(f"{folder}: the run did not finish (exit {r.returncode}):\n{r.stderr[-2000:]}")
-    return clock.share()
-
-
-def stepping_cost(series: dict, warm_up: float = WARM_UP) -> float:
-    """Wall seconds of stepping per simulated second after ``warm_up`` [s] (compilation left out)."""
-    t, wall = series["time"], series["wall_time"]
-    i = int(np.searchsorted(t, t[0] + warm_up - 1e-12))
-    return float((wall[-1] - wall[i]) / max(t[-1] - t[i], 1e-12))
+    if summary["exit"] != 0:
+        raise RuntimeError(f"{folder}: the run did not finish (exit {summary['exit']}):\n{summary['log'][-2000:]}")
+    return summary["cpu_share"]
 
 
 @functools.lru_cache(maxsize=1)
@@ -261,8 +244,6 @@ def settled_bed(size: str, perturbed: bool = False, youngs_modulus: float | None
     fbed's) and the other defaults, cached: each run starts from the bed settled with its own contacts (a bed
     settled softer holds overlaps that would spring a stiffer one apart). ``perturbed``: the default bed with
     every grain displaced at random by PERTURBATION (the twin's start)."""
-    from ..io import store
-
     bed = SIZES[size]
     _, precision, threads = _taichi()
     settings = {**DEFAULTS, "precision": precision, "youngs_modulus": youngs_modulus or DEFAULTS["youngs_modulus"]}
@@ -285,46 +266,11 @@ def settled_bed(size: str, perturbed: bool = False, youngs_modulus: float | None
 
 
 def read_grains(path: pathlib.Path) -> dict:
-    from ..io import store
-
     return store.read_state(path)[0]
 
 
 def bed_area(bed: Bed) -> float:
     return math.pi * bed.radius ** 2
-
-
-def voidage_profile(position: np.ndarray, radius: np.ndarray, area: float, dz: float, top: float):
-    """Gas fraction in horizontal slices of thickness dz [m] from z = 0 to ``top`` [m], from the grains' exact
-    sphere-slice volumes over ``area`` [m^2]; returns (slice centres [m], eps)."""
-    edges = np.arange(0.0, top + dz, dz)
-    r = radius[:, None]
-    s = np.clip(edges[None, :] - position[:, 2:3], -r, r)          # each plane relative to each centre
-    below = np.pi * (r * r * s - s ** 3 / 3.0 + 2.0 * r ** 3 / 3.0)  # grain volume below each plane
-    return 0.5 * (edges[1:] + edges[:-1]), 1.0 - np.diff(below, axis=1).sum(0) / (area * dz)
-
-
-def bulk_voidage(position: np.ndarray, radius: np.ndarray, area: float) -> float:
-    """Gas fraction of the bed's bulk, between 0.2 and 0.8 of its height (the 95th percentile of the grain
-    heights, as the bed-height diagnostic): away from the ordered layer on the floor and the loose surface."""
-    h95 = float(np.quantile(position[:, 2], 0.95))
-    zc, eps = voidage_profile(position, radius, area, 0.05 * h95, h95)
-    return float(np.mean(eps[(zc > 0.2 * h95) & (zc < 0.8 * h95)]))
-
-
-def predicted_umf(eps: float) -> float:
-    """U_mf [m/s] the drag law predicts for a uniform bed of gas fraction ``eps``: the superficial velocity at
-    which the drag per bed volume, beta(eps, U/eps) U / eps^2, carries the buoyant weight (1 - eps)(rho_p -
-    rho_g) g."""
-    from scipy.optimize import brentq
-
-    from ..sim import drag
-
-    def excess(u):
-        beta = float(drag.beta(DRAG, eps, u / eps, DIAMETER, GAS_DENSITY, GAS_VISCOSITY))
-        return beta * u / eps ** 2 - (1.0 - eps) * (DENSITY - GAS_DENSITY) * GRAVITY
-
-    return float(brentq(excess, 1e-3, 20.0))
 
 
 def settled_umf(size: str, youngs_modulus: float | None = None) -> tuple[float, float]:
@@ -342,106 +288,11 @@ def _packing_umf(path: str, area: float) -> tuple[float, float]:
 
 # ---------------------------------------------------------------------------- one run, every figure
 
-def fixed_bed_umf(series: dict, u_final: float, u_pred: float, weight: float, fluid_step: float,
-                  bed_height: float, eps: float, domain_height: float) -> float:
-    """U_mf [m/s] read off the ramp: dp = a U + b U^2 fitted to the fixed-bed points between UMF_FIT of the
-    predicted U_mf and extended to the weight per area ``weight`` [Pa] (the classical reading: where the
-    fixed-bed curve meets dp = W). The gas column's acceleration, rho_g dU/dt (H - H_bed + H_bed / eps), is
-    taken off the pressure drop first (about 2% of it on this ramp)."""
-    t = series["time"]
-    ramp = np.clip((t - fluid_step) / INLET_RAMP, 0.0, 1.0)   # a record at t follows the step blown at t - step
-    u = u_final * ramp
-    accel = np.where((ramp > 0) & (ramp < 1), u_final / INLET_RAMP, 0.0)
-    dp = series["pressure_drop"] - GAS_DENSITY * accel * (domain_height - bed_height + bed_height / eps)
-    sel = (u >= UMF_FIT[0] * u_pred) & (u <= UMF_FIT[1] * u_pred)
-    a, b = np.linalg.lstsq(np.column_stack([u[sel], u[sel] ** 2]), dp[sel], rcond=None)[0]
-    return float((-a + math.sqrt(a * a + 4.0 * b * weight)) / (2.0 * b) if b > 0 else weight / a)
-
-
-def _momentum(group) -> float:
-    r, v = group["radius"][...].astype(float), group["velocity"][...].astype(float)
-    return float(np.sum(DENSITY * 4.0 / 3.0 * np.pi * r ** 3 * v[:, 2]))
-
-
-def floor_force(group, youngs_modulus: float) -> float:
-    """Upward force of the floor on the grains of a snapshot [N]: Hertz's elastic force of each grain's overlap
-    with the floor (the floor as stiff as the grains: E* = E / (2 (1 - nu^2))). Damping is left out: it pushes
-    while an impact compresses and pulls while it rebounds, and averages out over the window's many contacts."""
-    nu = ContactConfig.__dataclass_fields__["poisson_ratio"].default
-    r = group["radius"][...].astype(float)
-    overlap = np.clip(r - group["position"][:, 2].astype(float), 0.0, None)
-    return float(np.sum(4.0 / 3.0 * youngs_modulus / (2.0 * (1.0 - nu * nu)) * np.sqrt(r) * overlap ** 1.5))
-
-
-def void_figures(frames: np.ndarray, times: np.ndarray, h: float, mask: np.ndarray, series: dict) -> dict:
-    """From 3-D void-fraction frames (nt, nx, ny, nz): the mean equivalent diameter of the bubbles in the
-    horizontal layers below the bed surface (Verma's rule: eps > 0.7, regions over half the cross-section
-    dropped), their number, and the mean height of the gas pocket (the layers below the surface whose
-    cross-section mean eps exceeds 0.7: the slug that lifts the bed)."""
-    from ..analysis import bubbles
-    from ..analysis.verma import MAX_AREA_FRACTION
-
-    z = (np.arange(frames.shape[3]) + 0.5) * h
-    surface = np.interp(times, series["time"], series["bed_height"])
-    diameters, pockets = [], []
-    for frame, top in zip(frames, surface):
-        inside = z < top - h
-        layer_eps = (frame * mask[:, :, None]).sum((0, 1)) / mask.sum()
-        pockets.append(h * np.count_nonzero(inside & (layer_eps > bubbles.THRESHOLD)))
-        diameters += [b["diameter"] for k in np.nonzero(inside)[0]
-                      for b in bubbles.plane_bubbles(frame[:, :, k], h, mask=mask,
-                                                     max_area=MAX_AREA_FRACTION * mask.sum() * h * h)]
-    return {"bubble_diameter": float(np.mean(diameters)) if diameters else float("nan"), "bubbles": len(diameters),
-            "gas_pocket_height": float(np.mean(pockets))}
-
-
-def window_stats(run_dir: pathlib.Path, t0: float, t1: float, youngs_modulus: float) -> dict:
-    """Over [t0, t1] [s] of a finished run: bed height (mean, std, peak); the pressure drop over the weight,
-    raw and as the force balance (with the grains' momentum change and the floor's force); the largest
-    overlap; bubbles and the gas pocket (``void_figures``)."""
-    import h5py
-
-    from ..io import store
-
-    summary = json.loads((run_dir / "summary.json").read_text())
-    series = store.read_series(run_dir / "run.h5")
-    t = series["time"]
-    sel = (t >= t0 - 1e-9) & (t <= t1 + 1e-9)
-    height = series["bed_height"][sel]
-    dp_mean = float(np.trapezoid(series["pressure_drop"][sel], t[sel]) / (t[sel][-1] - t[sel][0]))
-    weight = summary["bed_weight_per_area"]
-    with h5py.File(run_dir / "run.h5", "r") as f:
-        snaps = sorted(((float(g["time"][()]), g) for g in f["particles"].values()), key=lambda s: s[0])
-        snaps = [(ts, g) for ts, g in snaps if t0 - 1e-9 <= ts <= t1 + 1e-9]
-        radius = snaps[0][1]["radius"][...].astype(float)
-        change = _momentum(snaps[-1][1]) - _momentum(snaps[0][1])
-        ts = np.array([ts for ts, _ in snaps])
-        floor = float(np.trapezoid([floor_force(g, youngs_modulus) for _, g in snaps], ts) / (ts[-1] - ts[0]))
-        vt = f["porosity3d"]["time"][...]
-        pick = (vt >= t0 - 1e-9) & (vt <= t1 + 1e-9)
-        frames = f["porosity3d"]["porosity"][pick]
-        h = float(f["porosity3d"].attrs["h"])
-        mask = f["planes"]["mask"][...].astype(bool)
-    # mean(dp) A + floor = W + (change of the grains' vertical momentum) / T: the momentum term is the
-    # slug's rise and fall, the floor's the grains raining out of the slug onto it (walls are frictionless)
-    area = float(np.sum(DENSITY * 4.0 / 3.0 * np.pi * radius ** 3)) * GRAVITY * (1 - GAS_DENSITY / DENSITY) / weight
-    inertia = change / (area * (t1 - t0)) / weight
-    floor_share = floor / area / weight
-    return {"bed_height_mean": float(np.mean(height)), "bed_height_std": float(np.std(height)),
-            "bed_height_max": float(np.max(height)), "dp_over_weight_raw": dp_mean / weight,
-            "dp_over_weight": dp_mean / weight - inertia + floor_share, "momentum_over_weight": inertia,
-            "floor_over_weight": floor_share, "max_overlap": float(np.max(series["max_overlap"][sel])),
-            **void_figures(frames, vt[pick], h, mask, series), "substeps": summary.get("substeps_per_step"),
-            "cost": stepping_cost(series), "grains_removed": summary.get("grains_removed", 0)}
-
-
 def run_figures(run_dir: pathlib.Path, size: str, settings: dict, cpu_share: float = 1.0) -> dict:
     """Every figure of a finished bed run: the window's statistics, and the U_mf of its ramp against the drag
     law's for the bed it started from. ``cost``: the stepping wall time per simulated second, on the CPU scaled
     by the share of a core the run got (so a machine busy with other jobs does not inflate it; ``cost_wall``:
     as measured)."""
-    from ..io import store
-
     bed = SIZES[size]
     e = settings["youngs_modulus"]
     u_pred, eps = settled_umf(size, e)
@@ -496,10 +347,11 @@ def bed_run(settings: dict, size: str) -> dict:
 
 def reference(size: str) -> dict:
     """The tightly resolved run (REFERENCE settings, float64) and the default run's perturbed twin (its grains
-    displaced at random by PERTURBATION at the start), each in its own process, their figures cached (the key
-    is the scenes' text and a hash of the solver's sources, so a changed solver runs afresh). ``noise_*``: the twin
-    against the default run, relative: how far a perturbation far below any knob's effect moves the figure
-    (a bubbling bed is chaotic), so an error below it cannot be resolved."""
+    displaced at random by PERTURBATION at the start), each in this process at its own precision on one thread
+    (``run_alone``), their figures cached (the key is the scenes' text and a hash of the solver's sources, so a
+    changed solver runs afresh). ``noise_*``: the twin against the default run, relative: how far a perturbation
+    far below any knob's effect moves the figure (a bubbling bed is chaotic), so an error below it cannot be
+    resolved."""
     cache = _cache_dir("reference", size, bed_text(size, REFERENCE) + bed_text(size, DEFAULTS))
     path = cache / "figures.json"
     if path.exists():
@@ -508,7 +360,8 @@ def reference(size: str) -> dict:
     for name, settings, start in (("reference", REFERENCE, None), ("twin", DEFAULTS, settled_bed(size, True)),
                                   ("default", DEFAULTS, None)):
         text = bed_text(size, settings, start).replace(f"threads = {_taichi()[2]}", "threads = 1")
-        out[name] = run_figures(cache / name / "run", size, settings, run_process(text, cache / name))
+        share = run_alone(text, cache / name, settings["precision"])
+        out[name] = run_figures(cache / name / "run", size, settings, share)
     for k in ("bed_height_mean", "bed_height_std", "dp_over_weight", "umf_simulated"):
         out[f"noise_{k}"] = abs(out["twin"][k] / out["default"][k] - 1.0)
     path.write_text(json.dumps(out, indent=1))

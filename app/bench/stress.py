@@ -15,6 +15,7 @@ Never a NaN written, never a traceback, never a hang. The table goes to benchmar
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import json
 import math
 import os
@@ -23,7 +24,12 @@ import subprocess
 import sys
 import time
 
+import h5py
 import numpy as np
+
+from ..config import load
+from ..config.derived import derive
+from ..io import store
 
 BASE = """
 [run]
@@ -123,8 +129,6 @@ def lattice(kind: str, n_target: int, d: float, radius: float, z0: float = 0.0) 
 
 
 def write_bed(path: pathlib.Path, kind: str, n: int = 1200) -> None:
-    from .io import store
-
     pos = lattice(kind, n, 2.0e-3, 0.015)
     grains = {"position": pos, "velocity": np.zeros_like(pos), "radius": np.full(len(pos), 1.0e-3)}
     store.write_checkpoint(path, grains, None, 0.0, 0, "")
@@ -144,8 +148,6 @@ def preset_text(s: Scene, bed_path: str = "") -> str:
 
 def judge(s: Scene, rc: int | None, out: pathlib.Path, log: str, wall: float) -> dict:
     """The scene's outcome and whether it meets the contract."""
-    import h5py
-
     row = {"scene": s.name, "what": s.what, "exit": rc, "wall_s": round(wall, 1)}
     problems = []
     if rc is None:
@@ -209,15 +211,12 @@ def run_scene(s: Scene, out_dir: pathlib.Path, arch: str, limit: float) -> dict:
     args = [sys.executable, "-m", "app", "run", str(preset), "--out", str(work / "run"), "--overwrite", "--arch", arch]
     overrides = list(s.overrides)
     if "dt_factor" in s.params:  # a DEM step as a multiple of this scene's collision time
-        from .config import load
-        from .config.derived import derive
-
         tc = derive(load(preset), str(preset)).collision_time
         overrides += [f"dem.dt={s.params['dt_factor'] * tc:.6g}", "dem.force_dt=true"]
     for o in overrides:
         args += ["--set", o]
     env = dict(os.environ)
-    env["PYTHONPATH"] = str(pathlib.Path(__file__).resolve().parents[1]) + os.pathsep + env.get("PYTHONPATH", "")
+    env["PYTHONPATH"] = str(pathlib.Path(__file__).resolve().parents[2]) + os.pathsep + env.get("PYTHONPATH", "")
     t0 = time.perf_counter()
     try:
         r = subprocess.run(args, capture_output=True, text=True, env=env, timeout=limit)
@@ -244,8 +243,6 @@ def table(rows: list[dict]) -> str:
 
 
 def stress(out: str | None = None, names: list[str] | None = None, arch: str = "cpu", limit: float = 600.0) -> int:
-    import datetime
-
     out_dir = pathlib.Path(out) if out else pathlib.Path("runs") / "stress"
     out_dir.mkdir(parents=True, exist_ok=True)
     chosen = [s for s in SCENES if not names or s.name in names]
@@ -256,7 +253,7 @@ def stress(out: str | None = None, names: list[str] | None = None, arch: str = "
         print(f"  {s.name}: {row['outcome']}{'' if row['ok'] else '  FAILED: ' + row['problems']}", file=sys.stderr,
               flush=True)
     text = (f"# Stress scenes\n\n{datetime.date.today().isoformat()}, arch {arch}; `fbed bench stress` "
-            f"(app/bench.py). Each must finish clean or stop with exit 3 and a message naming the setting to "
+            f"(app/bench/stress.py). Each must finish clean or stop with exit 3 and a message naming the setting to "
             f"change, keeping its checkpoint; never a NaN in run.h5, a traceback or a hang.\n\n" + table(rows))
     (out_dir / "STRESS.md").write_text(text)
     (out_dir / "stress.json").write_text(json.dumps(rows, indent=1, default=str))

@@ -1,26 +1,38 @@
-"""Shared by the benchmark scripts: machine description and appending to RESULTS.md."""
+"""Shared by the benchmarks (the scripts in benchmarks/ and the benches of this package): the commit and the
+machine a figure was measured on, appending a table to benchmarks/RESULTS.md, and the fairness helpers of a
+side-by-side benchmark (a contact count any code can be judged by, the A B A B order, the pairwise ratio).
+
+The scripts import it from the installed package (``pip install -e .``): ``from app.bench.common import
+append_results``.
+"""
 from __future__ import annotations
 
 import datetime
+import os
 import pathlib
 import platform
+import statistics
 import subprocess
 
-RESULTS = pathlib.Path(__file__).resolve().parent / "RESULTS.md"
+import numpy as np
+from scipy.spatial import cKDTree
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]   # the checkout (an editable install runs from it)
+RESULTS = ROOT / "benchmarks" / "RESULTS.md"
 
 
-def commit() -> str:
-    import os
-
-    if os.environ.get("FBED_COMMIT"):  # set where the checkout has no .git (the GPU machine's copy)
+def commit(dirty: bool = True) -> str:
+    """The checkout's short commit hash, with '+dirty' when tracked files differ from it (``dirty``), or
+    $FBED_COMMIT where the checkout has no .git (a snapshot, the GPU machine's copy), or 'unknown'."""
+    if os.environ.get("FBED_COMMIT"):
         return os.environ["FBED_COMMIT"]
     try:
         out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                             cwd=RESULTS.parent).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                               text=True, cwd=RESULTS.parent).stdout.strip()
-        return out + ("+dirty" if dirty else "") if out else "unknown"
-    except OSError:
+                             cwd=ROOT, timeout=10).stdout.strip()
+        changed = dirty and subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                                           capture_output=True, text=True, cwd=ROOT, timeout=10).stdout.strip()
+        return out + ("+dirty" if changed else "") if out else "unknown"
+    except (OSError, subprocess.SubprocessError):
         return "unknown"
 
 
@@ -44,8 +56,6 @@ def gpu_name() -> str:
 
 
 def machine_line(arch: str) -> str:
-    import os
-
     return f"CPU {cpu_model()} ({os.cpu_count()} cores); GPU {gpu_name() if arch == 'cuda' else 'not used'}"
 
 
@@ -76,9 +86,6 @@ def count_contacts(position, radius, cylinder_radius: float | None = None, cente
     Walls, each when given: the floor z = ``floor_z`` (z - r < floor_z) and a z-cylinder of radius
     ``cylinder_radius`` [m] about ``center`` (r_xy + r > R). Returns pairs, floor, cylinder, walls, total.
     """
-    import numpy as np
-    from scipy.spatial import cKDTree
-
     pos = np.asarray(position, dtype=np.float64).reshape(-1, 3)
     r = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(pos),))
     pairs = 0
@@ -104,8 +111,6 @@ def interleaved(first: str, second: str, repeats: int) -> list[tuple[int, str]]:
 
 def median_ratio(a: list[float], b: list[float]) -> tuple[float, float, float]:
     """Median, min and max of the pair-by-pair ratios a[k] / b[k] (pairs run next to each other)."""
-    import statistics
-
     if len(a) != len(b) or not a:
         raise ValueError("need as many timings of each code, at least one")
     q = [x / y for x, y in zip(a, b)]

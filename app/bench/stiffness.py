@@ -22,7 +22,10 @@ import datetime
 import math
 import pathlib
 
-from . import Interrupted, bed_cases
+from ..sim import runtime
+from . import bed_cases
+from .accuracy import csv_value, same_bench, signals_interrupt
+from .cases import Interrupted
 
 MODULI = (1.0e5, 1.0e6, 5.0e6, 1.0e7, 1.0e8)   # [Pa]; 5e6 is fbed's default (the schema's)
 SETTLED = 0.05                                  # a step of E that changes no figure by more than 5% leaves it settled
@@ -98,7 +101,7 @@ def write_csv(rows: list[dict], path: pathlib.Path) -> None:
 
 
 def plot(rows: list[dict], path: pathlib.Path, size: str = "small") -> None:
-    import matplotlib
+    import matplotlib  # heavy, and only for the figure: imported when one is drawn
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -172,9 +175,6 @@ def stiffness(out: str | None = None, size: str = "small", arch: str = "cpu", th
     """Run the bed at each modulus; write stiffness.csv, stiffness.png and STIFFNESS.md into ``out`` (default
     runs/stiffness) and print the table. ``resume``: keep the moduli already in out/stiffness.csv. Returns 0, or
     130 when a run was stopped by a signal (the moduli measured before it are written)."""
-    from ..sim import runtime
-    from .runner import _cell, same_bench, signals_interrupt
-
     out_dir = pathlib.Path(out) if out else pathlib.Path("runs") / "stiffness"
     out_dir.mkdir(parents=True, exist_ok=True)
     csv_path = out_dir / "stiffness.csv"
@@ -183,7 +183,7 @@ def stiffness(out: str | None = None, size: str = "small", arch: str = "cpu", th
         with open(csv_path, newline="") as fh:
             for r in csv.DictReader(fh):
                 same_bench(r, csv_path, size, arch)
-                kept[float(r["youngs_modulus"])] = {k: (v if k in ("status", "message") else _cell(v))
+                kept[float(r["youngs_modulus"])] = {k: (v if k in ("status", "message") else csv_value(v))
                                                     for k, v in r.items() if v != ""}
         print(f"resuming: {len(kept)} moduli kept from {csv_path}", flush=True)
     rows, rc = [], 0

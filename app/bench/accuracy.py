@@ -2,7 +2,8 @@
 and the recommended-settings table (ACCURACY.md).
 
 Owns: the order of the sweep (rows grouped by float precision, so Taichi restarts at most twice),
-the knee rule, and the files. The cases own their scenes (:mod:`app.accuracy`).
+the knee rule, and the files. The cases own their scenes (:mod:`.dem_cases`,
+:mod:`.gas_cases`, :mod:`.bed_cases`); the registry is :func:`all_cases`.
 
 Knee rule: among the values of one knob, the recommended one is the cheapest whose error is within
 the case's tolerance; where none is, the cheapest of those within 1% of the smallest error (errors that
@@ -22,24 +23,26 @@ import csv
 import datetime
 import functools
 import math
-import os
 import pathlib
 import platform
-import subprocess
+import signal
 import time
 
-from . import Case, Interrupted, Unavailable, all_cases
+from ..config import ConfigError
+from ..sim import runtime
+from . import bed_cases, dem_cases, gas_cases
+from .cases import Case, Interrupted, Unavailable
+from .common import commit, gpu_name
+
+
+def all_cases() -> list[Case]:
+    """Every registered case, in a stable order (DEM, gas, then coupled beds)."""
+    return [*dem_cases.CASES, *gas_cases.CASES, *bed_cases.CASES]
 
 
 @functools.lru_cache(maxsize=1)
 def _commit() -> str:  # once per process: every row records it
-    if os.environ.get("FBED_COMMIT"):  # set where the checkout has no .git (a snapshot, the GPU machine's copy)
-        return os.environ["FBED_COMMIT"]
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                              timeout=10).stdout.strip() or "unknown"
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
+    return commit(dirty=False)
 
 
 def sweep_points(case: Case) -> list[tuple[str, object, dict]]:
@@ -60,8 +63,6 @@ def sweep_case(case: Case, size: str, arch: str, threads: int | None = 1, log=pr
     """Rows (one per knob value; the defaults measured once, as every knob's default row). ``done``: rows
     already measured, by (knob, str(value)): reused, not measured again. ``on_row(row)``: called after each
     new row (the runner writes the CSV there)."""
-    from ..sim import runtime
-
     done = done or {}
     rows = []
     for knob, value, settings in sweep_points(case):
@@ -218,7 +219,7 @@ def _across_lines(cases: list[Case], rows: list[dict]) -> list[str]:
 
 
 def pareto_plot(case: Case, rows: list[dict], path: pathlib.Path) -> None:
-    import matplotlib
+    import matplotlib  # heavy, and only for the figure: imported when one is drawn
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -290,8 +291,6 @@ def accuracy(out: str | None = None, names: list[str] | None = None, size: str =
     ``out`` (default runs/accuracy); print the table. ``resume``: keep the rows already in out/accuracy.csv
     and measure the rest (the report then covers every case with rows). Returns 0, or 130 when a run was
     stopped by a signal (what was measured is written)."""
-    from ..sim import runtime
-
     cases = [c for c in all_cases() if not names or c.name in names]
     out_dir = pathlib.Path(out) if out else pathlib.Path("runs") / "accuracy"
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -324,11 +323,8 @@ def accuracy(out: str | None = None, names: list[str] | None = None, size: str =
         return rc
     device = platform.processor() or platform.machine()
     if arch == "cuda":
-        try:
-            device = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"], capture_output=True,
-                                    text=True, timeout=10).stdout.strip() or "GPU"
-        except (OSError, subprocess.SubprocessError):
-            device = "GPU"
+        device = gpu_name()
+        device = "GPU" if device == "none" else device
     reported = [c for c in all_cases() if any(r["case"] == c.name for r in rows)]
     text = report(reported, rows, size, arch, device)
     (out_dir / "ACCURACY.md").write_text(text)
@@ -336,7 +332,7 @@ def accuracy(out: str | None = None, names: list[str] | None = None, size: str =
     return rc
 
 
-def _cell(text: str):
+def csv_value(text: str):
     """A CSV cell back as the value it was written from: int, float, or the text."""
     try:
         return int(text)
@@ -352,8 +348,6 @@ def _cell(text: str):
 def signals_interrupt():
     """SIGTERM (a time limit) raises KeyboardInterrupt while a bench runs, as Ctrl-C does, so the bench ends with
     its report instead of dying mid-write (fbed run installs its own handlers during a bed run: Interrupted)."""
-    import signal
-
     try:
         old = signal.signal(signal.SIGTERM, signal.default_int_handler)
     except ValueError:  # not the main thread: leave signals alone
@@ -367,8 +361,6 @@ def signals_interrupt():
 
 def same_bench(row: dict, path: pathlib.Path, size: str, arch: str) -> None:
     """Refuse to resume from a row of another size or arch (its errors or costs are not this bench's)."""
-    from ..config import ConfigError
-
     if (row.get("size"), row.get("arch")) != (size, arch):
         raise ConfigError(f"it holds rows of size {row.get('size') or '?'!r} on {row.get('arch') or '?'!r}; this bench "
                           f"is size {size!r} on {arch!r}", str(path), "--resume",
@@ -396,7 +388,7 @@ def load_rows(path: pathlib.Path, size: str, arch: str) -> list[dict]:
             value = next((v for v in case.knobs.get(r["knob"], ()) if str(v) == r["value"]), None)
             if value is None:
                 continue
-        rows.append({**{k: _cell(v) for k, v in r.items()}, "value": value, "case": r["case"], "knob": r["knob"],
+        rows.append({**{k: csv_value(v) for k, v in r.items()}, "value": value, "case": r["case"], "knob": r["knob"],
                      "commit": r.get("commit", "")})
     return rows
 
