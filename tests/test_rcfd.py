@@ -234,3 +234,39 @@ def test_face_void_fraction_is_the_two_cells_mean_and_the_cell_on_domain_faces()
         assert np.array_equal(np.take(f, range(1, eps.shape[a]), axis=a), inner)
         assert np.array_equal(np.take(f, [0], axis=a), np.take(eps, [0], axis=a))
         assert np.array_equal(np.take(f, [eps.shape[a]], axis=a), np.take(eps, [eps.shape[a] - 1], axis=a))
+
+
+def test_grain_tracer_rides_on_the_grains_and_is_conserved_and_bounded_at_jumps():
+    """Along the recorded order the grain tracer is the real tracer (no operator); a jump (the stitch, then each
+    grain of the new state takes its cell's concentration) keeps the tagged volume to 1e-12 and tau in [0, 1]."""
+    from app.rcfd.transport import GrainTracer
+
+    rng = np.random.default_rng(5)
+    shape = (4, 3, 5)
+    n, g = int(np.prod(shape)), 400
+    cells = rng.integers(0, n, size=(6, g))
+    vol = rng.uniform(0.5, 1.5, g)
+    tagged = rng.random(g) < 0.4
+    tr = GrainTracer(vol, tagged.astype(float), n)
+    for b in range(6):  # the tagged volume per cell at every boundary is the real grains'
+        m, u = tr.volumes(cells[b])
+        assert np.array_equal(m, np.bincount(cells[b], weights=vol * tagged, minlength=n))
+        assert mixing_index(m, u) == tr.mixing_index(cells[b])
+    st = Stitcher(shape, np.ones(shape, bool), 1.0)
+    a = [np.bincount(cells[b], weights=vol, minlength=n) for b in range(6)]
+    for s_from, s_to in ((0, 3), (3, 1), (1, 5)):
+        S, _ = st.operator(a[s_from], a[s_to])
+        tr.jump(cells[s_from], cells[s_to], S)
+        assert tr.drift() <= 1e-12
+        assert tr.tau.min() >= 0.0 and tr.tau.max() <= 1.0
+        m, u = tr.volumes(cells[s_to])
+        assert np.allclose(m + u, a[s_to], rtol=0, atol=1e-12 * a[s_to].max())  # onto the new state's grains
+
+
+def test_resets_jump_from_a_state_to_itself_every_l_frames():
+    path = pm.Path(np.arange(10, 35), [], ())
+    b0 = np.arange(100) + 7
+    r = pm.with_resets(path, 10, b0)
+    assert [j[0] for j in r.jumps] == [10, 20]
+    assert all(j[1] == j[2] == b0[path.frames[j[0]]] for j in r.jumps)
+    assert np.array_equal(r.frames, path.frames)

@@ -200,6 +200,90 @@ def initial_concentration(db: Database, state: int, tag: str | None) -> np.ndarr
     return tag_mask(tag, db.cell_centres().reshape(-1, 3)).astype(np.float64)
 
 
+def _write_paths(od: pathlib.Path, db: Database, time: np.ndarray, Ms: np.ndarray, ps: list) -> None:
+    """mixing.csv (each path's index, the ensemble mean and std) and path.csv (the frames of every path)."""
+    mean, std = Ms.mean(0), Ms.std(0, ddof=1) if len(Ms) > 1 else np.zeros(Ms.shape[1])
+    with open(od / "mixing.csv", "w") as f:
+        f.write("time," + ",".join(f"path{i}" for i in range(len(Ms))) + ",mean,std\n")
+        for j in range(Ms.shape[1]):
+            f.write(f"{time[j]:.6g}," + ",".join(f"{v:.6f}" for v in Ms[:, j]) + f",{mean[j]:.6f},{std[j]:.6f}\n")
+    with open(od / "path.csv", "w") as f:
+        f.write("path,position,frame,state_start,time_in_database,jump\n")
+        for i, p in enumerate(ps):
+            jpos = {j[0] for j in p.jumps}
+            for pos, k in enumerate(p.frames):
+                f.write(f"{i},{pos},{k},{db.b0[k]},{db.time[db.b0[k]]:.6g},{int(pos in jpos)}\n")
+
+
+def path_bed_statistics(db: Database, ps: list) -> dict:
+    """Bed height and radial void profile at every recorded boundary the paths pass (a lagged frame spans
+    several: no aliasing on the bed's period), against the database's."""
+    lag = int(db.attrs.get("lag", 1))
+    visited = [np.concatenate([np.arange(db.b0[k] + 1, db.b1[k] + 1) for k in p.frames]) for p in ps]
+    heights = np.stack([db.bed_height[v] for v in visited])
+    rbins, prof = radial_profiles(db)
+    path_prof = np.stack([prof[v].mean(0) for v in visited])
+    sp = [rec.spectrum(hh, db.frame_interval / lag) for hh in heights]
+    return {"bed_height_mean": float(heights.mean()), "bed_height_std": float(heights.std(1).mean()),
+            "bed_height_frequency": float(np.mean([s["peak_frequency"] for s in sp])),
+            "database_bed_height_mean": float(db.bed_height.mean()), "database_bed_height_std": float(db.bed_height.std()),
+            "radial_bins": rbins.tolist(), "radial_eps_paths": path_prof.mean(0).tolist(),
+            "radial_eps_database": prof.mean(0).tolist()}
+
+
+def _gas_paths(eng: Engine, ps: list, od: pathlib.Path, time: np.ndarray, horizon: float) -> dict:
+    """The gas tracer's step response along every path (rtd.csv) and its summary."""
+    gr = [eng.gas_transport(p) for p in ps]
+    Fs = np.stack([g["F"] for g in gr])
+    Fm = np.nanmean(Fs, 0)
+    with open(od / "rtd.csv", "w") as f:
+        f.write("time," + ",".join(f"path{i}" for i in range(len(ps))) + ",mean\n")
+        for j in range(time.size):
+            f.write(f"{time[j]:.6g}," + ",".join(f"{v:.6f}" for v in Fs[:, j]) + f",{Fm[j]:.6f}\n")
+    Fz = np.nan_to_num(Fm)
+    dt = eng.db.frame_interval
+    return {"step_response_final": float(Fz[-1]),
+            "mean_residence_time": float(np.sum(1.0 - Fz[1:]) * dt) if Fz[-1] > 0.99 else float("nan"),
+            "balance_error_max": max(g["balance_error"] for g in gr),
+            "jump_mass_share_max": max(g["jump_share"] for g in gr),
+            "c_min": min(g["c_min"] for g in gr), "c_max": max(g["c_max"] for g in gr),
+            "wall_per_simulated_second_per_path": sum(g["wall"] for g in gr) / (len(ps) * horizon),
+            "note": "step input c = 1 at the inlet from the path's start; F(t) = the outlet's mixing-cup c "
+                    "(region top); first-order upwind on the frame-mean fluxes; not validated against a live "
+                    "gas tracer (fbed's gas solver carries none)"}
+
+
+def _path_warnings(balance: float, R_jumps: list, moved: list) -> list:
+    out = []
+    if balance > 2.0:
+        out.append(f"a frame is visited {balance:.2g}x as often as the mean frame (more than 2x)")
+    if R_jumps and float(np.median(R_jumps)) > 0.2:
+        out.append(f"the median R at jumps is {np.median(R_jumps):.3g} (> 0.2): the database has few good recurrences")
+    if moved and max(moved) > 0.01:
+        out.append(f"a stitch moved {100 * max(moved):.2g}% of the grain volume (> 1%)")
+    return out
+
+
+def cost_summary(eng: Engine, rd: pathlib.Path, results: list, horizon: float, t_path: float) -> dict:
+    """The speed-up account: c_full from the database run, c_r from the median path (robust on a shared CPU)."""
+    db = eng.db
+    c_r = float(np.median([r["wall"] for r in results])) / horizon
+    c_full = full_cost_per_second(rd, float(db.time[0]), float(db.time[-1]))
+    t_db = float(db.time[-1] - db.time[0])
+    prep = eng.prep_seconds + eng.stitch_seconds + t_path
+    n = len(results)
+    return {"full_wall_per_simulated_second": c_full, "rcfd_wall_per_simulated_second_per_path": c_r,
+            "prep_seconds": prep, "recurrence_seconds": eng.st["R_seconds"], "stitch_seconds": eng.stitch_seconds,
+            "path_seconds": t_path, "database_seconds_simulated": t_db,
+            "marginal_speedup": c_full / c_r if c_r > 0 else float("inf"),
+            "total_speedup_with_database": c_full * horizon / (c_full * t_db + prep + n * c_r * horizon),
+            "total_speedup_without_database": c_full * horizon / (prep + n * c_r * horizon),
+            "note": "marginal: full wall per simulated second / rCFD transport wall per simulated second of the "
+                    "median path (mixing index after every frame included); total (horizon T, n paths): c_full T / "
+                    "(c_full t_db + prep + n c_r T), with the database run counted, and without it (when it was "
+                    "run anyway)"}
+
+
 def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | None, name: str | None = None,
               out: str | None = None, start: str = "end", engine: Engine | None = None, log=print,
               gas: bool = False, lag: int = 1) -> dict:
@@ -221,98 +305,34 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
     time = np.arange(n_frames + 1) * dt
     Ms = np.stack([r["M"] for r in results])
     mean, std = Ms.mean(0), Ms.std(0, ddof=1) if n_paths > 1 else np.zeros(n_frames + 1)
-    with open(od / "mixing.csv", "w") as f:
-        f.write("time," + ",".join(f"path{i}" for i in range(n_paths)) + ",mean,std\n")
-        for j in range(n_frames + 1):
-            f.write(f"{time[j]:.6g}," + ",".join(f"{v:.6f}" for v in Ms[:, j]) + f",{mean[j]:.6f},{std[j]:.6f}\n")
-    with open(od / "path.csv", "w") as f:
-        f.write("path,position,frame,state_start,time_in_database,jump\n")
-        for i, p in enumerate(ps):
-            jpos = {j[0] for j in p.jumps}
-            for pos, k in enumerate(p.frames):
-                f.write(f"{i},{pos},{k},{db.b0[k]},{db.time[db.b0[k]]:.6g},{int(pos in jpos)}\n")
-    # bed statistics along the paths: the state each frame ends at
-    # every recorded boundary a path passes (a lagged frame spans several): no aliasing on the bed's period
-    visited = [np.concatenate([np.arange(db.b0[k] + 1, db.b1[k] + 1) for k in p.frames]) for p in ps]
-    heights = np.stack([db.bed_height[v] for v in visited])
-    rbins, prof = radial_profiles(db)
-    path_prof = np.stack([prof[v].mean(0) for v in visited])
-    lag = int(db.attrs.get("lag", 1))
-    sp = [rec.spectrum(hh, dt / lag) for hh in heights]
+    _write_paths(od, db, time, Ms, ps)
     t50 = [crossing_time(time, r["M"], 0.5) for r in results]
     t90 = [crossing_time(time, r["M"], 0.9) for r in results]
     moved = [m for r in results for m in r["moved"]]
     R_jumps = [j[3] for p in ps for j in p.jumps]
     balance = pathmod.visit_balance(np.concatenate([p.frames for p in ps]), db.n_frames)
-    warnings = []
-    if balance > 2.0:
-        warnings.append(f"a frame is visited {balance:.2g}x as often as the mean frame (more than 2x)")
-    if R_jumps and float(np.median(R_jumps)) > 0.2:
-        warnings.append(f"the median R at jumps is {np.median(R_jumps):.3g} (> 0.2): the database has few good "
-                        "recurrences")
-    if moved and max(moved) > 0.01:
-        warnings.append(f"a stitch moved {100 * max(moved):.2g}% of the grain volume (> 1%)")
-    gas_res = None
-    if gas:
-        gr = [eng.gas_transport(p) for p in ps]
-        Fs = np.stack([g["F"] for g in gr])
-        Fm = np.nanmean(Fs, 0)
-        with open(od / "rtd.csv", "w") as f:
-            f.write("time," + ",".join(f"path{i}" for i in range(n_paths)) + ",mean\n")
-            for j in range(n_frames + 1):
-                f.write(f"{time[j]:.6g}," + ",".join(f"{v:.6f}" for v in Fs[:, j]) + f",{Fm[j]:.6f}\n")
-        Fz = np.nan_to_num(Fm)
-        gas_res = {"step_response_final": float(Fz[-1]),
-                   "mean_residence_time": float(np.sum(1.0 - Fz[1:]) * dt) if Fz[-1] > 0.99 else float("nan"),
-                   "balance_error_max": max(g["balance_error"] for g in gr),
-                   "jump_mass_share_max": max(g["jump_share"] for g in gr),
-                   "c_min": min(g["c_min"] for g in gr), "c_max": max(g["c_max"] for g in gr),
-                   "wall_per_simulated_second_per_path": sum(g["wall"] for g in gr) / (n_paths * horizon),
-                   "note": "step input c = 1 at the inlet from the path's start; F(t) = the outlet's mixing-cup c "
-                           "(region top); first-order upwind on the frame-mean fluxes; not validated against a live "
-                           "gas tracer (fbed's gas solver carries none)"}
-    c_r = float(np.median([r["wall"] for r in results])) / horizon  # the median path (robust on a shared CPU)
-    c_full = full_cost_per_second(rd, float(db.time[0]), float(db.time[-1]))
-    t_db = float(db.time[-1] - db.time[0])
-    prep = eng.prep_seconds + eng.stitch_seconds + t_path
-    total = c_full * horizon / (c_full * t_db + prep + n_paths * c_r * horizon)
-    total_no_db = c_full * horizon / (prep + n_paths * c_r * horizon)
+    warnings = _path_warnings(balance, R_jumps, moved)
+    same_tag = tag is None or tag.replace(" ", "") == db.tag.replace(" ", "")
+    nan_mean = (lambda v: float(np.nanmean(v)) if np.isfinite(v).any() else float("nan"))
     summary = {
         "run": str(rd), "horizon": horizon, "paths": n_paths, "seed": seed, "seeds": [list(p.seed) for p in ps],
         "start_state": start_state, "start_time": float(db.time[start_state]), "tag": tag or db.tag,
-        "tag_source": "real grains (recorded tag_now)" if (tag is None or tag.replace(" ", "") ==
-                                                             db.tag.replace(" ", "")) else "cell centres",
+        "tag_source": "real grains (recorded tag_now)" if same_tag else "cell centres", "solids": eng.solids,
         "frames_per_path": n_frames, "frame_interval": dt, "lag": int(db.attrs.get("lag", 1)),
         "l_min": eng.params.l_min, "l_mean": eng.params.l_mean, "window": eng.params.window,
-        "jumps_per_path": float(np.mean([len(p.jumps) for p in ps])), "median_R_at_jumps":
-            float(np.median(R_jumps)) if R_jumps else float("nan"),
-        "visit_balance": balance,
+        "jumps_per_path": float(np.mean([len(p.jumps) for p in ps])),
+        "median_R_at_jumps": float(np.median(R_jumps)) if R_jumps else float("nan"), "visit_balance": balance,
         "stitched_share_mean": float(np.mean(moved)) if moved else 0.0,
         "stitched_share_max": float(np.max(moved)) if moved else 0.0,
         "tracer_drift_max": max(r["drift"] for r in results),
         "concentration_min": min(r["c_min"] for r in results), "concentration_max": max(r["c_max"] for r in results),
         "mixing_final_mean": float(mean[-1]), "mixing_final_std": float(std[-1]),
-        "mixing_time_mean": float(mean.mean()), "mixing_time_mean_std": float(Ms.mean(1).std(ddof=1))
-        if n_paths > 1 else 0.0,
-        "t50": t50, "t90": t90, "t50_mean": float(np.nanmean(t50)) if np.isfinite(t50).any() else float("nan"),
-        "t90_mean": float(np.nanmean(t90)) if np.isfinite(t90).any() else float("nan"),
-        "bed_height_mean": float(heights.mean()), "bed_height_std": float(heights.std(1).mean()),
-        "bed_height_frequency": float(np.mean([s["peak_frequency"] for s in sp])),
-        "database_bed_height_mean": float(db.bed_height.mean()), "database_bed_height_std": float(db.bed_height.std()),
-        "radial_bins": rbins.tolist(), "radial_eps_paths": path_prof.mean(0).tolist(),
-        "radial_eps_database": prof.mean(0).tolist(),
-        "cost": {"full_wall_per_simulated_second": c_full, "rcfd_wall_per_simulated_second_per_path": c_r,
-                 "prep_seconds": prep, "recurrence_seconds": eng.st["R_seconds"], "stitch_seconds": eng.stitch_seconds,
-                 "path_seconds": t_path, "database_seconds_simulated": t_db,
-                 "marginal_speedup": c_full / c_r if c_r > 0 else float("inf"),
-                 "total_speedup_with_database": total, "total_speedup_without_database": total_no_db,
-                 "note": "marginal: full wall per simulated second / rCFD transport wall per simulated second of "
-                         "the median path (mixing index after every frame included); total (horizon T, n paths): c_full T / (c_full t_db + prep + n c_r T), with the "
-                         "database run counted, and without it (when it was run anyway)"},
-        "warnings": warnings,
-    }
-    if gas_res is not None:
-        summary["gas_tracer"] = gas_res
+        "mixing_time_mean": float(mean.mean()),
+        "mixing_time_mean_std": float(Ms.mean(1).std(ddof=1)) if n_paths > 1 else 0.0,
+        "t50": t50, "t90": t90, "t50_mean": nan_mean(t50), "t90_mean": nan_mean(t90),
+        **path_bed_statistics(db, ps), "cost": cost_summary(eng, rd, results, horizon, t_path), "warnings": warnings}
+    if gas:
+        summary["gas_tracer"] = _gas_paths(eng, ps, od, time, horizon)
     _json(od / "summary.json", summary)
     _plot_mixing(od / "mixing.png", time, Ms, mean, std)
     seqs = [(s, L, int(db.b0[s])) for s, L in ps[0].sequences]

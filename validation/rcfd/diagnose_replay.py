@@ -139,13 +139,13 @@ def analyze(out: str, tag: str) -> dict:
     # 1. the app's own replay (float32 boundary fields, the engine, the path) against this script's float64 one
     if tag == str(h5py.File(d / "rcfd.h5", "r").attrs["tag"]):
         db = load(d, 5)
-        eng = commands.Engine(db)
+        eng = commands.Engine(db, solids="cells")
         rp = pathmod.replay(db.n_frames, eng.successor)
         b00 = int(db.b0[rp.frames[0]])
         r = eng.transport(rp, commands.initial_concentration(db, b00, None), b00)
         states = np.concatenate([[b00], db.b1[rp.frames]])
         Mreal = np.array([mixing_index_real(db.tagged[b], db.solid[b]) for b in states])
-        res["app_replay_lag5"] = {"max_abs_error": float(np.max(np.abs(r["M"] - Mreal)))}
+        res["app_cell_shift_replay_lag5"] = {"max_abs_error": float(np.max(np.abs(r["M"] - Mreal)))}
     # 1b. the grain tracer (app.rcfd.transport.GrainTracer): exact along the recorded order; averaged over the
     # cells at resets every L frames of 5 ms (a path's jumps at its mean sequence length)
     db = load(d, 5)
