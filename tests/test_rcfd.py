@@ -270,3 +270,14 @@ def test_resets_jump_from_a_state_to_itself_every_l_frames():
     assert [j[0] for j in r.jumps] == [10, 20]
     assert all(j[1] == j[2] == b0[path.frames[j[0]]] for j in r.jumps)
     assert np.array_equal(r.frames, path.frames)
+
+
+def test_grain_tracer_indices_of_many_states_equal_the_one_by_one_index():
+    from app.rcfd.transport import GrainTracer
+
+    rng = np.random.default_rng(8)
+    cells = rng.integers(0, 30, size=(7, 200))
+    tr = GrainTracer(rng.uniform(0.5, 1.5, 200), rng.random(200), 30)
+    assert np.allclose(tr.mixing_indices(cells), [tr.mixing_index(c) for c in cells], rtol=0, atol=1e-13)
+    solid = np.stack([np.bincount(c, weights=tr.vol, minlength=30) for c in cells])
+    assert np.allclose(tr.mixing_indices(cells, solid), tr.mixing_indices(cells), rtol=0, atol=1e-13)

@@ -216,6 +216,20 @@ class GrainTracer:
     def mixing_index(self, cells: np.ndarray) -> float:
         return mixing_index(*self.volumes(cells))
 
+    def mixing_indices(self, cells: np.ndarray, solid: np.ndarray | None = None) -> np.ndarray:
+        """mixing_index at each row of ``cells`` (L, grains), the rows' states (one bincount for all of them:
+        tau does not change between jumps); ``solid`` (L, n): the states' grain volume per cell, if known."""
+        L = cells.shape[0]
+        idx = (cells + self.n * np.arange(L)[:, None]).ravel()
+        m = np.bincount(idx, weights=np.tile(self.vol * self.tau, L), minlength=L * self.n).reshape(L, self.n)
+        b = solid if solid is not None else \
+            np.bincount(idx, weights=np.tile(self.vol, L), minlength=L * self.n).reshape(L, self.n)
+        tot = b.sum(1)
+        cbar = m.sum(1) / tot
+        with np.errstate(invalid="ignore", divide="ignore"):
+            M = 1.0 - np.abs(m - cbar[:, None] * b).sum(1) / (2.0 * cbar * (1.0 - cbar) * tot)
+        return np.where((cbar > 0) & (cbar < 1), M, np.nan)
+
     def drift(self) -> float:
         m, u = float(np.sum(self.vol * self.tau)), float(np.sum(self.vol * (1.0 - self.tau)))
         return max(abs(m - self.m0) / self.m0 if self.m0 else 0.0, abs(u - self.u0) / self.u0 if self.u0 else 0.0)

@@ -1,6 +1,6 @@
 """Where does the replay error come from? Small experiments on a fine recording (validation/rcfd/README.md).
 
-    python3 validation/rcfd/diagnose_replay.py record PRESET OUT [--from 0.4 --to 1.4]
+    python3 validation/rcfd/diagnose_replay.py record PRESET OUT [--from 0.4 --to 1.4] [--set KEY=VALUE ...]
         runs PRESET to --to with rCFD frames every fluid step from --from, and also keeps every grain's position
         at every frame boundary (OUT/positions.npy, float32 (B, grains, 3); the probe does not write positions,
         so this script wraps its one reader, app.rcfd_probe.read_solvers)
@@ -21,7 +21,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 
-def record(preset: str, out: str, t_from: float, t_to: float) -> int:
+def record(preset: str, out: str, t_from: float, t_to: float, overrides: list) -> int:
     from app import rcfd_probe
     from app.run import run
 
@@ -36,7 +36,7 @@ def record(preset: str, out: str, t_from: float, t_to: float) -> int:
 
     rcfd_probe.read_solvers = reader
     rc = run(preset, [f"run.duration={t_to!r}", f"probes.rcfd_from={t_from!r}", "probes.rcfd_interval=0.001",
-                      "probes.rcfd_fluxes=false"], out=out, arch="cpu", overwrite=True)
+                      "probes.rcfd_fluxes=false"] + list(overrides), out=out, arch="cpu", overwrite=True)
     np.save(pathlib.Path(out) / "positions.npy", np.stack(keep))
     return rc
 
@@ -60,7 +60,7 @@ def replay(cells: np.ndarray, vol: np.ndarray, tagged: np.ndarray, lag: int, n: 
     real_m = lambda b: np.bincount(cells[b], weights=vol * tagged, minlength=n)
     real_u = lambda b: np.bincount(cells[b], weights=vol * ~tagged, minlength=n)
     m, u = real_m(idx[0]).astype(dtype), real_u(idx[0]).astype(dtype)
-    err, Mr, Mx = 0.0, [mixing_index(m, u)], [mixing_index(m, u)]
+    Mr, Mx = [mixing_index(m, u)], [mixing_index(m, u)]
     split = 0.0  # the one-frame error summed: spurious mixing of each frame started from the real state
     for b0, b1 in zip(idx[:-1], idx[1:]):
         pair = cells[b0] * n + cells[b1]
@@ -121,7 +121,7 @@ def analyze(out: str, tag: str) -> dict:
 
     from app.rcfd import commands, paths as pathmod
     from app.rcfd.database import load, tag_mask
-    from app.rcfd.transport import mixing_index, mixing_index_real
+    from app.rcfd.transport import GrainTracer, mixing_index, mixing_index_real
 
     d = pathlib.Path(out)
     X = np.load(d / "positions.npy").astype(np.float64)
@@ -183,6 +183,23 @@ def analyze(out: str, tag: str) -> dict:
     for hh in (2.5e-3, 5e-3, 10e-3):
         sh = tuple(max(1, int(round(s * h / hh))) for s in shape)
         res["cell_size_mm"][hh * 1e3] = replay(cells_of(X, origin, hh, sh), vol, tagged, 5, int(np.prod(sh)))
+    # 7. the averaging grid: resets every 0.1 s (20 frames of 5 ms), the index measured on the 5 mm cells
+    res["reset_every_100ms_by_averaging_cell_mm"] = {}
+    c5 = cells_of(X, origin, h, shape)
+    for hh in (1.25e-3, 2.5e-3, 5e-3, 10e-3):
+        sh = tuple(max(1, int(round(s * h / hh))) for s in shape)
+        fine = cells_of(X, origin, hh, sh)
+        # averaging on the fine grid, measured on the 5 mm one: tau from the fine cells, M on c5
+        tr, nf = GrainTracer(vol, tagged.astype(float), int(np.prod(sh))), int(np.prod(sh))
+        M, real = [], []
+        ref = GrainTracer(vol, tagged.astype(float), n)
+        for b in range(0, X.shape[0]):
+            if b and b % 100 == 0:
+                m, u = tr.volumes(fine[b])
+                tr.tau = np.divide(m, m + u, out=np.zeros(nf), where=m + u > 0)[fine[b]]
+            M.append(mixing_index(*[np.bincount(c5[b], weights=vol * w, minlength=n) for w in (tr.tau, 1 - tr.tau)]))
+            real.append(ref.mixing_index(c5[b]))
+        res["reset_every_100ms_by_averaging_cell_mm"][hh * 1e3] = float(np.max(np.abs(np.array(M) - real)))
     return res
 
 
@@ -193,7 +210,8 @@ if __name__ == "__main__":
     ap.add_argument("--from", dest="t_from", type=float, default=0.4)
     ap.add_argument("--to", dest="t_to", type=float, default=1.4)
     ap.add_argument("--tag", default="z<0.015")
+    ap.add_argument("--set", dest="overrides", action="append", default=[], help="record: a preset override")
     a = ap.parse_args()
     if a.action == "record":
-        sys.exit(record(a.args[0], a.args[1], a.t_from, a.t_to))
+        sys.exit(record(a.args[0], a.args[1], a.t_from, a.t_to, a.overrides))
     print(json.dumps(analyze(a.args[0], a.tag), indent=1))
