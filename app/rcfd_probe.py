@@ -113,6 +113,7 @@ class RcfdRecorder:
                 # resumed on a frame boundary: its grains are the checkpoint's, so the frame goes on
                 cells = self.cells_of(read_solvers(sim, "grains")[0][self.counted])
                 self.open_frame, self.last_cells = (times.size - 1, cells), cells
+                self.last_octant = self.octant_of(read_solvers(sim, "grains")[0][self.counted])
                 self.prev_boundary_eps = read_solvers(sim, "eps")[:, :, :nz].astype(np.float64)
                 self.prev_eps = self.prev_boundary_eps
                 if self.fluxes:
@@ -165,7 +166,7 @@ class RcfdRecorder:
         next one starts at the next frame boundary (its b0 then differs from the last frame's b1)."""
         f = self.f
         nb = int(np.searchsorted(f["boundary/time"][...], t + 1e-9, side="right"))
-        for k in ("time", "eps", "bed_height", "solid", "tag_now", "tagged", "cells"):
+        for k in ("time", "eps", "bed_height", "solid", "tag_now", "tagged", "cells", "octant"):
             if f"boundary/{k}" not in f:
                 continue
             ds = f[f"boundary/{k}"]
@@ -194,6 +195,13 @@ class RcfdRecorder:
         for a in range(3):
             np.clip(q[:, a], 0, self.shape[a] - 1, out=q[:, a])
         return (q[:, 0] * self.shape[1] + q[:, 1]) * self.shape[2] + q[:, 2]
+
+    def octant_of(self, x: np.ndarray) -> np.ndarray:
+        """Which eighth of its cell each point is in (bits x, y, z: 4, 2, 1; the same clipping as cells_of)."""
+        q = np.floor((x - self.origin) / (0.5 * self.h)).astype(np.int64)
+        for a in range(3):
+            np.clip(q[:, a], 0, 2 * self.shape[a] - 1, out=q[:, a])
+        return (((q[:, 0] & 1) << 2) | ((q[:, 1] & 1) << 1) | (q[:, 2] & 1)).astype(np.uint8)
 
     # -- every fluid step
     def __call__(self, sim) -> None:
@@ -238,14 +246,15 @@ class RcfdRecorder:
                 f.create_dataset("grains_volume", data=4.0 / 3.0 * np.pi * r[self.counted] ** 3)
                 f.create_dataset("boundary/cells", shape=(0, n), maxshape=(None, n), dtype="i4",
                                  chunks=(max(1, min(64, (1 << 20) // (4 * n))), n), compression="gzip")
+                f.create_dataset("boundary/octant", shape=(0, n), maxshape=(None, n), dtype="u1",
+                                 chunks=(max(1, min(64, (1 << 20) // n)), n), compression="gzip")
         ids = self.counted
         xi = x[ids]
+        cells, octant = self.cells_of(xi), self.octant_of(xi)
         if self.last_cells is not None:  # a grain that left the domain stays in its last cell
             gone = ~alive[ids]
-            cells = self.cells_of(xi)
             cells[gone] = self.last_cells[gone]
-        else:
-            cells = self.cells_of(xi)
+            octant[gone] = self.last_octant[gone]
         vol = 4.0 / 3.0 * np.pi * r[ids] ** 3
         tagged = np.isin(ids, self.tagged_ids)
         now = tag_mask(self.tag, xi)
@@ -255,6 +264,8 @@ class RcfdRecorder:
         self._append(f["boundary/bed_height"], read_solvers(sim, "bed_height"))
         if "boundary/cells" in f:
             self._append(f["boundary/cells"], cells.astype(np.int32))
+        if "boundary/octant" in f:
+            self._append(f["boundary/octant"], octant)
         for name, sel in (("solid", None), ("tag_now", now), ("tagged", tagged)):
             w = vol if sel is None else vol * sel
             self._append(f[f"boundary/{name}"], np.bincount(cells, weights=w, minlength=self.n).astype(np.float32))
@@ -279,7 +290,7 @@ class RcfdRecorder:
                     self._append(f[f"frame/flux_{'xyz'[a]}"], q.astype(np.float32))
             self.flux_time = 0.0
         self.open_frame = (b, cells)
-        self.last_cells = cells
+        self.last_cells, self.last_octant = cells, octant
         if self.prev_boundary_eps is not None:
             self.rate_sq_frame += float(np.sum(((eps - self.prev_boundary_eps) / (self.spf * self.step)) ** 2))
             self.rate_samples_frame += 1

@@ -281,3 +281,22 @@ def test_grain_tracer_indices_of_many_states_equal_the_one_by_one_index():
     assert np.allclose(tr.mixing_indices(cells), [tr.mixing_index(c) for c in cells], rtol=0, atol=1e-13)
     solid = np.stack([np.bincount(c, weights=tr.vol, minlength=30) for c in cells])
     assert np.allclose(tr.mixing_indices(cells, solid), tr.mixing_indices(cells), rtol=0, atol=1e-13)
+
+
+def test_octant_is_the_half_cell_within_the_cell_with_the_cells_clipping():
+    from app.rcfd.database import Database
+    from app.rcfd_probe import RcfdRecorder
+
+    rec_ = RcfdRecorder.__new__(RcfdRecorder)
+    rec_.origin, rec_.h, rec_.shape = np.array([-0.01, -0.01, 0.0]), 0.005, (4, 4, 3)
+    x = np.array([[-0.0099, -0.0099, 0.0001],   # lower corner of cell (0, 0, 0): octant 0
+                  [-0.0051, -0.0099, 0.0049],   # upper x, upper z half of (0, 0, 0): 4 + 1
+                  [0.0099, 0.0026, 0.0074],     # cell (3, 2, 1): upper x, upper y, lower z: 6
+                  [0.0, 0.0, 0.5]])             # above the region: the top layer's upper half (z bit set)
+    o = rec_.octant_of(x)
+    assert o.tolist()[:3] == [0, 5, 6] and (o[3] & 1) == 1
+    db = Database.__new__(Database)
+    db.shape, db.cells, db.octant = (4, 4, 3), rec_.cells_of(x)[None], o[None]
+    fine = np.unravel_index(db.fine_cells(0), db.fine_shape)
+    half = np.clip(np.floor((x - rec_.origin) / (0.5 * rec_.h)).astype(int), 0, np.array(db.fine_shape) - 1)
+    assert np.array_equal(np.stack(fine, 1), half)

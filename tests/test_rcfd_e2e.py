@@ -120,7 +120,7 @@ def test_a_run_resumed_on_a_frame_boundary_records_the_same_frames(recorded, tmp
         assert np.array_equal(a["frame/b0"][...], b["frame/b0"][...])
         assert np.array_equal(a["frame/b1"][...], b["frame/b1"][...])
         assert np.allclose(a["boundary/time"][...], b["boundary/time"][...])
-        for name in ("frame/offset", "shift/c0", "shift/c1", "boundary/cells"):
+        for name in ("frame/offset", "shift/c0", "shift/c1", "boundary/cells", "boundary/octant"):
             assert np.array_equal(a[name][...], b[name][...]), name
         assert np.allclose(a["shift/w"][...], b["shift/w"][...], rtol=1e-12)
         assert np.allclose(a["boundary/eps"][...], b["boundary/eps"][...], atol=1e-6)

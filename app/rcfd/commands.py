@@ -318,6 +318,7 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
         "run": str(rd), "horizon": horizon, "paths": n_paths, "seed": seed, "seeds": [list(p.seed) for p in ps],
         "start_state": start_state, "start_time": float(db.time[start_state]), "tag": tag or db.tag,
         "tag_source": "real grains (recorded tag_now)" if same_tag else "cell centres", "solids": eng.solids,
+        "jump_cells": "half cells" if getattr(eng, "half", False) else "cells",
         "frames_per_path": n_frames, "frame_interval": dt, "lag": int(db.attrs.get("lag", 1)),
         "l_min": eng.params.l_min, "l_mean": eng.params.l_mean, "window": eng.params.window,
         "jumps_per_path": float(np.mean([len(p.jumps) for p in ps])),

@@ -14,6 +14,8 @@ c = (i * ny + j) * nz + k):
   /boundary/cells (B, grains) i4      each counted grain's cell (probes.rcfd_grain_cells): the grain tracer
                                       rides on it (transport.GrainTracer), operators over ``lag`` frames are
                                       built from it (load(..., lag))
+  /boundary/octant (B, grains) u1     the eighth of its cell each grain is in (bits x, y, z: 4, 2, 1): the
+                                      grain tracer's jumps stitch on this half-cell grid
   /frame/b0, /frame/b1 (N,) i4        the boundaries a frame starts and ends at (b1 = b0 + 1 unless resumed)
   /frame/offset (N+1,) i8             frame k's shift triplets are shift/*[offset[k]:offset[k+1]]
   /shift/c0, /shift/c1 i4, /shift/w f8   grain volume [m^3] that went from cell c0 to cell c1 in the frame
@@ -95,6 +97,19 @@ class Database:
     cells: np.ndarray | None = None         # (B, grains) each counted grain's cell (boundary/cells), if recorded
     grain_volume: np.ndarray | None = None  # (grains,) [m^3]
     tagged_grains: np.ndarray | None = None  # (grains,) bool: tagged at the first boundary
+    octant: np.ndarray | None = None         # (B, grains) u1: the eighth of its cell each grain is in
+
+    @property
+    def fine_shape(self) -> tuple:
+        """The half-cell grid: each cell split in two along every axis."""
+        return tuple(2 * s for s in self.shape)
+
+    def fine_cells(self, b) -> np.ndarray:
+        """Each counted grain's half-cell at boundary (or boundaries) ``b`` (flat index on fine_shape)."""
+        c, o = self.cells[b], self.octant[b].astype(np.int64)
+        i, j, k = np.unravel_index(c, self.shape)
+        fs = self.fine_shape
+        return ((2 * i + (o >> 2 & 1)) * fs[1] + 2 * j + (o >> 1 & 1)) * fs[2] + 2 * k + (o & 1)
 
     @property
     def n_cells(self) -> int:
@@ -171,6 +186,8 @@ def load(path, lag: int = 1) -> Database:
             db.cells = f["boundary/cells"][:nb].astype(np.int64)
             db.grain_volume = f["grains_volume"][...].astype(np.float64)
             db.tagged_grains = np.isin(f["grains_counted"][...], f["grains_tagged"][...])
+            if "boundary/octant" in f and f["boundary/octant"].shape[0] >= nb:
+                db.octant = f["boundary/octant"][:nb]
     if lag > 1:
         db = _lagged(db, int(lag))
     if db.n_frames < 3:

@@ -82,7 +82,7 @@ class Engine:
     """Everything a set of paths shares: the operators, R, the jump targets, the stitches."""
 
     def __init__(self, db: Database, st: dict | None = None, params: pathmod.PathParams | None = None,
-                 solids: str = "auto"):
+                 solids: str = "auto", jump_grid: str = "auto"):
         t = wallclock.perf_counter()
         self.db = db
         if solids == "auto":
@@ -108,6 +108,17 @@ class Engine:
         self.targets = pathmod.jump_targets(self.st["R"], db.b0, self.successor, self.params)
         cells = (db.open_volume > 0) | (self.a.max(0) > 0).reshape(db.shape)
         self.stitcher = Stitcher(db.shape, cells, db.h)
+        # the grain tracer's jumps on half cells where the octants are recorded (a jump averages over its cells)
+        self.half = self.solids == "grains" and db.octant is not None and jump_grid != "cells"
+        if self.half:
+            fs = db.fine_shape
+            nf = int(np.prod(fs))
+            self.fine = db.fine_cells(slice(None))
+            idx = (self.fine + nf * np.arange(db.n_states)[:, None]).ravel()
+            self.a_fine = np.bincount(idx, weights=np.tile(db.grain_volume, db.n_states),
+                                      minlength=nf * db.n_states).reshape(db.n_states, nf)
+            fine_mask = cells.repeat(2, 0).repeat(2, 1).repeat(2, 2)
+            self.fine_stitcher = Stitcher(fs, fine_mask, 0.5 * db.h)
         self.prep_seconds = wallclock.perf_counter() - t + self.st["R_seconds"]
         self.stitch_seconds = 0.0
 
@@ -177,11 +188,12 @@ class Engine:
         return {"M": M, "moved": moved, "drift": tr.drift(), "c_min": float(c.min()), "c_max": float(c.max()),
                 "m_min": float(min(tr.m.min(), tr.u.min())), "wall": wall}
 
-    def _stitch(self, s_from: int, s_to: int):
-        """(S, info, seconds spent building it: 0 when cached)."""
+    def _stitch(self, s_from: int, s_to: int, half: bool = False):
+        """(S, info, seconds spent building it: 0 when cached), on the cells or on the half cells."""
         t = wallclock.perf_counter()
-        fresh = (s_from, s_to) not in self.stitcher.cache
-        S, info = self.stitcher.operator(self.a[s_from], self.a[s_to], key=(s_from, s_to))
+        st, a = (self.fine_stitcher, self.a_fine) if half else (self.stitcher, self.a)
+        fresh = (s_from, s_to) not in st.cache
+        S, info = st.operator(a[s_from], a[s_to], key=(s_from, s_to))
         return S, info, (wallclock.perf_counter() - t) if fresh else 0.0
 
     def _transport_grains(self, path: pathmod.Path, c0, tau0, jumps: dict, first: int) -> dict:
@@ -197,9 +209,10 @@ class Engine:
         for end in cuts:
             if start in jumps:
                 s_from, s_to = jumps[start]
-                S, info, dt_s = self._stitch(s_from, s_to)
+                S, info, dt_s = self._stitch(s_from, s_to, self.half)
                 t_stitch += dt_s
-                tr.jump(db.cells[s_from], db.cells[s_to], S)
+                grid = self.fine if self.half else db.cells
+                tr.jump(grid[s_from], grid[s_to], S)
                 moved.append(info["moved_share"])
             if end > start:
                 states = db.b1[path.frames[start:end]]

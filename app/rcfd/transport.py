@@ -192,8 +192,10 @@ class GrainTracer:
     operator, no numerical diffusion, whatever the grains' motion. Only at a jump from state s to state j do
     grains lose their identity (state j's grains are not state s's): the tagged and untagged volumes per cell
     of state s are stitched onto state j's grain distribution (S, column-stochastic), and each grain of state j
-    takes its cell's concentration. That is the one place where the cell is assumed well mixed, so the tracer is
-    kept to round-off and stays in [0, 1] as with the cell shifts (SolidsTracer)."""
+    takes its cell's concentration. That is the one place where a cell is assumed well mixed, so the tracer is
+    kept to round-off and stays in [0, 1] as with the cell shifts (SolidsTracer). The jump's cells may be finer
+    than the index's (Engine stitches on half cells where boundary/octant is recorded): the error of a jump
+    grows with the cell it averages over (validation/rcfd/README.md)."""
 
     def __init__(self, volume: np.ndarray, tau: np.ndarray, n_cells: int):
         self.vol = np.asarray(volume, np.float64)
@@ -207,7 +209,11 @@ class GrainTracer:
                 np.bincount(cells, weights=self.vol * (1.0 - self.tau), minlength=self.n))
 
     def jump(self, cells_from: np.ndarray, cells_to: np.ndarray, S: sp.csr_matrix) -> None:
-        m, u = self.volumes(cells_from)
+        """Stitch by S (on the grid the cells index: the cells, or a finer one) and give each grain its cell's
+        concentration."""
+        n = S.shape[0]
+        m = np.bincount(cells_from, weights=self.vol * self.tau, minlength=n)
+        u = np.bincount(cells_from, weights=self.vol * (1.0 - self.tau), minlength=n)
         m, u = S @ m, S @ u
         b = m + u
         c = np.divide(m, b, out=np.zeros_like(b), where=b > 0).clip(0.0, 1.0)

@@ -219,8 +219,10 @@ def cost_checks(conts: list, summ: dict) -> dict:
 
 
 def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_paths: int, seed: int,
-             n_cont: int, overrides: list, arch: str, log=print, lag: int = 1, l_mean: int | None = None) -> int:
-    """The protocol above; ``l_mean`` [frames] overrides the paths' mean sequence length (default N/10)."""
+             n_cont: int, overrides: list, arch: str, log=print, lag: int = 1, l_mean: int | None = None,
+             jump_grid: str = "auto") -> int:
+    """The protocol above; ``l_mean`` [frames] overrides the paths' mean sequence length (default N/10);
+    ``jump_grid`` 'cells' stitches the grain tracer's jumps on the cells instead of half cells."""
     od = pathlib.Path(out) if out else pathlib.Path("runs") / f"rcfd-validate-{pathlib.Path(preset).stem}"
     od.mkdir(parents=True, exist_ok=True)
     rc, conts = full_runs(od, preset, overrides, t0, t1, t2, n_cont, arch, log)
@@ -230,9 +232,10 @@ def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_pa
     log("fbed: rcfd validate: analysis, replay and rCFD paths")
     ana = commands.analyze(str(A), str(od / "analysis"))
     db = load(A, lag)
-    eng = commands.Engine(db)
+    eng = commands.Engine(db, jump_grid=jump_grid)
     if l_mean:
-        eng = commands.Engine(db, eng.st, dataclasses.replace(eng.params, l_mean=max(int(l_mean), eng.params.l_min + 1)))
+        eng = commands.Engine(db, eng.st, dataclasses.replace(eng.params, l_mean=max(int(l_mean), eng.params.l_min + 1)),
+                              jump_grid=jump_grid)
     checks, rep = replay_checks(db, eng)
     horizon = t2 - t1
     summ = commands.run_paths(str(A), horizon, n_paths, seed, None, out=str(od / "rcfd_paths"), engine=eng, log=log)
@@ -245,7 +248,7 @@ def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_pa
     c_full = checks["marginal_speedup"]["full_wall_per_simulated_second"]
     c_r = checks["marginal_speedup"]["rcfd_wall_per_simulated_second"]
     total = c_full * horizon / (c_full * (t1 - t0) + summ["cost"]["prep_seconds"] + n_paths * c_r * horizon)
-    result = {"preset": preset, "lag": lag, "solids": eng.solids, "l_min": eng.params.l_min, "l_mean": eng.params.l_mean, "t0": t0, "t1": t1, "t2": t2, "paths": n_paths,
+    result = {"preset": preset, "lag": lag, "solids": eng.solids, "jump_cells": "half cells" if eng.half else "cells", "l_min": eng.params.l_min, "l_mean": eng.params.l_mean, "t0": t0, "t1": t1, "t2": t2, "paths": n_paths,
               "seed": seed, "continuations": n_cont, "perturbation_of_d": PERTURBATION, "analysis": ana,
               "checks": checks, "total_speedup_with_database": total,
               "total_speedup_without_database": summ["cost"]["total_speedup_without_database"],
