@@ -1,17 +1,18 @@
 """The rCFD recording probe: frames of a coupled run written to rcfd.h5 beside run.h5.
 
 From ``probes.rcfd_from`` on, every ``probes.rcfd_interval`` (a frame): the void fraction at the frame
-boundaries, the gas face fluxes averaged over the frame (sampled after every fluid step), and the
+boundaries, the gas face fluxes averaged over the frame (summed after every fluid step on the device by
+the gas solver, FlowSolver.add_face_flux, and read once per frame), and the
 grains' cell-to-cell volume shifts over the frame (each grain's cell by its centre at the frame's start
 and end, weighted by its volume, summed per (c0, c1) pair), over the cells below ``probes.rcfd_z_max``
 (a grain above it counts in the top layer). The layout is app/rcfd/database.py's. The frame interval
-is checked against the field's own time scale sqrt(<g^2>/<dg/dt^2>) (g = eps - its mean, differenced at
-the fluid step, summed over the recorded cells): written to the file's attributes and logged when
-the frame is longer.
+is checked against the field's own time scale sqrt(<g^2>/<dg/dt^2>) (g = eps - its mean, summed over the
+recorded cells; <g^2> from the boundaries, dg/dt differenced over the fluid step that follows each
+boundary): written to the file's attributes and logged when the frame is longer.
 
-Cost: one read of the void fraction and the face velocities per fluid step while recording (a host
-round trip; the probe is meant for a database run, not a production one), one of the grain positions
-per frame. The solvers are read through ``read_solvers`` only.
+Cost: nothing read back in the fluid steps inside a frame; per frame, the void fraction twice (at the
+boundary and one fluid step later), the flux sums and the grain positions once. The solvers are
+read through ``read_solvers`` only.
 """
 from __future__ import annotations
 
@@ -29,7 +30,8 @@ from .rcfd.database import tag_mask
 def read_solvers(sim, what: str):
     """What the probe reads from the gas solver and the DEM, by name:
     'geometry' -> (shape, h [m], origin [m], open volume fraction, apertures (3 face arrays));
-    'eps' -> the gas void fraction (nx, ny, nz); 'face_velocity' -> the 3 MAC face-velocity arrays [m/s];
+    'eps' -> the gas void fraction (nx, ny, nz); 'add_flux' -> adds a step's face fluxes to the gas solver's
+    device sums (returns a function of dt [s]); 'flux_sum' -> those sums [m^3] (3 face arrays), then cleared;
     'grains' -> (positions (n, 3) [m], radii [m], alive (n,) bool); 'bed_height' -> [m]."""
     flow, dem = sim.flow, sim.dem
     if what == "geometry":
@@ -37,8 +39,10 @@ def read_solvers(sim, what: str):
                 np.asarray(flow.cut.volume, float), tuple(np.asarray(a, float) for a in flow.cut.apertures))
     if what == "eps":
         return flow.fields.eps.to_numpy()
-    if what == "face_velocity":
-        return flow.face_velocities()
+    if what == "add_flux":
+        return flow.add_face_flux
+    if what == "flux_sum":
+        return flow.face_flux_sum()
     if what == "grains":
         return dem.read("position"), dem.radii(), dem.read("alive").astype(bool)
     if what == "bed_height":
@@ -48,7 +52,8 @@ def read_solvers(sim, what: str):
 
 def face_eps(eps: np.ndarray, axis: int) -> np.ndarray:
     """eps on the faces normal to ``axis``: the mean of the two cells inside, the cell's own value on the
-    domain faces (as the gas solver's boundary flux uses it)."""
+    domain faces (as the gas solver's boundary flux uses it). The recorded fluxes use the solver's own face
+    gas fraction, on the device; this is its host-side formula (for checks)."""
     lo = np.take(eps, [0], axis=axis)
     hi = np.take(eps, [eps.shape[axis] - 1], axis=axis)
     ext = np.concatenate([lo, eps, hi], axis=axis)
@@ -87,11 +92,10 @@ class RcfdRecorder:
         self.shape = (shape[0], shape[1], nz)
         self.n = int(np.prod(self.shape))
         self.h, self.origin = h, origin
-        self.apertures = (aps[0][:, :, :nz], aps[1][:, :, :nz], aps[2][:, :, :nz + 1])
         self.path = pathlib.Path(out_dir) / "rcfd.h5"
         self._open(vol[:, :, :nz], resume_time)
         self.open_frame = None  # (start boundary index, start cells, step count at start)
-        self.flux_sum = None
+        self.add_flux = read_solvers(sim, "add_flux") if self.fluxes else None
         self.flux_time = 0.0
         self.eps_sum = np.zeros(self.shape)
         self.eps_sq = np.zeros(self.shape)
@@ -109,9 +113,11 @@ class RcfdRecorder:
                 # resumed on a frame boundary: its grains are the checkpoint's, so the frame goes on
                 cells = self.cells_of(read_solvers(sim, "grains")[0][self.counted])
                 self.open_frame, self.last_cells = (times.size - 1, cells), cells
+                self.last_octant = self.octant_of(read_solvers(sim, "grains")[0][self.counted])
                 self.prev_boundary_eps = read_solvers(sim, "eps")[:, :, :nz].astype(np.float64)
+                self.prev_eps = self.prev_boundary_eps
                 if self.fluxes:
-                    self.flux_sum = [np.zeros(a.shape) for a in self.apertures]
+                    read_solvers(sim, "flux_sum")  # clears the device sums
             else:
                 self(sim)
         sim.add(guarded(self), self.step, finish=self.finish)
@@ -160,7 +166,7 @@ class RcfdRecorder:
         next one starts at the next frame boundary (its b0 then differs from the last frame's b1)."""
         f = self.f
         nb = int(np.searchsorted(f["boundary/time"][...], t + 1e-9, side="right"))
-        for k in ("time", "eps", "bed_height", "solid", "tag_now", "tagged", "cells"):
+        for k in ("time", "eps", "bed_height", "solid", "tag_now", "tagged", "cells", "octant"):
             if f"boundary/{k}" not in f:
                 continue
             ds = f[f"boundary/{k}"]
@@ -190,30 +196,38 @@ class RcfdRecorder:
             np.clip(q[:, a], 0, self.shape[a] - 1, out=q[:, a])
         return (q[:, 0] * self.shape[1] + q[:, 1]) * self.shape[2] + q[:, 2]
 
+    def octant_of(self, x: np.ndarray) -> np.ndarray:
+        """Which eighth of its cell each point is in (bits x, y, z: 4, 2, 1; the same clipping as cells_of)."""
+        q = np.floor((x - self.origin) / (0.5 * self.h)).astype(np.int64)
+        for a in range(3):
+            np.clip(q[:, a], 0, 2 * self.shape[a] - 1, out=q[:, a])
+        return (((q[:, 0] & 1) << 2) | ((q[:, 1] & 1) << 1) | (q[:, 2] & 1)).astype(np.uint8)
+
     # -- every fluid step
     def __call__(self, sim) -> None:
         s = sim.step_count
         if s < self.s0:
             return
-        full = read_solvers(sim, "eps").astype(np.float64)
-        nz = self.shape[2]
-        eps = full[:, :, :nz]
-        self._taylor(eps)
         if self.open_frame is not None and self.fluxes:
-            vel = read_solvers(sim, "face_velocity")
-            for a in range(3):
-                top = nz + 1 if a == 2 else nz
-                q = vel[a][:, :, :top] * face_eps(full, a)[:, :, :top]
-                self.flux_sum[a] += q * self.apertures[a] * self.h ** 2 * self.step
+            self.add_flux(self.step)  # on the device: nothing read back
             self.flux_time += self.step
-        if (s - self.s0) % self.spf == 0:
+        phase = (s - self.s0) % self.spf
+        if phase == 0:
+            eps = read_solvers(sim, "eps")[:, :, :self.shape[2]].astype(np.float64)
+            if self.spf == 1 and self.prev_eps is not None:  # frames of one fluid step: every step is a sample
+                self._taylor(eps, boundary=False)
+            self._taylor(eps, boundary=True)
             self._boundary(sim, eps)
+        elif phase == 1 and self.prev_eps is not None:  # one fluid step after a boundary: the rate sample
+            self._taylor(read_solvers(sim, "eps")[:, :, :self.shape[2]].astype(np.float64), boundary=False)
 
-    def _taylor(self, eps: np.ndarray) -> None:
-        self.samples += 1
-        self.eps_sum += eps
-        self.eps_sq += eps * eps
-        if self.prev_eps is not None:
+    def _taylor(self, eps: np.ndarray, boundary: bool) -> None:
+        """<g^2> from the boundaries' eps; <dg/dt^2> from the change over the fluid step after each boundary."""
+        if boundary:
+            self.samples += 1
+            self.eps_sum += eps
+            self.eps_sq += eps * eps
+        else:
             self.rate_sq += float(np.sum(((eps - self.prev_eps) / self.step) ** 2))
             self.rate_samples += 1
         self.prev_eps = eps
@@ -232,14 +246,15 @@ class RcfdRecorder:
                 f.create_dataset("grains_volume", data=4.0 / 3.0 * np.pi * r[self.counted] ** 3)
                 f.create_dataset("boundary/cells", shape=(0, n), maxshape=(None, n), dtype="i4",
                                  chunks=(max(1, min(64, (1 << 20) // (4 * n))), n), compression="gzip")
+                f.create_dataset("boundary/octant", shape=(0, n), maxshape=(None, n), dtype="u1",
+                                 chunks=(max(1, min(64, (1 << 20) // n)), n), compression="gzip")
         ids = self.counted
         xi = x[ids]
+        cells, octant = self.cells_of(xi), self.octant_of(xi)
         if self.last_cells is not None:  # a grain that left the domain stays in its last cell
             gone = ~alive[ids]
-            cells = self.cells_of(xi)
             cells[gone] = self.last_cells[gone]
-        else:
-            cells = self.cells_of(xi)
+            octant[gone] = self.last_octant[gone]
         vol = 4.0 / 3.0 * np.pi * r[ids] ** 3
         tagged = np.isin(ids, self.tagged_ids)
         now = tag_mask(self.tag, xi)
@@ -249,6 +264,8 @@ class RcfdRecorder:
         self._append(f["boundary/bed_height"], read_solvers(sim, "bed_height"))
         if "boundary/cells" in f:
             self._append(f["boundary/cells"], cells.astype(np.int32))
+        if "boundary/octant" in f:
+            self._append(f["boundary/octant"], octant)
         for name, sel in (("solid", None), ("tag_now", now), ("tagged", tagged)):
             w = vol if sel is None else vol * sel
             self._append(f[f"boundary/{name}"], np.bincount(cells, weights=w, minlength=self.n).astype(np.float32))
@@ -264,15 +281,16 @@ class RcfdRecorder:
             self._append(f["frame/b0"], b_start)
             self._append(f["frame/b1"], b)
             self._append(off, off[off.shape[0] - 1] + keys.size)
-            if self.fluxes:
-                for a in range(3):
-                    self._append(f[f"frame/flux_{'xyz'[a]}"],
-                                 (self.flux_sum[a] / max(self.flux_time, 1e-300)).astype(np.float32))
-        self.open_frame = (b, cells)
-        self.last_cells = cells
         if self.fluxes:
-            self.flux_sum = [np.zeros(a.shape) for a in self.apertures]
+            sums = read_solvers(sim, "flux_sum")  # read once per frame, and cleared
+            if self.open_frame is not None:
+                nz = self.shape[2]
+                for a in range(3):
+                    q = sums[a][:, :, :nz + 1 if a == 2 else nz] / max(self.flux_time, 1e-300)
+                    self._append(f[f"frame/flux_{'xyz'[a]}"], q.astype(np.float32))
             self.flux_time = 0.0
+        self.open_frame = (b, cells)
+        self.last_cells, self.last_octant = cells, octant
         if self.prev_boundary_eps is not None:
             self.rate_sq_frame += float(np.sum(((eps - self.prev_boundary_eps) / (self.spf * self.step)) ** 2))
             self.rate_samples_frame += 1

@@ -234,3 +234,69 @@ def test_face_void_fraction_is_the_two_cells_mean_and_the_cell_on_domain_faces()
         assert np.array_equal(np.take(f, range(1, eps.shape[a]), axis=a), inner)
         assert np.array_equal(np.take(f, [0], axis=a), np.take(eps, [0], axis=a))
         assert np.array_equal(np.take(f, [eps.shape[a]], axis=a), np.take(eps, [eps.shape[a] - 1], axis=a))
+
+
+def test_grain_tracer_rides_on_the_grains_and_is_conserved_and_bounded_at_jumps():
+    """Along the recorded order the grain tracer is the real tracer (no operator); a jump (the stitch, then each
+    grain of the new state takes its cell's concentration) keeps the tagged volume to 1e-12 and tau in [0, 1]."""
+    from app.rcfd.transport import GrainTracer
+
+    rng = np.random.default_rng(5)
+    shape = (4, 3, 5)
+    n, g = int(np.prod(shape)), 400
+    cells = rng.integers(0, n, size=(6, g))
+    vol = rng.uniform(0.5, 1.5, g)
+    tagged = rng.random(g) < 0.4
+    tr = GrainTracer(vol, tagged.astype(float), n)
+    for b in range(6):  # the tagged volume per cell at every boundary is the real grains'
+        m, u = tr.volumes(cells[b])
+        assert np.array_equal(m, np.bincount(cells[b], weights=vol * tagged, minlength=n))
+        assert mixing_index(m, u) == tr.mixing_index(cells[b])
+    st = Stitcher(shape, np.ones(shape, bool), 1.0)
+    a = [np.bincount(cells[b], weights=vol, minlength=n) for b in range(6)]
+    for s_from, s_to in ((0, 3), (3, 1), (1, 5)):
+        S, _ = st.operator(a[s_from], a[s_to])
+        tr.jump(cells[s_from], cells[s_to], S)
+        assert tr.drift() <= 1e-12
+        assert tr.tau.min() >= 0.0 and tr.tau.max() <= 1.0
+        m, u = tr.volumes(cells[s_to])
+        assert np.allclose(m + u, a[s_to], rtol=0, atol=1e-12 * a[s_to].max())  # onto the new state's grains
+
+
+def test_resets_jump_from_a_state_to_itself_every_l_frames():
+    path = pm.Path(np.arange(10, 35), [], ())
+    b0 = np.arange(100) + 7
+    r = pm.with_resets(path, 10, b0)
+    assert [j[0] for j in r.jumps] == [10, 20]
+    assert all(j[1] == j[2] == b0[path.frames[j[0]]] for j in r.jumps)
+    assert np.array_equal(r.frames, path.frames)
+
+
+def test_grain_tracer_indices_of_many_states_equal_the_one_by_one_index():
+    from app.rcfd.transport import GrainTracer
+
+    rng = np.random.default_rng(8)
+    cells = rng.integers(0, 30, size=(7, 200))
+    tr = GrainTracer(rng.uniform(0.5, 1.5, 200), rng.random(200), 30)
+    assert np.allclose(tr.mixing_indices(cells), [tr.mixing_index(c) for c in cells], rtol=0, atol=1e-13)
+    solid = np.stack([np.bincount(c, weights=tr.vol, minlength=30) for c in cells])
+    assert np.allclose(tr.mixing_indices(cells, solid), tr.mixing_indices(cells), rtol=0, atol=1e-13)
+
+
+def test_octant_is_the_half_cell_within_the_cell_with_the_cells_clipping():
+    from app.rcfd.database import Database
+    from app.rcfd_probe import RcfdRecorder
+
+    rec_ = RcfdRecorder.__new__(RcfdRecorder)
+    rec_.origin, rec_.h, rec_.shape = np.array([-0.01, -0.01, 0.0]), 0.005, (4, 4, 3)
+    x = np.array([[-0.0099, -0.0099, 0.0001],   # lower corner of cell (0, 0, 0): octant 0
+                  [-0.0051, -0.0099, 0.0049],   # upper x, upper z half of (0, 0, 0): 4 + 1
+                  [0.0099, 0.0026, 0.0074],     # cell (3, 2, 1): upper x, upper y, lower z: 6
+                  [0.0, 0.0, 0.5]])             # above the region: the top layer's upper half (z bit set)
+    o = rec_.octant_of(x)
+    assert o.tolist()[:3] == [0, 5, 6] and (o[3] & 1) == 1
+    db = Database.__new__(Database)
+    db.shape, db.cells, db.octant = (4, 4, 3), rec_.cells_of(x)[None], o[None]
+    fine = np.unravel_index(db.fine_cells(0), db.fine_shape)
+    half = np.clip(np.floor((x - rec_.origin) / (0.5 * rec_.h)).astype(int), 0, np.array(db.fine_shape) - 1)
+    assert np.array_equal(np.stack(fine, 1), half)

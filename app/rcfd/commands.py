@@ -8,7 +8,6 @@ run     -> RUN/rcfd/<name>/: mixing.csv, mixing.png, path.csv, recurrence_path.p
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import pathlib
@@ -20,52 +19,11 @@ import numpy as np
 from . import paths as pathmod
 from . import recurrence as rec
 from .database import Database, load, tag_mask
-from .transport import GasTracer, SolidsTracer, Stitcher, mixing_index_real
-
-BED_EPS = 0.99  # cells whose time-mean void fraction is below this are the bed's (they enter R)
-
+from .engine import Engine, bed_mask, statistics
+from .transport import mixing_index_real
 
 def _json(path: pathlib.Path, data: dict) -> None:
     path.write_text(json.dumps(data, indent=2, default=lambda o: o.item() if hasattr(o, "item") else str(o)) + "\n")
-
-
-def bed_mask(db: Database) -> np.ndarray:
-    return (db.open_volume > 0) & (db.eps.mean(0) < BED_EPS)
-
-
-def plane_mean(db: Database, k: int) -> np.ndarray:
-    """Open-volume-weighted mean eps of cell layer k at each boundary."""
-    v = db.open_volume[:, :, k]
-    return (db.eps[:, :, :, k] * v).sum((1, 2)) / max(v.sum(), 1e-300)
-
-
-def statistics(db: Database) -> dict:
-    """R, the spectra, D(tau), S(n): everything `analyze` reports, as arrays and numbers."""
-    t_start = wallclock.perf_counter()
-    mask = bed_mask(db)
-    X = rec.state_matrix(db.eps, mask, db.open_volume * db.cell_volume)
-    R, norm = rec.recurrence_matrix(X)
-    t_R = wallclock.perf_counter() - t_start
-    dt = db.frame_interval / int(db.attrs.get("lag", 1))  # the states' spacing (a lagged frame spans several)
-    hbar = float(np.mean(db.bed_height))
-    k_mid = int(np.clip(math.floor((0.5 * hbar - db.origin[2]) / db.h), 0, db.shape[2] - 1))
-    mid = plane_mean(db, k_mid)
-    sp_eps = rec.spectrum(mid, dt)
-    sp_h = rec.spectrum(db.bed_height, dt)
-    Dtau = rec.mean_distance_by_lag(R)
-    lag = rec.first_recurrence(Dtau)
-    period_frames = sp_eps["period"] / dt
-    window = max(1, int(math.ceil(0.5 * period_frames))) if np.isfinite(period_frames) else max(1, db.n_states // 20)
-    S = rec.similarity_curve(R, window)
-    best = rec.best_recurrence(R, window)
-    half = db.n_states // 2
-    e = db.eps[:, mask]
-    m1, m2, s1, s2 = e[:half].mean(0), e[half:].mean(0), e[:half].std(0), e[half:].std(0)
-    return dict(R=R, norm=norm, mask=mask, mid=mid, k_mid=k_mid, sp_eps=sp_eps, sp_h=sp_h, Dtau=Dtau, lag=lag,
-                window=window, S=S, best=best, R_seconds=t_R, halves={
-                    "mean_rms_difference": float(np.sqrt(np.mean((m1 - m2) ** 2))),
-                    "std_rms_difference": float(np.sqrt(np.mean((s1 - s2) ** 2))),
-                    "std_mean": float(np.mean(0.5 * (s1 + s2)))})
 
 
 def analyze(run_dir: str, out: str | None = None) -> dict:
@@ -193,21 +151,6 @@ def _plot_spectrum(path, st, db, res):
 
 
 # ------------------------------------------------------------------------------------------------ run
-def state_volumes(db: Database, ops) -> np.ndarray:
-    """(B, n) grain volume per cell at each boundary in float64, from the shifts (column sums of the frame that
-    starts there, row sums of the one that ends there)."""
-    a = np.zeros((db.n_states, db.n_cells))
-    seen = np.zeros(db.n_states, bool)
-    for k in range(db.n_frames):
-        P, a0 = ops[k]
-        s = slice(int(db.offset[k]), int(db.offset[k + 1]))
-        a[db.b0[k]] = a0
-        if not seen[db.b1[k]]:
-            a[db.b1[k]] = np.bincount(db.c1[s], weights=db.w[s], minlength=db.n_cells)
-        seen[db.b0[k]] = seen[db.b1[k]] = True
-    return a
-
-
 def crossing_time(t: np.ndarray, M: np.ndarray, level: float) -> float:
     """First time M reaches ``level`` (linear between samples; NaN if never)."""
     above = np.nonzero(M >= level)[0]
@@ -249,106 +192,96 @@ def full_cost_per_second(run_dir: pathlib.Path, t0: float, t1: float) -> float:
     return float((b - a) / (t1 - t0)) if t1 > t0 and b >= a else float("nan")
 
 
-class Engine:
-    """Everything a set of paths shares: the operators, R, the jump targets, the stitches."""
-
-    def __init__(self, db: Database, st: dict | None = None, params: pathmod.PathParams | None = None):
-        t = wallclock.perf_counter()
-        self.db = db
-        self.st = st or statistics(db)
-        self.ops = [db.shift(k) for k in range(db.n_frames)]
-        self.P = [op[0] for op in self.ops]
-        self.a = state_volumes(db, self.ops)
-        self.successor = db.successor()
-        lag = int(db.attrs.get("lag", 1))
-        if params is None:  # lengths in (lagged) frames from the recorded length; the window in boundaries
-            params = pathmod.PathParams.default(max(3, (db.n_frames + lag - 1) // lag))
-            period_states = self.st["sp_eps"]["period"] * lag / db.frame_interval
-            if np.isfinite(period_states):
-                params = dataclasses.replace(params, window=max(1, int(math.ceil(0.5 * period_states))))
-        self.params = params
-        self.targets = pathmod.jump_targets(self.st["R"], db.b0, self.successor, self.params)
-        cells = (db.open_volume > 0) | (self.a.max(0) > 0).reshape(db.shape)
-        self.stitcher = Stitcher(db.shape, cells, db.h)
-        self.prep_seconds = wallclock.perf_counter() - t + self.st["R_seconds"]
-        self.stitch_seconds = 0.0
-
-    def fluxes(self):
-        """The frame-mean face fluxes of every frame, read once (float32)."""
-        if getattr(self, "_fluxes", None) is None:
-            if not self.db.has_flux:
-                raise ValueError("the database holds no gas fluxes (recorded with probes.rcfd_fluxes = false)")
-            with h5py.File(self.db.path, "r") as f:
-                self._fluxes = [f[f"frame/flux_{a}"][: self.db.n_frames] for a in "xyz"]
-        return self._fluxes
-
-    def gas_transport(self, path: pathmod.Path, c_in: float = 1.0) -> dict:
-        """A gas tracer fed at c_in through the inlet from the path's start (a step input), on the recorded
-        fluxes: the outlet's mixing-cup c after each frame (the step response F(t)) and the tracer balance."""
-        db = self.db
-        fl = self.fluxes()
-        g = GasTracer(db.open_volume, db.h, 0.0)
-        jumps = {pos: (s_from, s_to) for pos, s_from, s_to, _ in path.jumps}
-        F = np.zeros(len(path.frames) + 1)
-        t = wallclock.perf_counter()
-        m_start = g.mass(db.eps[db.b0[path.frames[0]]])
-        for i, k in enumerate(path.frames):
-            if i in jumps and i > 0:
-                g.jump(db.eps[jumps[i][0]].astype(np.float64), db.eps[jumps[i][1]].astype(np.float64))
-            g.frame([a[k].astype(np.float64) for a in fl], db.eps[db.b0[k]].astype(np.float64),
-                    db.eps[db.b1[k]].astype(np.float64), db.frame_interval, c_in)
-            F[i + 1] = g.take_outlet()
-        m_end = g.mass(db.eps[db.b1[path.frames[-1]]].astype(np.float64))
-        balance = m_end - m_start - (g.inflow - g.outflow) - g.jump_mass
-        return {"F": F, "wall": wallclock.perf_counter() - t, "c_min": float(g.c.min()), "c_max": float(g.c.max()),
-                "balance_error": float(abs(balance) / max(g.inflow, 1e-300)),
-                "jump_share": float(abs(g.jump_mass) / max(g.inflow, 1e-300)), "substeps": g.substeps}
-
-    def path(self, n_frames: int, start_state: int, seed: tuple) -> pathmod.Path:
-        return pathmod.markov_path(n_frames, start_state, self.st["R"], self.db.b0, self.db.b1, self.successor,
-                                   self.params, seed, self.targets)
-
-    def transport(self, path: pathmod.Path, c0: np.ndarray, start_state: int) -> dict:
-        """Move the tracer (concentration c0 per cell at ``start_state``) along ``path``; the mixing index after
-        each frame, the stitches, the bounds and the conservation."""
-        db = self.db
-        jumps = {pos: (s_from, s_to) for pos, s_from, s_to, _ in path.jumps}
-        # the tag's concentration is laid onto the grains of the path's first frame (a path from the database's
-        # last state starts with a jump: stitching the segregated start would mix it before any transport)
-        first = int(db.b0[path.frames[0]])
-        tr = SolidsTracer(c0 * self.a[first], self.a[first])
-        jumps.pop(0, None)
-        M = np.empty(len(path.frames) + 1)
-        M[0] = tr.mixing_index()
-        moved, cmin, cmax = [], 0.0, 1.0
-        t_stitch = 0.0
-        t = wallclock.perf_counter()
-        for i, k in enumerate(path.frames):
-            if i in jumps:
-                s_from, s_to = jumps[i]
-                t1 = wallclock.perf_counter()
-                key = (s_from, s_to)
-                fresh = key not in self.stitcher.cache
-                S, info = self.stitcher.operator(self.a[s_from], self.a[s_to], key=key)
-                if fresh:
-                    t_stitch += wallclock.perf_counter() - t1
-                tr.apply(S)
-                moved.append(info["moved_share"])
-            tr.apply(self.P[k])
-            M[i + 1] = tr.mixing_index()
-        wall = wallclock.perf_counter() - t - t_stitch
-        self.stitch_seconds += t_stitch
-        c = tr.concentration
-        return {"M": M, "moved": moved, "drift": tr.drift(), "c_min": float(c.min()), "c_max": float(c.max()),
-                "m_min": float(min(tr.m.min(), tr.u.min())), "wall": wall}
-
-
 def initial_concentration(db: Database, state: int, tag: str | None) -> np.ndarray:
     """c per cell at ``state``: the real grains' tag_now (the recorded tag) or the tag on cell centres."""
     if tag is None or tag.replace(" ", "") == db.tag.replace(" ", ""):
         sol = db.solid[state].astype(np.float64)
         return np.divide(db.tag_now[state].astype(np.float64), sol, out=np.zeros(db.n_cells), where=sol > 0).clip(0, 1)
     return tag_mask(tag, db.cell_centres().reshape(-1, 3)).astype(np.float64)
+
+
+def _write_paths(od: pathlib.Path, db: Database, time: np.ndarray, Ms: np.ndarray, ps: list) -> None:
+    """mixing.csv (each path's index, the ensemble mean and std) and path.csv (the frames of every path)."""
+    mean, std = Ms.mean(0), Ms.std(0, ddof=1) if len(Ms) > 1 else np.zeros(Ms.shape[1])
+    with open(od / "mixing.csv", "w") as f:
+        f.write("time," + ",".join(f"path{i}" for i in range(len(Ms))) + ",mean,std\n")
+        for j in range(Ms.shape[1]):
+            f.write(f"{time[j]:.6g}," + ",".join(f"{v:.6f}" for v in Ms[:, j]) + f",{mean[j]:.6f},{std[j]:.6f}\n")
+    with open(od / "path.csv", "w") as f:
+        f.write("path,position,frame,state_start,time_in_database,jump\n")
+        for i, p in enumerate(ps):
+            jpos = {j[0] for j in p.jumps}
+            for pos, k in enumerate(p.frames):
+                f.write(f"{i},{pos},{k},{db.b0[k]},{db.time[db.b0[k]]:.6g},{int(pos in jpos)}\n")
+
+
+def path_bed_statistics(db: Database, ps: list) -> dict:
+    """Bed height and radial void profile at every recorded boundary the paths pass (a lagged frame spans
+    several: no aliasing on the bed's period), against the database's."""
+    lag = int(db.attrs.get("lag", 1))
+    visited = [np.concatenate([np.arange(db.b0[k] + 1, db.b1[k] + 1) for k in p.frames]) for p in ps]
+    heights = np.stack([db.bed_height[v] for v in visited])
+    rbins, prof = radial_profiles(db)
+    path_prof = np.stack([prof[v].mean(0) for v in visited])
+    sp = [rec.spectrum(hh, db.frame_interval / lag) for hh in heights]
+    return {"bed_height_mean": float(heights.mean()), "bed_height_std": float(heights.std(1).mean()),
+            "bed_height_frequency": float(np.mean([s["peak_frequency"] for s in sp])),
+            "database_bed_height_mean": float(db.bed_height.mean()), "database_bed_height_std": float(db.bed_height.std()),
+            "radial_bins": rbins.tolist(), "radial_eps_paths": path_prof.mean(0).tolist(),
+            "radial_eps_database": prof.mean(0).tolist()}
+
+
+def _gas_paths(eng: Engine, ps: list, od: pathlib.Path, time: np.ndarray, horizon: float) -> dict:
+    """The gas tracer's step response along every path (rtd.csv) and its summary."""
+    gr = [eng.gas_transport(p) for p in ps]
+    Fs = np.stack([g["F"] for g in gr])
+    Fm = np.nanmean(Fs, 0)
+    with open(od / "rtd.csv", "w") as f:
+        f.write("time," + ",".join(f"path{i}" for i in range(len(ps))) + ",mean\n")
+        for j in range(time.size):
+            f.write(f"{time[j]:.6g}," + ",".join(f"{v:.6f}" for v in Fs[:, j]) + f",{Fm[j]:.6f}\n")
+    Fz = np.nan_to_num(Fm)
+    dt = eng.db.frame_interval
+    return {"step_response_final": float(Fz[-1]),
+            "mean_residence_time": float(np.sum(1.0 - Fz[1:]) * dt) if Fz[-1] > 0.99 else float("nan"),
+            "balance_error_max": max(g["balance_error"] for g in gr),
+            "jump_mass_share_max": max(g["jump_share"] for g in gr),
+            "c_min": min(g["c_min"] for g in gr), "c_max": max(g["c_max"] for g in gr),
+            "wall_per_simulated_second_per_path": sum(g["wall"] for g in gr) / (len(ps) * horizon),
+            "note": "step input c = 1 at the inlet from the path's start; F(t) = the outlet's mixing-cup c "
+                    "(region top); first-order upwind on the frame-mean fluxes; not validated against a live "
+                    "gas tracer (fbed's gas solver carries none)"}
+
+
+def _path_warnings(balance: float, R_jumps: list, moved: list) -> list:
+    out = []
+    if balance > 2.0:
+        out.append(f"a frame is visited {balance:.2g}x as often as the mean frame (more than 2x)")
+    if R_jumps and float(np.median(R_jumps)) > 0.2:
+        out.append(f"the median R at jumps is {np.median(R_jumps):.3g} (> 0.2): the database has few good recurrences")
+    if moved and max(moved) > 0.01:
+        out.append(f"a stitch moved {100 * max(moved):.2g}% of the grain volume (> 1%)")
+    return out
+
+
+def cost_summary(eng: Engine, rd: pathlib.Path, results: list, horizon: float, t_path: float) -> dict:
+    """The speed-up account: c_full from the database run, c_r from the median path (robust on a shared CPU)."""
+    db = eng.db
+    c_r = float(np.median([r["wall"] for r in results])) / horizon
+    c_full = full_cost_per_second(rd, float(db.time[0]), float(db.time[-1]))
+    t_db = float(db.time[-1] - db.time[0])
+    prep = eng.prep_seconds + eng.stitch_seconds + t_path
+    n = len(results)
+    return {"full_wall_per_simulated_second": c_full, "rcfd_wall_per_simulated_second_per_path": c_r,
+            "prep_seconds": prep, "recurrence_seconds": eng.st["R_seconds"], "stitch_seconds": eng.stitch_seconds,
+            "path_seconds": t_path, "database_seconds_simulated": t_db,
+            "marginal_speedup": c_full / c_r if c_r > 0 else float("inf"),
+            "total_speedup_with_database": c_full * horizon / (c_full * t_db + prep + n * c_r * horizon),
+            "total_speedup_without_database": c_full * horizon / (prep + n * c_r * horizon),
+            "note": "marginal: full wall per simulated second / rCFD transport wall per simulated second of the "
+                    "median path (mixing index after every frame included); total (horizon T, n paths): c_full T / "
+                    "(c_full t_db + prep + n c_r T), with the database run counted, and without it (when it was "
+                    "run anyway)"}
 
 
 def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | None, name: str | None = None,
@@ -372,98 +305,35 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
     time = np.arange(n_frames + 1) * dt
     Ms = np.stack([r["M"] for r in results])
     mean, std = Ms.mean(0), Ms.std(0, ddof=1) if n_paths > 1 else np.zeros(n_frames + 1)
-    with open(od / "mixing.csv", "w") as f:
-        f.write("time," + ",".join(f"path{i}" for i in range(n_paths)) + ",mean,std\n")
-        for j in range(n_frames + 1):
-            f.write(f"{time[j]:.6g}," + ",".join(f"{v:.6f}" for v in Ms[:, j]) + f",{mean[j]:.6f},{std[j]:.6f}\n")
-    with open(od / "path.csv", "w") as f:
-        f.write("path,position,frame,state_start,time_in_database,jump\n")
-        for i, p in enumerate(ps):
-            jpos = {j[0] for j in p.jumps}
-            for pos, k in enumerate(p.frames):
-                f.write(f"{i},{pos},{k},{db.b0[k]},{db.time[db.b0[k]]:.6g},{int(pos in jpos)}\n")
-    # bed statistics along the paths: the state each frame ends at
-    # every recorded boundary a path passes (a lagged frame spans several): no aliasing on the bed's period
-    visited = [np.concatenate([np.arange(db.b0[k] + 1, db.b1[k] + 1) for k in p.frames]) for p in ps]
-    heights = np.stack([db.bed_height[v] for v in visited])
-    rbins, prof = radial_profiles(db)
-    path_prof = np.stack([prof[v].mean(0) for v in visited])
-    lag = int(db.attrs.get("lag", 1))
-    sp = [rec.spectrum(hh, dt / lag) for hh in heights]
+    _write_paths(od, db, time, Ms, ps)
     t50 = [crossing_time(time, r["M"], 0.5) for r in results]
     t90 = [crossing_time(time, r["M"], 0.9) for r in results]
     moved = [m for r in results for m in r["moved"]]
     R_jumps = [j[3] for p in ps for j in p.jumps]
     balance = pathmod.visit_balance(np.concatenate([p.frames for p in ps]), db.n_frames)
-    warnings = []
-    if balance > 2.0:
-        warnings.append(f"a frame is visited {balance:.2g}x as often as the mean frame (more than 2x)")
-    if R_jumps and float(np.median(R_jumps)) > 0.2:
-        warnings.append(f"the median R at jumps is {np.median(R_jumps):.3g} (> 0.2): the database has few good "
-                        "recurrences")
-    if moved and max(moved) > 0.01:
-        warnings.append(f"a stitch moved {100 * max(moved):.2g}% of the grain volume (> 1%)")
-    gas_res = None
-    if gas:
-        gr = [eng.gas_transport(p) for p in ps]
-        Fs = np.stack([g["F"] for g in gr])
-        Fm = np.nanmean(Fs, 0)
-        with open(od / "rtd.csv", "w") as f:
-            f.write("time," + ",".join(f"path{i}" for i in range(n_paths)) + ",mean\n")
-            for j in range(n_frames + 1):
-                f.write(f"{time[j]:.6g}," + ",".join(f"{v:.6f}" for v in Fs[:, j]) + f",{Fm[j]:.6f}\n")
-        Fz = np.nan_to_num(Fm)
-        gas_res = {"step_response_final": float(Fz[-1]),
-                   "mean_residence_time": float(np.sum(1.0 - Fz[1:]) * dt) if Fz[-1] > 0.99 else float("nan"),
-                   "balance_error_max": max(g["balance_error"] for g in gr),
-                   "jump_mass_share_max": max(g["jump_share"] for g in gr),
-                   "c_min": min(g["c_min"] for g in gr), "c_max": max(g["c_max"] for g in gr),
-                   "wall_per_simulated_second_per_path": sum(g["wall"] for g in gr) / (n_paths * horizon),
-                   "note": "step input c = 1 at the inlet from the path's start; F(t) = the outlet's mixing-cup c "
-                           "(region top); first-order upwind on the frame-mean fluxes; not validated against a live "
-                           "gas tracer (fbed's gas solver carries none)"}
-    c_r = float(np.median([r["wall"] for r in results])) / horizon  # the median path (robust on a shared CPU)
-    c_full = full_cost_per_second(rd, float(db.time[0]), float(db.time[-1]))
-    t_db = float(db.time[-1] - db.time[0])
-    prep = eng.prep_seconds + eng.stitch_seconds + t_path
-    total = c_full * horizon / (c_full * t_db + prep + n_paths * c_r * horizon)
-    total_no_db = c_full * horizon / (prep + n_paths * c_r * horizon)
+    warnings = _path_warnings(balance, R_jumps, moved)
+    same_tag = tag is None or tag.replace(" ", "") == db.tag.replace(" ", "")
+    nan_mean = (lambda v: float(np.nanmean(v)) if np.isfinite(v).any() else float("nan"))
     summary = {
         "run": str(rd), "horizon": horizon, "paths": n_paths, "seed": seed, "seeds": [list(p.seed) for p in ps],
         "start_state": start_state, "start_time": float(db.time[start_state]), "tag": tag or db.tag,
-        "tag_source": "real grains (recorded tag_now)" if (tag is None or tag.replace(" ", "") ==
-                                                             db.tag.replace(" ", "")) else "cell centres",
+        "tag_source": "real grains (recorded tag_now)" if same_tag else "cell centres", "solids": eng.solids,
+        "jump_cells": "half cells" if getattr(eng, "half", False) else "cells",
         "frames_per_path": n_frames, "frame_interval": dt, "lag": int(db.attrs.get("lag", 1)),
         "l_min": eng.params.l_min, "l_mean": eng.params.l_mean, "window": eng.params.window,
-        "jumps_per_path": float(np.mean([len(p.jumps) for p in ps])), "median_R_at_jumps":
-            float(np.median(R_jumps)) if R_jumps else float("nan"),
-        "visit_balance": balance,
+        "jumps_per_path": float(np.mean([len(p.jumps) for p in ps])),
+        "median_R_at_jumps": float(np.median(R_jumps)) if R_jumps else float("nan"), "visit_balance": balance,
         "stitched_share_mean": float(np.mean(moved)) if moved else 0.0,
         "stitched_share_max": float(np.max(moved)) if moved else 0.0,
         "tracer_drift_max": max(r["drift"] for r in results),
         "concentration_min": min(r["c_min"] for r in results), "concentration_max": max(r["c_max"] for r in results),
         "mixing_final_mean": float(mean[-1]), "mixing_final_std": float(std[-1]),
-        "mixing_time_mean": float(mean.mean()), "mixing_time_mean_std": float(Ms.mean(1).std(ddof=1))
-        if n_paths > 1 else 0.0,
-        "t50": t50, "t90": t90, "t50_mean": float(np.nanmean(t50)) if np.isfinite(t50).any() else float("nan"),
-        "t90_mean": float(np.nanmean(t90)) if np.isfinite(t90).any() else float("nan"),
-        "bed_height_mean": float(heights.mean()), "bed_height_std": float(heights.std(1).mean()),
-        "bed_height_frequency": float(np.mean([s["peak_frequency"] for s in sp])),
-        "database_bed_height_mean": float(db.bed_height.mean()), "database_bed_height_std": float(db.bed_height.std()),
-        "radial_bins": rbins.tolist(), "radial_eps_paths": path_prof.mean(0).tolist(),
-        "radial_eps_database": prof.mean(0).tolist(),
-        "cost": {"full_wall_per_simulated_second": c_full, "rcfd_wall_per_simulated_second_per_path": c_r,
-                 "prep_seconds": prep, "recurrence_seconds": eng.st["R_seconds"], "stitch_seconds": eng.stitch_seconds,
-                 "path_seconds": t_path, "database_seconds_simulated": t_db,
-                 "marginal_speedup": c_full / c_r if c_r > 0 else float("inf"),
-                 "total_speedup_with_database": total, "total_speedup_without_database": total_no_db,
-                 "note": "marginal: full wall per simulated second / rCFD transport wall per simulated second of "
-                         "the median path (mixing index after every frame included); total (horizon T, n paths): c_full T / (c_full t_db + prep + n c_r T), with the "
-                         "database run counted, and without it (when it was run anyway)"},
-        "warnings": warnings,
-    }
-    if gas_res is not None:
-        summary["gas_tracer"] = gas_res
+        "mixing_time_mean": float(mean.mean()),
+        "mixing_time_mean_std": float(Ms.mean(1).std(ddof=1)) if n_paths > 1 else 0.0,
+        "t50": t50, "t90": t90, "t50_mean": nan_mean(t50), "t90_mean": nan_mean(t90),
+        **path_bed_statistics(db, ps), "cost": cost_summary(eng, rd, results, horizon, t_path), "warnings": warnings}
+    if gas:
+        summary["gas_tracer"] = _gas_paths(eng, ps, od, time, horizon)
     _json(od / "summary.json", summary)
     _plot_mixing(od / "mixing.png", time, Ms, mean, std)
     seqs = [(s, L, int(db.b0[s])) for s, L in ps[0].sequences]

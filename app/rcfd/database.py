@@ -11,8 +11,11 @@ c = (i * ny + j) * nz + k):
   /boundary/tag_now (B, n) f4         volume of the grains that satisfy the tag expression now [m^3]
   /boundary/tagged (B, n) f4          volume of the grains tagged at the first boundary [m^3]
   /grains_counted, /grains_volume     the grains counted (DEM indices) and their volumes [m^3]
-  /boundary/cells (B, grains) i4      each counted grain's cell (probes.rcfd_grain_cells): operators over
-                                      ``lag`` frames are built from it (load(..., lag))
+  /boundary/cells (B, grains) i4      each counted grain's cell (probes.rcfd_grain_cells): the grain tracer
+                                      rides on it (transport.GrainTracer), operators over ``lag`` frames are
+                                      built from it (load(..., lag))
+  /boundary/octant (B, grains) u1     the eighth of its cell each grain is in (bits x, y, z: 4, 2, 1): the
+                                      grain tracer's jumps stitch on this half-cell grid
   /frame/b0, /frame/b1 (N,) i4        the boundaries a frame starts and ends at (b1 = b0 + 1 unless resumed)
   /frame/offset (N+1,) i8             frame k's shift triplets are shift/*[offset[k]:offset[k+1]]
   /shift/c0, /shift/c1 i4, /shift/w f8   grain volume [m^3] that went from cell c0 to cell c1 in the frame
@@ -91,6 +94,22 @@ class Database:
     c1: np.ndarray
     w: np.ndarray
     has_flux: bool
+    cells: np.ndarray | None = None         # (B, grains) each counted grain's cell (boundary/cells), if recorded
+    grain_volume: np.ndarray | None = None  # (grains,) [m^3]
+    tagged_grains: np.ndarray | None = None  # (grains,) bool: tagged at the first boundary
+    octant: np.ndarray | None = None         # (B, grains) u1: the eighth of its cell each grain is in
+
+    @property
+    def fine_shape(self) -> tuple:
+        """The half-cell grid: each cell split in two along every axis."""
+        return tuple(2 * s for s in self.shape)
+
+    def fine_cells(self, b) -> np.ndarray:
+        """Each counted grain's half-cell at boundary (or boundaries) ``b`` (flat index on fine_shape)."""
+        c, o = self.cells[b], self.octant[b].astype(np.int64)
+        i, j, k = np.unravel_index(c, self.shape)
+        fs = self.fine_shape
+        return ((2 * i + (o >> 2 & 1)) * fs[1] + 2 * j + (o >> 1 & 1)) * fs[2] + 2 * k + (o & 1)
 
     @property
     def n_cells(self) -> int:
@@ -163,6 +182,12 @@ def load(path, lag: int = 1) -> Database:
             b0=f["frame/b0"][:nfr].astype(np.int64), b1=b1[:nfr].astype(np.int64), offset=off,
             c0=f["shift/c0"][: off[-1]].astype(np.int64), c1=f["shift/c1"][: off[-1]].astype(np.int64),
             w=f["shift/w"][: off[-1]].astype(np.float64), has_flux="frame/flux_x" in f)
+        if "boundary/cells" in f and f["boundary/cells"].shape[0] >= nb:
+            db.cells = f["boundary/cells"][:nb].astype(np.int64)
+            db.grain_volume = f["grains_volume"][...].astype(np.float64)
+            db.tagged_grains = np.isin(f["grains_counted"][...], f["grains_tagged"][...])
+            if "boundary/octant" in f and f["boundary/octant"].shape[0] >= nb:
+                db.octant = f["boundary/octant"][:nb]
     if lag > 1:
         db = _lagged(db, int(lag))
     if db.n_frames < 3:
@@ -172,12 +197,10 @@ def load(path, lag: int = 1) -> Database:
 
 
 def _lagged(db: Database, lag: int) -> Database:
-    with h5py.File(db.path, "r") as f:
-        if "boundary/cells" not in f:
-            raise ValueError(f"{db.path}: --lag needs each grain's cell per boundary (record with "
-                             "probes.rcfd_grain_cells = true)")
-        cells = f["boundary/cells"][: db.n_states].astype(np.int64)
-        vol = f["grains_volume"][...].astype(np.float64)
+    if db.cells is None:
+        raise ValueError(f"{db.path}: --lag needs each grain's cell per boundary (record with "
+                         "probes.rcfd_grain_cells = true)")
+    cells, vol = db.cells, db.grain_volume
     succ = db.successor()
     b0, b1, off, c0s, c1s, ws = [], [], [0], [], [], []
     n = db.n_cells

@@ -125,6 +125,14 @@ def replay(n_frames: int, successor: np.ndarray) -> Path:
     return Path(np.asarray(frames), [], ())
 
 
+def with_resets(path: Path, every: int, b0: np.ndarray) -> Path:
+    """The same frames with a jump from each ``every``-th frame's start state to itself: what a jump does to the
+    tracer (the grain tracer averages over each cell there) without changing the flow's order, so a replay
+    with resets at the paths' mean sequence length isolates the transport error of the jumps."""
+    pos = range(every, len(path.frames), max(1, int(every)))
+    return Path(path.frames, [(p, int(b0[path.frames[p]]), int(b0[path.frames[p]]), 0.0) for p in pos], path.seed)
+
+
 def visit_balance(frames: np.ndarray, n: int) -> float:
     """Most visits of a frame over the mean visits of the visited frames."""
     v = np.bincount(frames, minlength=n)

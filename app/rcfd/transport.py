@@ -1,6 +1,9 @@
 """Transport of a solids tracer by the recorded shift operators, and the stitch at a jump.
 
-The tracer is carried as two volumes per cell, tagged m and untagged u (both >= 0); every
+Two solids tracers. GrainTracer (used when the database holds each grain's cell) carries the tag on the
+recorded grains along a sequence and averages over a cell only at a jump. SolidsTracer (the shift form)
+averages over a cell every frame; its replay error is measured in validation/rcfd/README.md. It carries
+the tracer as two volumes per cell, tagged m and untagged u (both >= 0); every
 operator is column-stochastic and non-negative (each column sums to one), so
 - sum(m) and sum(u) are kept to round-off (no balance correction, which rCFD-PFM needs),
 - c = m / (m + u) stays in [0, 1] exactly, with no CFL limit.
@@ -179,6 +182,63 @@ class SolidsTracer:
         """Largest relative change of the tagged or untagged total since the start."""
         return max(abs(self.m.sum() - self.m0) / self.m0 if self.m0 else 0.0,
                    abs(self.u.sum() - self.u0) / self.u0 if self.u0 else 0.0)
+
+
+class GrainTracer:
+    """The tagged share tau in [0, 1] of each recorded grain (the database's boundary/cells).
+
+    Along a sequence the path replays recorded frames, whose grains are the recorded grains: the tracer rides
+    on them, and the tagged volume per cell at any boundary is sum vol tau over the grains in the cell -- no
+    operator, no numerical diffusion, whatever the grains' motion. Only at a jump from state s to state j do
+    grains lose their identity (state j's grains are not state s's): the tagged and untagged volumes per cell
+    of state s are stitched onto state j's grain distribution (S, column-stochastic), and each grain of state j
+    takes its cell's concentration. That is the one place where a cell is assumed well mixed, so the tracer is
+    kept to round-off and stays in [0, 1] as with the cell shifts (SolidsTracer). The jump's cells may be finer
+    than the index's (Engine stitches on half cells where boundary/octant is recorded): the error of a jump
+    grows with the cell it averages over (validation/rcfd/README.md)."""
+
+    def __init__(self, volume: np.ndarray, tau: np.ndarray, n_cells: int):
+        self.vol = np.asarray(volume, np.float64)
+        self.tau = np.clip(np.asarray(tau, np.float64), 0.0, 1.0).copy()
+        self.n = int(n_cells)
+        self.m0, self.u0 = float(np.sum(self.vol * self.tau)), float(np.sum(self.vol * (1.0 - self.tau)))
+
+    def volumes(self, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(tagged, untagged) grain volume per cell [m^3] with the grains in ``cells``."""
+        return (np.bincount(cells, weights=self.vol * self.tau, minlength=self.n),
+                np.bincount(cells, weights=self.vol * (1.0 - self.tau), minlength=self.n))
+
+    def jump(self, cells_from: np.ndarray, cells_to: np.ndarray, S: sp.csr_matrix) -> None:
+        """Stitch by S (on the grid the cells index: the cells, or a finer one) and give each grain its cell's
+        concentration."""
+        n = S.shape[0]
+        m = np.bincount(cells_from, weights=self.vol * self.tau, minlength=n)
+        u = np.bincount(cells_from, weights=self.vol * (1.0 - self.tau), minlength=n)
+        m, u = S @ m, S @ u
+        b = m + u
+        c = np.divide(m, b, out=np.zeros_like(b), where=b > 0).clip(0.0, 1.0)
+        self.tau = c[cells_to]
+
+    def mixing_index(self, cells: np.ndarray) -> float:
+        return mixing_index(*self.volumes(cells))
+
+    def mixing_indices(self, cells: np.ndarray, solid: np.ndarray | None = None) -> np.ndarray:
+        """mixing_index at each row of ``cells`` (L, grains), the rows' states (one bincount for all of them:
+        tau does not change between jumps); ``solid`` (L, n): the states' grain volume per cell, if known."""
+        L = cells.shape[0]
+        idx = (cells + self.n * np.arange(L)[:, None]).ravel()
+        m = np.bincount(idx, weights=np.tile(self.vol * self.tau, L), minlength=L * self.n).reshape(L, self.n)
+        b = solid if solid is not None else \
+            np.bincount(idx, weights=np.tile(self.vol, L), minlength=L * self.n).reshape(L, self.n)
+        tot = b.sum(1)
+        cbar = m.sum(1) / tot
+        with np.errstate(invalid="ignore", divide="ignore"):
+            M = 1.0 - np.abs(m - cbar[:, None] * b).sum(1) / (2.0 * cbar * (1.0 - cbar) * tot)
+        return np.where((cbar > 0) & (cbar < 1), M, np.nan)
+
+    def drift(self) -> float:
+        m, u = float(np.sum(self.vol * self.tau)), float(np.sum(self.vol * (1.0 - self.tau)))
+        return max(abs(m - self.m0) / self.m0 if self.m0 else 0.0, abs(u - self.u0) / self.u0 if self.u0 else 0.0)
 
 
 class GasTracer:

@@ -16,6 +16,7 @@ Exit 0 when every check passes, 1 when one fails (the report says which), 2 on b
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import pathlib
 import shutil
@@ -65,134 +66,202 @@ def _within(value, ref, tol) -> bool:
     return bool(np.isfinite(value) and np.isfinite(ref) and abs(value - ref) <= tol)
 
 
-def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_paths: int, seed: int,
-             n_cont: int, overrides: list, arch: str, log=print, lag: int = 1) -> int:
-    from ..run import EXIT_OK, run
+def _run_stage(d: pathlib.Path, t_end: float, what: str, log, start) -> int:
+    """Run a stage unless it finished before (``start()`` runs it); its exit code."""
+    from ..run import EXIT_OK
 
-    od = pathlib.Path(out) if out else pathlib.Path("runs") / f"rcfd-validate-{pathlib.Path(preset).stem}"
-    od.mkdir(parents=True, exist_ok=True)
+    if _finished(d, t_end):
+        return EXIT_OK
+    log(f"fbed: rcfd validate: {what}")
+    rc = start()
+    if rc != EXIT_OK:
+        log(f"fbed: rcfd validate: {d.name} ended with exit {rc}; see {d}")
+    return rc
+
+
+def full_runs(od: pathlib.Path, preset: str, overrides: list, t0: float, t1: float, t2: float, n_cont: int,
+              arch: str, log) -> tuple[int, list]:
+    """Run A (the database) and the perturbed continuations; (exit code, the continuations' curves)."""
+    from ..run import run
+
     A = od / "A"
-    if not _finished(A, t1):
-        log(f"fbed: rcfd validate: database run A to t1 = {t1:g} s, frames from t0 = {t0:g} s")
-        rc = run(preset, list(overrides) + [f"run.duration={t1!r}", f"probes.rcfd_from={t0!r}"], out=str(A),
-                 arch=arch, overwrite=True)
-        if rc != EXIT_OK:
-            log(f"fbed: rcfd validate: run A ended with exit {rc}; see {A}")
-            return rc
+    rc = _run_stage(A, t1, f"database run A to t1 = {t1:g} s, frames from t0 = {t0:g} s", log, lambda: run(
+        preset, list(overrides) + [f"run.duration={t1!r}", f"probes.rcfd_from={t0!r}"], out=str(A), arch=arch,
+        overwrite=True))
+    if rc:
+        return rc, []
     d = json.loads((A / "summary.json").read_text())
     diameter = float(d.get("grain_diameter", 0.0)) or _diameter(A)
     conts = []
     for k in range(n_cont):
         C = od / f"C{k + 1}"
-        if not _finished(C, t2):
-            log(f"fbed: rcfd validate: continuation C{k + 1} to t2 = {t2:g} s, positions perturbed by "
-                f"{PERTURBATION:g} d")
+
+        def start(C=C, k=k):
             if C.exists():
                 shutil.rmtree(C)
             C.mkdir(parents=True)
             shutil.copy(A / "config.toml", C / "config.toml")
             perturb_checkpoint(A / "checkpoint.h5", C / "checkpoint.h5", 1000 + k, PERTURBATION * diameter)
-            rc = run(None, list(overrides) + [f"run.duration={t2!r}", f"probes.rcfd_from={t1!r}"], resume=str(C),
-                     arch=arch)
-            if rc != EXIT_OK:
-                log(f"fbed: rcfd validate: continuation C{k + 1} ended with exit {rc}; see {C}")
-                return rc
+            return run(None, list(overrides) + [f"run.duration={t2!r}", f"probes.rcfd_from={t1!r}"], resume=str(C),
+                       arch=arch)
+
+        rc = _run_stage(C, t2, f"continuation C{k + 1} to t2 = {t2:g} s, positions perturbed by {PERTURBATION:g} d",
+                        log, start)
+        if rc:
+            return rc, []
         conts.append(full_curves(C, t1))
+    return 0, conts
+
+
+def replay_checks(db, eng) -> tuple[dict, dict]:
+    """The replays of the database in recorded order from t0 against the real grains' tracer: (checks, curves).
+    - grains: the grain tracer with the real t0 tag per grain. It uses no operator along the recorded order, so it
+      must equal the real tracer to the float32 of the stored per-cell volumes: a check of the recording's books.
+    - jumps: the same with the cell averaging of a jump every mean sequence length (a jump from a state to
+      itself): the transport error the paths make, without the error of their frame order. The design note's
+      0.03 applies here.
+    - cells: the cell shifts (SolidsTracer) frame by frame, for comparison (no pass/fail: its error is the
+      well-mixed cell's, measured in validation/rcfd/README.md)."""
+    rp = pathmod.replay(db.n_frames, eng.successor)
+    s0 = int(db.b0[rp.frames[0]])
+    states = np.concatenate([[s0], db.b1[rp.frames]])
+    real = np.array([mixing_index_real(db.tagged[b], db.solid[b]) for b in states])
+    t = db.time[states] - db.time[states[0]]
+    curves, checks = {"t": t, "real": real}, {}
+    cells = commands.Engine(db, eng.st, eng.params, solids="cells") if eng.solids == "grains" else eng
+    cases = [("cells", cells, rp, None)]
+    if eng.solids == "grains":
+        tau0 = db.tagged_grains.astype(np.float64) if s0 == 0 else None
+        cases += [("grains", eng, rp, tau0), ("jumps", eng, pathmod.with_resets(rp, eng.params.l_mean, db.b0), tau0)]
+    for name, e, path, tau0 in cases:
+        r = e.transport(path, commands.initial_concentration(db, s0, None), s0, tau0=tau0)
+        err = float(np.max(np.abs(r["M"] - real)))
+        curves[name] = r["M"]
+        t90 = (commands.crossing_time(t, r["M"], 0.9), commands.crossing_time(t, real, 0.9))
+        checks[f"replay_{name}"] = {"max_abs_difference": err, "rcfd_final": float(r["M"][-1]),
+                                    "full": float(real[-1]), "t90_rcfd": t90[0], "t90_real": t90[1]}
+    checks["replay_cells"].update(tests="the cell shifts every frame (for comparison; not a pass/fail check)",
+                                  tolerance="reported")
+    if "replay_grains" in checks:
+        checks["replay_grains"].update(tests="the recording's books (grain tracer, recorded order: no operator)",
+                                       tolerance=1e-6, every_frames=0)
+        checks["replay_grains"]["pass"] = checks["replay_grains"]["max_abs_difference"] <= 1e-6
+        checks["replay_jumps"].update(tests="rCFD transport (recorded order, a jump's cell averaging every mean "
+                                      "sequence length)", tolerance=0.03, every_frames=eng.params.l_mean)
+        checks["replay_jumps"]["pass"] = checks["replay_jumps"]["max_abs_difference"] <= 0.03
+    return checks, curves
+
+
+def mixing_checks(conts: list, t_r: np.ndarray, M_paths: np.ndarray) -> tuple[dict, tuple]:
+    """The rCFD ensemble's mixing curve against the continuations' (mean index over the horizon, t50, t90)."""
+    n = int(np.sum(t_r <= min(c["t"][-1] for c in conts) + 1e-9))  # the full curves on rCFD's time grid
+    tf = t_r[:n]
+    Mf = np.stack([np.interp(tf, c["t"], c["M"]) for c in conts])
+    # the full runs' time mean from every boundary within the horizon (rCFD's own grid may be coarser)
+    full_mean = np.array([c["M"][c["t"] <= t_r[n - 1] + 1e-9].mean() for c in conts])
+    rc_mean = M_paths[:, :n].mean(1)
+    sig = float(full_mean.std(ddof=1)) if len(conts) > 1 else 0.0
+    tol = max(2 * sig, 0.05)
+
+    def rel_check(level):
+        r = [commands.crossing_time(tf, m[:n], level) for m in M_paths]
+        f = [commands.crossing_time(tf, m, level) for m in Mf]
+        r_m = np.nanmean(r) if np.isfinite(r).any() else np.nan
+        f_m = np.nanmean(f) if np.isfinite(f).any() else np.nan
+        s = np.nanstd(f, ddof=1) if np.isfinite(f).sum() > 1 else 0.0
+        t = max(2 * s, 0.15 * f_m) if np.isfinite(f_m) else np.nan
+        return {"tests": "rCFD extrapolation", "rcfd": float(r_m), "full": float(f_m), "full_std": float(s),
+                "rcfd_reached": int(np.isfinite(r).sum()), "tolerance": float(t), "pass": _within(r_m, f_m, t)}
+
+    checks = {"mean_mixing_index": {"tests": "rCFD extrapolation (paths and transport against full runs)",
+                                    "rcfd": float(rc_mean.mean()),
+                                    "rcfd_std": float(rc_mean.std(ddof=1)) if len(rc_mean) > 1 else 0.0,
+                                    "full": float(full_mean.mean()), "full_std": sig, "tolerance": tol,
+                                    "pass": _within(rc_mean.mean(), full_mean.mean(), tol)},
+              "t50": rel_check(0.5), "t90": rel_check(0.9)}
+    return checks, (tf, Mf)
+
+
+def bed_checks(conts: list, summ: dict, horizon: float, dt: float) -> dict:
+    """Bed height mean, std, frequency and the radial void profile along the paths against the continuations:
+    these test only that the database is representative."""
+    tau = float(np.mean([_integral_time(c["heights"], dt) for c in conts]))
+    n_eff = max(1.0, horizon / (2 * tau))  # independent samples of the bed height in the horizon
+    std = float(np.mean([c["bed_std"] for c in conts]))
+    mean = float(np.mean([c["bed_mean"] for c in conts]))
+    freq = float(np.mean([c["bed_freq"] for c in conts]))
+    tol_mean = max(2 * std / np.sqrt(n_eff), 0.02 * mean)
+    rad_f = np.mean([c["radial"] for c in conts], 0)
+    rad_r = np.asarray(summ["radial_eps_paths"])
+    m = min(rad_f.size, rad_r.size)
+    rms = float(np.sqrt(np.mean((rad_r[:m] - rad_f[:m]) ** 2)))
+    rep = "representativeness of the database only"
+    return {"bed_height_mean": {"tests": rep, "rcfd": summ["bed_height_mean"], "integral_time": tau, "n_eff": n_eff,
+                                "full": mean, "tolerance": tol_mean,
+                                "pass": _within(summ["bed_height_mean"], mean, tol_mean)},
+            "bed_height_std": {"tests": rep, "rcfd": summ["bed_height_std"], "full": std, "tolerance": 0.15 * std,
+                               "pass": _within(summ["bed_height_std"], std, 0.15 * std)},
+            "bed_height_frequency": {"tests": rep, "rcfd": summ["bed_height_frequency"], "full": freq,
+                                     "tolerance": conts[0]["df"],
+                                     "pass": _within(summ["bed_height_frequency"], freq, conts[0]["df"])},
+            "radial_void_profile_rms": {"tests": rep, "rms_difference": rms, "tolerance": 0.02, "pass": rms <= 0.02}}
+
+
+def cost_checks(conts: list, summ: dict) -> dict:
+    c_full = float(np.nanmean([c["wall_per_s"] for c in conts]))
+    c_r = summ["cost"]["rcfd_wall_per_simulated_second_per_path"]
+    marginal = c_full / c_r if c_r > 0 else float("inf")
+    return {"marginal_speedup": {"tests": "cost", "value": marginal, "full_wall_per_simulated_second": c_full,
+                                 "rcfd_wall_per_simulated_second": c_r, "tolerance": ">= 1e4", "pass": marginal >= 1e4},
+            "conservation": {"tests": "rCFD transport", "drift": summ["tracer_drift_max"], "tolerance": 1e-10,
+                             "pass": summ["tracer_drift_max"] <= 1e-10, "c_min": summ["concentration_min"],
+                             "c_max": summ["concentration_max"], "stitched_share_max": summ["stitched_share_max"]}}
+
+
+def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_paths: int, seed: int,
+             n_cont: int, overrides: list, arch: str, log=print, lag: int = 1, l_mean: int | None = None,
+             jump_grid: str = "auto") -> int:
+    """The protocol above; ``l_mean`` [frames] overrides the paths' mean sequence length (default N/10);
+    ``jump_grid`` 'cells' stitches the grain tracer's jumps on the cells instead of half cells."""
+    od = pathlib.Path(out) if out else pathlib.Path("runs") / f"rcfd-validate-{pathlib.Path(preset).stem}"
+    od.mkdir(parents=True, exist_ok=True)
+    rc, conts = full_runs(od, preset, overrides, t0, t1, t2, n_cont, arch, log)
+    if rc:
+        return rc
+    A = od / "A"
     log("fbed: rcfd validate: analysis, replay and rCFD paths")
     ana = commands.analyze(str(A), str(od / "analysis"))
     db = load(A, lag)
-    eng = commands.Engine(db)
-    # -- replay: the recorded order from t0, the t0 tag, against the real grains' tracer
-    rp = pathmod.replay(db.n_frames, eng.successor)
-    c0 = commands.initial_concentration(db, int(db.b0[rp.frames[0]]), None)
-    rres = eng.transport(rp, c0, int(db.b0[rp.frames[0]]))
-    states = np.concatenate([[db.b0[rp.frames[0]]], db.b1[rp.frames]])
-    M_real = np.array([mixing_index_real(db.tagged[b], db.solid[b]) for b in states])
-    t_rep = db.time[states] - db.time[states[0]]
-    rep_err = float(np.max(np.abs(rres["M"] - M_real)))
-    rep_t90 = (commands.crossing_time(t_rep, rres["M"], 0.9), commands.crossing_time(t_rep, M_real, 0.9))
-    # -- rCFD ensemble over the continuations' horizon
+    eng = commands.Engine(db, jump_grid=jump_grid)
+    if l_mean:
+        eng = commands.Engine(db, eng.st, dataclasses.replace(eng.params, l_mean=max(int(l_mean), eng.params.l_min + 1)),
+                              jump_grid=jump_grid)
+    checks, rep = replay_checks(db, eng)
     horizon = t2 - t1
     summ = commands.run_paths(str(A), horizon, n_paths, seed, None, out=str(od / "rcfd_paths"), engine=eng, log=log)
     Ms = np.loadtxt(od / "rcfd_paths" / "mixing.csv", delimiter=",", skiprows=1)
     t_r, M_paths = Ms[:, 0], Ms[:, 1:1 + n_paths].T
-    n = int(np.sum(t_r <= min(c["t"][-1] for c in conts) + 1e-9))  # the full curves on rCFD's time grid
-    Mf = np.stack([np.interp(t_r[:n], c["t"], c["M"]) for c in conts])
-    tf = t_r[:n]
-    # the full runs' time mean from every boundary within the horizon (rCFD's own grid may be coarser)
-    full_mean_idx = np.array([c["M"][c["t"] <= t_r[n - 1] + 1e-9].mean() for c in conts])
-    rc_mean_idx = M_paths[:, :n].mean(1)
-    sig_full = float(full_mean_idx.std(ddof=1)) if n_cont > 1 else 0.0
-    t50f = [commands.crossing_time(tf, m, 0.5) for m in Mf]
-    t90f = [commands.crossing_time(tf, m, 0.9) for m in Mf]
-    t50r = [commands.crossing_time(t_r[:n], m[:n], 0.5) for m in M_paths]
-    t90r = [commands.crossing_time(t_r[:n], m[:n], 0.9) for m in M_paths]
-
-    def rel_check(r, f):
-        r_m, f_m = np.nanmean(r) if np.isfinite(r).any() else np.nan, np.nanmean(f) if np.isfinite(f).any() else np.nan
-        s = np.nanstd(f, ddof=1) if np.isfinite(f).sum() > 1 else 0.0
-        tol = max(2 * s, 0.15 * f_m) if np.isfinite(f_m) else np.nan
-        return {"rcfd": float(r_m), "full": float(f_m), "full_std": float(s), "tolerance": float(tol),
-                "pass": _within(r_m, f_m, tol)}
-
-    tau = float(np.mean([_integral_time(c["heights"], db.frame_interval / lag) for c in conts]))
-    n_eff = max(1.0, horizon / (2 * tau))  # independent samples of the bed height in the horizon
-    se = float(np.mean([c["bed_std"] for c in conts]) / np.sqrt(n_eff))
-    full_bed_mean = float(np.mean([c["bed_mean"] for c in conts]))
-    full_bed_std = float(np.mean([c["bed_std"] for c in conts]))
-    full_freq = float(np.mean([c["bed_freq"] for c in conts]))
-    full_rad = np.mean([c["radial"] for c in conts], 0)
-    rc_rad = np.asarray(summ["radial_eps_paths"])
-    m = min(full_rad.size, rc_rad.size)
-    c_full = float(np.nanmean([c["wall_per_s"] for c in conts]))
-    c_r = summ["cost"]["rcfd_wall_per_simulated_second_per_path"]
-    checks = {
-        "replay_mixing_index": {"tests": "rCFD transport (same frames, same order: only the operator differs)",
-                                "max_abs_difference": rep_err, "tolerance": 0.03, "pass": rep_err <= 0.03,
-                                "rcfd_final": float(rres["M"][-1]), "full": float(M_real[-1]),
-                                "t90_rcfd": rep_t90[0], "t90_real": rep_t90[1]},
-        "mean_mixing_index": {"tests": "rCFD extrapolation (paths and transport against full runs)",
-                              "rcfd": float(rc_mean_idx.mean()), "rcfd_std": float(rc_mean_idx.std(ddof=1))
-                              if n_paths > 1 else 0.0, "full": float(full_mean_idx.mean()), "full_std": sig_full,
-                              "tolerance": max(2 * sig_full, 0.05),
-                              "pass": _within(rc_mean_idx.mean(), full_mean_idx.mean(), max(2 * sig_full, 0.05))},
-        "t50": {"tests": "rCFD extrapolation", **rel_check(t50r, t50f)},
-        "t90": {"tests": "rCFD extrapolation", **rel_check(t90r, t90f)},
-        "bed_height_mean": {"tests": "representativeness of the database only", "rcfd": summ["bed_height_mean"],
-                            "integral_time": tau, "n_eff": n_eff,
-                            "full": full_bed_mean, "tolerance": max(2 * se, 0.02 * full_bed_mean),
-                            "pass": _within(summ["bed_height_mean"], full_bed_mean, max(2 * se, 0.02 * full_bed_mean))},
-        "bed_height_std": {"tests": "representativeness of the database only", "rcfd": summ["bed_height_std"],
-                           "full": full_bed_std, "tolerance": 0.15 * full_bed_std,
-                           "pass": _within(summ["bed_height_std"], full_bed_std, 0.15 * full_bed_std)},
-        "bed_height_frequency": {"tests": "representativeness of the database only",
-                                 "rcfd": summ["bed_height_frequency"], "full": full_freq, "tolerance": conts[0]["df"],
-                                 "pass": _within(summ["bed_height_frequency"], full_freq, conts[0]["df"])},
-        "radial_void_profile_rms": {"tests": "representativeness of the database only",
-                                    "rms_difference": float(np.sqrt(np.mean((rc_rad[:m] - full_rad[:m]) ** 2))),
-                                    "tolerance": 0.02},
-        "marginal_speedup": {"tests": "cost", "value": c_full / c_r if c_r > 0 else float("inf"),
-                             "full_wall_per_simulated_second": c_full, "rcfd_wall_per_simulated_second": c_r,
-                             "tolerance": ">= 1e4"},
-        "conservation": {"tests": "rCFD transport", "drift": summ["tracer_drift_max"], "tolerance": 1e-10,
-                         "pass": summ["tracer_drift_max"] <= 1e-10, "c_min": summ["concentration_min"],
-                         "c_max": summ["concentration_max"], "stitched_share_max": summ["stitched_share_max"]},
-    }
-    checks["radial_void_profile_rms"]["pass"] = checks["radial_void_profile_rms"]["rms_difference"] <= 0.02
-    checks["marginal_speedup"]["pass"] = checks["marginal_speedup"]["value"] >= 1e4
+    mix, (tf, Mf) = mixing_checks(conts, t_r, M_paths)
+    checks.update(mix)
+    checks.update(bed_checks(conts, summ, horizon, db.frame_interval / lag))
+    checks.update(cost_checks(conts, summ))
+    c_full = checks["marginal_speedup"]["full_wall_per_simulated_second"]
+    c_r = checks["marginal_speedup"]["rcfd_wall_per_simulated_second"]
     total = c_full * horizon / (c_full * (t1 - t0) + summ["cost"]["prep_seconds"] + n_paths * c_r * horizon)
-    result = {"preset": preset, "lag": lag, "t0": t0, "t1": t1, "t2": t2, "paths": n_paths, "seed": seed,
-              "continuations": n_cont, "perturbation_of_d": PERTURBATION, "analysis": ana, "checks": checks,
-              "total_speedup_with_database": total, "replay_curve": {"t": t_rep.tolist(), "rcfd": rres["M"].tolist(),
-                                                                      "real": M_real.tolist()}}
+    result = {"preset": preset, "lag": lag, "solids": eng.solids, "jump_cells": "half cells" if eng.half else "cells", "l_min": eng.params.l_min, "l_mean": eng.params.l_mean, "t0": t0, "t1": t1, "t2": t2, "paths": n_paths,
+              "seed": seed, "continuations": n_cont, "perturbation_of_d": PERTURBATION, "analysis": ana,
+              "checks": checks, "total_speedup_with_database": total,
+              "total_speedup_without_database": summ["cost"]["total_speedup_without_database"],
+              "replay_curve": {k: np.asarray(v).tolist() for k, v in rep.items()},
+              "full_curves": {"t": tf.tolist(), "M": Mf.tolist()}, "rcfd_mean_curve": M_paths.mean(0).tolist()}
     commands._json(od / "validation.json", result)
-    _plot(od, t_rep, rres["M"], M_real, t_r, M_paths, tf, Mf)
+    _plot(od, rep, t_r, M_paths, tf, Mf)
     _report(od / "REPORT.md", result)
-    ok = all(c.get("pass", True) for c in checks.values())
     for name, c in checks.items():
-        log(f"  {name}: {'pass' if c['pass'] else 'FAIL'} ({c['tests']})")
+        verdict = "reported" if "pass" not in c else "pass" if c["pass"] else "FAIL"
+        log(f"  {name}: {verdict} ({c['tests']})")
     log(f"fbed: rcfd validate: report in {od / 'REPORT.md'}")
-    return 0 if ok else 1
+    return 0 if all(c.get("pass", True) for c in checks.values()) else 1
 
 
 def _diameter(A: pathlib.Path) -> float:
@@ -211,15 +280,19 @@ def _integral_time(x: np.ndarray, dt: float) -> float:
     return float(ac[:end].sum() * dt)
 
 
-def _plot(od, t_rep, M_rep, M_real, t_r, M_paths, tf, Mf):
+def _plot(od, rep, t_r, M_paths, tf, Mf):
     plt = commands._plt()
     fig, axs = plt.subplots(1, 2, figsize=(12, 4.5))
-    axs[0].plot(t_rep, M_real, "k-", label="real grains")
-    axs[0].plot(t_rep, M_rep, "b--", label="replay (shift operators)")
+    axs[0].plot(rep["t"], rep["real"], "k-", lw=2, label="real grains")
+    style = {"cells": ("r:", "cell shifts every frame"), "grains": ("g--", "grain tracer (no jumps)"),
+             "jumps": ("b-", "grain tracer, cell-averaged every mean sequence")}
+    for k, (ls, label) in style.items():
+        if k in rep:
+            axs[0].plot(rep["t"], rep[k], ls, label=label)
     axs[0].set_title("replay of the database in recorded order")
     axs[0].set_xlabel("time from t0 [s]")
     axs[0].set_ylabel("mixing index")
-    axs[0].legend()
+    axs[0].legend(fontsize=8)
     mean, std = M_paths.mean(0), M_paths.std(0, ddof=1) if len(M_paths) > 1 else 0 * M_paths[0]
     for M in M_paths:
         axs[1].plot(t_r, M, color="0.75", lw=0.5)
@@ -229,7 +302,7 @@ def _plot(od, t_rep, M_rep, M_real, t_r, M_paths, tf, Mf):
         axs[1].plot(tf, M, "k--", lw=1.2, label="full CFD-DEM (perturbed continuations)" if i == 0 else None)
     axs[1].set_title("extrapolation from t1")
     axs[1].set_xlabel("time from t1 [s]")
-    axs[1].legend()
+    axs[1].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(od / "mixing_validation.png", dpi=110)
     plt.close(fig)
@@ -245,8 +318,8 @@ def _report(path: pathlib.Path, res: dict) -> None:
         r = c.get("rcfd", c.get("max_abs_difference", c.get("rms_difference", c.get("value", c.get("drift")))))
         f = c.get("full", c.get("full_wall_per_simulated_second", ""))
         fmt = (lambda v: f"{v:.4g}" if isinstance(v, (float, int)) else str(v))
-        lines.append(f"| {name} | {c['tests']} | {fmt(r)} | {fmt(f)} | {fmt(c['tolerance'])} | "
-                     f"{'pass' if c['pass'] else '**fail**'} |")
+        verdict = "reported" if "pass" not in c else "pass" if c["pass"] else "**fail**"
+        lines.append(f"| {name} | {c['tests']} | {fmt(r)} | {fmt(f)} | {fmt(c['tolerance'])} | {verdict} |")
     lines += ["", "The mixing curve is the real test of rCFD. The bed statistics only test that the database is "
               "representative: rCFD replays recorded frames, so matching them is nearly automatic.", ""]
     path.write_text("\n".join(lines))

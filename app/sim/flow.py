@@ -672,6 +672,13 @@ def _k_write(F: ND, off: ti.i32, src: ND):
 
 
 @ti.kernel
+def _k_add_face_flux(F: ND, M: ND, acc: ND, w: float):
+    """acc[f] += w * aperture * face gas fraction (the step's) * velocity, on every face (the rCFD probe's sums)."""
+    for f in range(M[M_NF]):
+        acc[f] += w * F[M[R_AP] + f] * F[M[R_EF] + f] * F[M[R_VEL] + f]
+
+
+@ti.kernel
 def _k_read(F: ND, off: ti.i32, dst: ND):
     for i in range(dst.shape[0]):
         dst[i] = F[off + i]
@@ -1300,6 +1307,7 @@ class FlowSolver:
         nf = sum(fsz)
         nc = nx * ny * nz
         self._nf, self._nc = nf, nc
+        self._flux_sum = None  # the face-flux sum of add_face_flux, allocated on first use
         M = np.zeros(NM, np.int32)
         M[M_NX:M_NZ + 1] = cfg.shape
         M[M_BC:M_BC + 6] = kinds
@@ -1474,6 +1482,24 @@ class FlowSolver:
     def face_velocities(self):
         """(u, v, w) face velocities [m/s] (interstitial), each of shape face_shape(axis)."""
         return tuple(self.face_velocity(a) for a in range(3))
+
+    def add_face_flux(self, dt: float) -> None:
+        """Add dt x every face's gas volume flux [m^3] (aperture x face gas fraction x velocity x h^2, with the
+        face gas fraction the step used) to a sum kept on the device; nothing is read back (face_flux_sum is)."""
+        if self._flux_sum is None:
+            self._flux_sum = ti.ndarray(ti.f64, shape=(self._nf,))
+            self._flux_sum.fill(0.0)
+        _k_add_face_flux(self.F, self.M, self._flux_sum, float(dt) * self.h ** 2)
+
+    def face_flux_sum(self) -> tuple:
+        """The sums of add_face_flux since the last call [m^3], one array per axis (face_shape(axis)), then clears
+        them (zeros when nothing was added)."""
+        if self._flux_sum is None:
+            return tuple(np.zeros(s) for s in self._fshapes)
+        flat = self._flux_sum.to_numpy()
+        self._flux_sum.fill(0.0)
+        off = [int(self._M_np[M_FO + a]) for a in range(3)]
+        return tuple(flat[off[a]:off[a] + int(np.prod(self._fshapes[a]))].reshape(self._fshapes[a]) for a in range(3))
 
     def void_fraction(self) -> np.ndarray:
         """Gas volume fraction eps [-] on the cells (nx, ny, nz), as the coupling last wrote it (the

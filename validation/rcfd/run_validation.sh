@@ -1,27 +1,33 @@
 #!/bin/sh
 # rCFD against fbed's own full runs on the CPU (validation/rcfd/README.md has the results).
-# Each stage is reused when the command is run again, so a run cut off by a time limit goes on.
-# rcfd_small: about 9 minutes of wall on the shared 2-core CPU for the runs (database 0-1.5 s, three 1 s
-# continuations); verma_small: about 17 minutes; then seconds per analysis. The --lag variants reuse the same runs.
+# Each validate stage is reused when the command is run again, so a run cut off by a time limit goes on.
+# About 8 minutes of wall on the shared 2-core CPU for the runs (database 0-1.5 s, three 1 s continuations),
+# then 1-3 minutes per analysis (the half-cell stitches); the diagnosis records three 1.4 s runs (about 2.5 minutes each).
 set -e
 cd "$(dirname "$0")/../.."
 OUT=${OUT:-runs}
-# 1. the design note's lateral tag (x < 0)
-python3 -m app rcfd validate presets/rcfd_small.toml --t0 0.5 --t1 1.5 --t2 2.5 --paths 20 --seed 1 \
-    --arch cpu --out "$OUT/rcfd-validate" || true
-# 2. a vertical tag (about the lower half of the bed) at lags 1, 10, 20 and 53 (one slug period)
-for LAG in 1 10 20 53; do
-    python3 -m app rcfd validate presets/rcfd_small.toml --t0 0.5 --t1 1.5 --t2 2.5 --paths 20 --seed 1 \
-        --arch cpu --out "$OUT/rcfd-validate-z" --set 'probes.rcfd_tag="z<0.018"' --lag $LAG || true
-    cp "$OUT/rcfd-validate-z/REPORT.md" "$OUT/rcfd-validate-z/REPORT_lag$LAG.md"
-    cp "$OUT/rcfd-validate-z/validation.json" "$OUT/rcfd-validate-z/validation_lag$LAG.json"
-    cp "$OUT/rcfd-validate-z/mixing_validation.png" "$OUT/rcfd-validate-z/mixing_validation_lag$LAG.png"
+V="$OUT/rcfd-validate-bubbling"
+# 1. presets/rcfd_bubbling.toml, the grain tracer (jumps on half cells), the paths' default mean sequence
+#    (N/10 = 20 frames); the 5 mm-jump variant of the README is Engine(db, jump_grid="cells")
+python3 -m app rcfd validate presets/rcfd_bubbling.toml --t0 0.5 --t1 1.5 --t2 2.5 --paths 20 --seed 1 \
+    --arch cpu --out "$V" || true
+for f in REPORT.md validation.json mixing_validation.png; do cp "$V/$f" "$V/lmean20_$f"; done
+cp "$V/rcfd_paths/summary.json" "$V/paths_summary_lmean20.json"
+# 2. the same runs, mean sequence 100 frames (0.5 s): a jump's cell averaging every 0.5 s instead of 0.1 s
+python3 -c "import sys; from app.rcfd.validate import validate; sys.exit(validate('presets/rcfd_bubbling.toml', \
+0.5, 1.5, 2.5, '$V', 20, 1, 3, [], 'cpu', l_mean=100))" || true
+for f in REPORT.md validation.json mixing_validation.png; do cp "$V/$f" "$V/lmean100_$f"; done
+cp "$V/rcfd_paths/summary.json" "$V/paths_summary_lmean100.json"
+# 2b. both with the jumps stitched on the 5 mm cells (bubbling/jumps_on_cells/ in the README)
+for L in 20 100; do
+    python3 -c "import sys; from app.rcfd.validate import validate; sys.exit(validate('presets/rcfd_bubbling.toml', \
+0.5, 1.5, 2.5, '$V', 20, 1, 3, [], 'cpu', l_mean=$L, jump_grid='cells'))" || true
+    for f in REPORT.md validation.json mixing_validation.png; do cp "$V/$f" "$V/cells_lmean${L}_$f"; done
 done
-# 3. verma_small (14,000 grains, 50 mm): database 0.5-1.0 s, continuations to 1.5 s, a vertical tag on a cell face
-V="--t0 0.5 --t1 1.0 --t2 1.5 --paths 20 --seed 1 --arch cpu --out $OUT/rcfd-validate-verma"
-for LAG in 1 10 20; do
-    python3 -m app rcfd validate presets/verma_small.toml $V --lag $LAG --set 'probes.rcfd_tag="z<0.025"' \
-        --set probes.rcfd_z_max=0.1 --set 'probes.analysis="none"' --set 'probes.planes=[]' \
-        --set probes.planes_interval=0 --set probes.volume_interval=0 || true
-    cp "$OUT/rcfd-validate-verma/REPORT.md" "$OUT/rcfd-validate-verma/REPORT_lag$LAG.md"
+# 3. where the replay error comes from: frames every fluid step with every grain's position, three gas speeds
+for U in 1.8 2.1 2.4; do
+    python3 validation/rcfd/diagnose_replay.py record presets/rcfd_bubbling.toml "$OUT/diag_U$U" --from 0.4 \
+        --to 1.4 --set "boundary.bottom.velocity=[0.0, 0.0, $U]"
+    python3 validation/rcfd/diagnose_replay.py analyze "$OUT/diag_U$U" --tag 'z<0.015' \
+        > validation/rcfd/diagnosis/replay_U$U.json
 done

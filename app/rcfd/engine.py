@@ -1,0 +1,228 @@
+"""The machinery that analyses and paths share: a database's recurrence statistics, its shift operators and
+grain volumes, the jump targets and stitches, and the transport of a tracer along a path.
+
+Solids: with each grain's cell recorded (boundary/cells), the tracer rides on the recorded grains along each
+sequence and is averaged over a cell only at jumps (transport.GrainTracer, ``solids="grains"``); the cell
+shifts (``solids="cells"``, transport.SolidsTracer) average over a cell every frame. validation/rcfd/README.md
+measures both against the real grains.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time as wallclock
+
+import h5py
+import numpy as np
+
+from . import paths as pathmod
+from . import recurrence as rec
+from .database import Database
+from .transport import GasTracer, GrainTracer, SolidsTracer, Stitcher
+
+BED_EPS = 0.99  # cells whose time-mean void fraction is below this are the bed's (they enter R)
+
+
+def bed_mask(db: Database) -> np.ndarray:
+    return (db.open_volume > 0) & (db.eps.mean(0) < BED_EPS)
+
+
+def plane_mean(db: Database, k: int) -> np.ndarray:
+    """Open-volume-weighted mean eps of cell layer k at each boundary."""
+    v = db.open_volume[:, :, k]
+    return (db.eps[:, :, :, k] * v).sum((1, 2)) / max(v.sum(), 1e-300)
+
+
+def statistics(db: Database) -> dict:
+    """R, the spectra, D(tau), S(n): everything `analyze` reports, as arrays and numbers."""
+    t_start = wallclock.perf_counter()
+    mask = bed_mask(db)
+    X = rec.state_matrix(db.eps, mask, db.open_volume * db.cell_volume)
+    R, norm = rec.recurrence_matrix(X)
+    t_R = wallclock.perf_counter() - t_start
+    dt = db.frame_interval / int(db.attrs.get("lag", 1))  # the states' spacing (a lagged frame spans several)
+    hbar = float(np.mean(db.bed_height))
+    k_mid = int(np.clip(math.floor((0.5 * hbar - db.origin[2]) / db.h), 0, db.shape[2] - 1))
+    mid = plane_mean(db, k_mid)
+    sp_eps = rec.spectrum(mid, dt)
+    sp_h = rec.spectrum(db.bed_height, dt)
+    Dtau = rec.mean_distance_by_lag(R)
+    lag = rec.first_recurrence(Dtau)
+    period_frames = sp_eps["period"] / dt
+    window = max(1, int(math.ceil(0.5 * period_frames))) if np.isfinite(period_frames) else max(1, db.n_states // 20)
+    S = rec.similarity_curve(R, window)
+    best = rec.best_recurrence(R, window)
+    half = db.n_states // 2
+    e = db.eps[:, mask]
+    m1, m2, s1, s2 = e[:half].mean(0), e[half:].mean(0), e[:half].std(0), e[half:].std(0)
+    return dict(R=R, norm=norm, mask=mask, mid=mid, k_mid=k_mid, sp_eps=sp_eps, sp_h=sp_h, Dtau=Dtau, lag=lag,
+                window=window, S=S, best=best, R_seconds=t_R, halves={
+                    "mean_rms_difference": float(np.sqrt(np.mean((m1 - m2) ** 2))),
+                    "std_rms_difference": float(np.sqrt(np.mean((s1 - s2) ** 2))),
+                    "std_mean": float(np.mean(0.5 * (s1 + s2)))})
+
+
+def state_volumes(db: Database, ops) -> np.ndarray:
+    """(B, n) grain volume per cell at each boundary in float64, from the shifts (column sums of the frame that
+    starts there, row sums of the one that ends there)."""
+    a = np.zeros((db.n_states, db.n_cells))
+    seen = np.zeros(db.n_states, bool)
+    for k in range(db.n_frames):
+        P, a0 = ops[k]
+        s = slice(int(db.offset[k]), int(db.offset[k + 1]))
+        a[db.b0[k]] = a0
+        if not seen[db.b1[k]]:
+            a[db.b1[k]] = np.bincount(db.c1[s], weights=db.w[s], minlength=db.n_cells)
+        seen[db.b0[k]] = seen[db.b1[k]] = True
+    return a
+
+
+
+class Engine:
+    """Everything a set of paths shares: the operators, R, the jump targets, the stitches."""
+
+    def __init__(self, db: Database, st: dict | None = None, params: pathmod.PathParams | None = None,
+                 solids: str = "auto", jump_grid: str = "auto"):
+        t = wallclock.perf_counter()
+        self.db = db
+        if solids == "auto":
+            solids = "grains" if db.cells is not None else "cells"
+        if solids == "grains" and db.cells is None:
+            raise ValueError(f"{db.path}: the grain tracer needs each grain's cell per boundary (record with "
+                             "probes.rcfd_grain_cells = true), or use --solids cells")
+        if solids not in ("grains", "cells"):
+            raise ValueError(f"--solids must be 'grains' or 'cells', got {solids!r}")
+        self.solids = solids
+        self.st = st or statistics(db)
+        self.ops = [db.shift(k) for k in range(db.n_frames)]
+        self.P = [op[0] for op in self.ops]
+        self.a = state_volumes(db, self.ops)
+        self.successor = db.successor()
+        lag = int(db.attrs.get("lag", 1))
+        if params is None:  # lengths in (lagged) frames from the recorded length; the window in boundaries
+            params = pathmod.PathParams.default(max(3, (db.n_frames + lag - 1) // lag))
+            period_states = self.st["sp_eps"]["period"] * lag / db.frame_interval
+            if np.isfinite(period_states):
+                params = dataclasses.replace(params, window=max(1, int(math.ceil(0.5 * period_states))))
+        self.params = params
+        self.targets = pathmod.jump_targets(self.st["R"], db.b0, self.successor, self.params)
+        cells = (db.open_volume > 0) | (self.a.max(0) > 0).reshape(db.shape)
+        self.stitcher = Stitcher(db.shape, cells, db.h)
+        # the grain tracer's jumps on half cells where the octants are recorded (a jump averages over its cells)
+        self.half = self.solids == "grains" and db.octant is not None and jump_grid != "cells"
+        if self.half:
+            fs = db.fine_shape
+            nf = int(np.prod(fs))
+            self.fine = db.fine_cells(slice(None))
+            idx = (self.fine + nf * np.arange(db.n_states)[:, None]).ravel()
+            self.a_fine = np.bincount(idx, weights=np.tile(db.grain_volume, db.n_states),
+                                      minlength=nf * db.n_states).reshape(db.n_states, nf)
+            fine_mask = cells.repeat(2, 0).repeat(2, 1).repeat(2, 2)
+            self.fine_stitcher = Stitcher(fs, fine_mask, 0.5 * db.h)
+        self.prep_seconds = wallclock.perf_counter() - t + self.st["R_seconds"]
+        self.stitch_seconds = 0.0
+
+    def fluxes(self):
+        """The frame-mean face fluxes of every frame, read once (float32)."""
+        if getattr(self, "_fluxes", None) is None:
+            if not self.db.has_flux:
+                raise ValueError("the database holds no gas fluxes (recorded with probes.rcfd_fluxes = false)")
+            with h5py.File(self.db.path, "r") as f:
+                self._fluxes = [f[f"frame/flux_{a}"][: self.db.n_frames] for a in "xyz"]
+        return self._fluxes
+
+    def gas_transport(self, path: pathmod.Path, c_in: float = 1.0) -> dict:
+        """A gas tracer fed at c_in through the inlet from the path's start (a step input), on the recorded
+        fluxes: the outlet's mixing-cup c after each frame (the step response F(t)) and the tracer balance."""
+        db = self.db
+        fl = self.fluxes()
+        g = GasTracer(db.open_volume, db.h, 0.0)
+        jumps = {pos: (s_from, s_to) for pos, s_from, s_to, _ in path.jumps}
+        F = np.zeros(len(path.frames) + 1)
+        t = wallclock.perf_counter()
+        m_start = g.mass(db.eps[db.b0[path.frames[0]]])
+        for i, k in enumerate(path.frames):
+            if i in jumps and i > 0:
+                g.jump(db.eps[jumps[i][0]].astype(np.float64), db.eps[jumps[i][1]].astype(np.float64))
+            g.frame([a[k].astype(np.float64) for a in fl], db.eps[db.b0[k]].astype(np.float64),
+                    db.eps[db.b1[k]].astype(np.float64), db.frame_interval, c_in)
+            F[i + 1] = g.take_outlet()
+        m_end = g.mass(db.eps[db.b1[path.frames[-1]]].astype(np.float64))
+        balance = m_end - m_start - (g.inflow - g.outflow) - g.jump_mass
+        return {"F": F, "wall": wallclock.perf_counter() - t, "c_min": float(g.c.min()), "c_max": float(g.c.max()),
+                "balance_error": float(abs(balance) / max(g.inflow, 1e-300)),
+                "jump_share": float(abs(g.jump_mass) / max(g.inflow, 1e-300)), "substeps": g.substeps}
+
+    def path(self, n_frames: int, start_state: int, seed: tuple) -> pathmod.Path:
+        return pathmod.markov_path(n_frames, start_state, self.st["R"], self.db.b0, self.db.b1, self.successor,
+                                   self.params, seed, self.targets)
+
+    def transport(self, path: pathmod.Path, c0: np.ndarray, start_state: int, tau0: np.ndarray | None = None) -> dict:
+        """Move the tracer along ``path``: concentration c0 per cell at the path's first state (laid on its grains),
+        or, for the grain tracer, ``tau0`` per grain. The mixing index after each frame, the stitches, the
+        bounds and the conservation."""
+        db = self.db
+        jumps = {pos: (s_from, s_to) for pos, s_from, s_to, _ in path.jumps}
+        # the tag's concentration is laid onto the grains of the path's first frame (a path from the database's
+        # last state starts with a jump: stitching the segregated start would mix it before any transport)
+        first = int(db.b0[path.frames[0]])
+        jumps.pop(0, None)
+        if self.solids == "grains":
+            return self._transport_grains(path, c0, tau0, jumps, first)
+        tr = SolidsTracer(c0 * self.a[first], self.a[first])
+        M = np.empty(len(path.frames) + 1)
+        M[0] = tr.mixing_index()
+        moved, t_stitch = [], 0.0
+        t = wallclock.perf_counter()
+        for i, k in enumerate(path.frames):
+            if i in jumps:
+                S, info, dt_s = self._stitch(*jumps[i])
+                t_stitch += dt_s
+                tr.apply(S)
+                moved.append(info["moved_share"])
+            tr.apply(self.P[k])
+            M[i + 1] = tr.mixing_index()
+        wall = wallclock.perf_counter() - t - t_stitch
+        self.stitch_seconds += t_stitch
+        c = tr.concentration
+        return {"M": M, "moved": moved, "drift": tr.drift(), "c_min": float(c.min()), "c_max": float(c.max()),
+                "m_min": float(min(tr.m.min(), tr.u.min())), "wall": wall}
+
+    def _stitch(self, s_from: int, s_to: int, half: bool = False):
+        """(S, info, seconds spent building it: 0 when cached), on the cells or on the half cells."""
+        t = wallclock.perf_counter()
+        st, a = (self.fine_stitcher, self.a_fine) if half else (self.stitcher, self.a)
+        fresh = (s_from, s_to) not in st.cache
+        S, info = st.operator(a[s_from], a[s_to], key=(s_from, s_to))
+        return S, info, (wallclock.perf_counter() - t) if fresh else 0.0
+
+    def _transport_grains(self, path: pathmod.Path, c0, tau0, jumps: dict, first: int) -> dict:
+        """The grain tracer along ``path``: one vectorised index per sequence, a cell average at each jump."""
+        db = self.db
+        tr = GrainTracer(db.grain_volume, c0[db.cells[first]] if tau0 is None else tau0, db.n_cells)
+        M = np.empty(len(path.frames) + 1)
+        M[0] = tr.mixing_index(db.cells[first])
+        cuts = sorted(jumps) + [len(path.frames)]
+        moved, t_stitch = [], 0.0
+        t = wallclock.perf_counter()
+        start = 0
+        for end in cuts:
+            if start in jumps:
+                s_from, s_to = jumps[start]
+                S, info, dt_s = self._stitch(s_from, s_to, self.half)
+                t_stitch += dt_s
+                grid = self.fine if self.half else db.cells
+                tr.jump(grid[s_from], grid[s_to], S)
+                moved.append(info["moved_share"])
+            if end > start:
+                states = db.b1[path.frames[start:end]]
+                M[start + 1:end + 1] = tr.mixing_indices(db.cells[states], self.a[states])
+            start = end
+        wall = wallclock.perf_counter() - t - t_stitch
+        self.stitch_seconds += t_stitch
+        m, u = tr.volumes(db.cells[db.b1[path.frames[-1]]])
+        c = np.divide(m, m + u, out=np.zeros_like(m), where=m + u > 0)
+        return {"M": M, "moved": moved, "drift": tr.drift(), "c_min": float(c.min()), "c_max": float(c.max()),
+                "m_min": float(min(tr.tau.min(), 1.0 - tr.tau.max())), "wall": wall}
+
+
