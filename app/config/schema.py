@@ -181,10 +181,10 @@ class ProbesConfig:
                              "in the top layer; 0: the whole domain)", lo=0.0)
     rcfd_tag: str = spec("x<0", doc="grains tagged at the first rCFD frame, whose volume per cell is recorded (the "
                          "real grains' tracer): AXIS OP VALUE with AXIS x, y or z, OP <, <=, > or >=, VALUE in m")
-    rcfd_grain_cells: bool = spec(True, doc="also record each grain's cell at every frame boundary (4 bytes per grain "
-                                  "per frame), so that shift operators over several frames can be built "
+    rcfd_grain_cells: bool = spec(True, doc="also record each grain's cell and its octant within "
+                                  "the cell at every frame boundary (5 bytes per grain per frame), so that shift operators over several frames can be built "
                                   "(`fbed rcfd ... --lag`)")
-    rcfd_fluxes: bool = spec(True, doc="also record the frame-mean gas face fluxes (read after every fluid step)")
+    rcfd_fluxes: bool = spec(True, doc="also record the frame-mean gas face fluxes (summed on the device, read once per frame)")
     mri_interval: float = spec(0.0, unit="s", doc="interval of the synthetic MRI in run.h5 /mri: the grains' volume "
                                "within the central slab (slab_width thick, through the vessel's axis, normal to y) "
                                "binned by centre onto mri_pixel pixels, as void fraction (0: off; the MRI's 4 ms: 0.004)",
