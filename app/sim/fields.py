@@ -4,7 +4,8 @@ Owns: allocation only. Each bundle is a ``@ti.data_oriented`` holder of fields t
 kernels receive as ``ti.template()`` arguments; nothing here computes physics.
 
 - ``GrainModel``  fixed per grain: radius, mass (allocated only for polydisperse grains;
-  monodisperse kernels use compile-time constants instead).
+  monodisperse kernels use compile-time constants instead), and the grain id held by each
+  memory slot when grains are re-ordered by cell (``DemModel.sort_interval``).
 - ``GrainState``  changes every substep: position, velocity, angular velocity (only with
   friction), force and torque accumulators, alive flag.
 - ``ContactHistory``  the springs of the contacts a grain owns: H history slots per grain
@@ -20,7 +21,7 @@ kernels receive as ``ti.template()`` arguments; nothing here computes physics.
 
 Memory per grain, float32, K neighbour slots, H history slots, W walls (see ``bytes_per_grain``):
 state 12*4 + 1 (x, v, x_ref, force, alive), with friction +24 (omega, torque), polydisperse +8,
-coupled +28; neighbour list 4*K + 8 (partners, count, cell-sorted id); with history K + 4
+coupled +28, sorted +4 (grain id); neighbour list 4*K + 8 (partners, count, cell-sorted id); with history K + 4
 (slot numbers, mask) and 12*(H + W) per spring kind, plus 4 bytes per cell of the cell list.
 """
 
@@ -72,10 +73,20 @@ class DemModel:
     history_slots: int = 12     # springs per grain (contacts it owns); see ContactHistory
     roll_damping: float = 0.0   # eta_r of the elastic-plastic rolling model, grain-grain
     w_roll_damping: float = 0.0  # and grain-wall
+    # memory order follows space: grains are re-ordered by cell at the start of the first
+    # ``DemSolver.advance`` after ``set_grains`` and after every ``sort_interval`` list builds (0: never),
+    # in scenes of at least ``sort_min_grains`` grains (fewer fit in a CPU core's L2 cache: ~300 B each)
+    sort_interval: int = 1
+    sort_min_grains: int = 4096
 
     @property
     def has_history(self) -> bool:
         return self.friction or self.rolling == ROLL_EPSD
+
+    @property
+    def sorts(self) -> bool:
+        """Grains are re-ordered in memory (a grain-id array is kept, ownership ties go by id)."""
+        return self.sort_interval > 0 and self.n >= self.sort_min_grains
 
     @property
     def n_cells(self) -> int:
@@ -94,6 +105,8 @@ class GrainModel:
         if m.polydisperse:
             self.radius = ti.field(float, m.n)
             self.mass = ti.field(float, m.n)
+        if m.sorts:
+            self.grain_id = ti.field(ti.i32, m.n)  # the id of the grain in each memory slot
 
 
 @ti.data_oriented
@@ -145,7 +158,7 @@ class NeighborList:
         self.block_sum = ti.field(ti.i32, (nc + SCAN_BLOCK - 1) // SCAN_BLOCK + 1)
         # [rebuild flag, overflow (largest row asked for), grains removed, builds, history slots short]: the rebuild decision
         # lives here on the device; the host reads the counters once per DemSolver.advance
-        self.counters = ti.field(ti.i32, 5)
+        self.counters = ti.field(ti.i32, 6)  # [5]: dead grains placed by a sort
 
     @property
     def builds(self) -> int:
@@ -189,5 +202,7 @@ def bytes_per_grain(m: DemModel, precision_bytes: int = 4) -> float:
     if m.coupled:
         b += 7 * f
     b += 4 * m.slots + 4 + 4  # partner slots, count, cell-sorted id
+    if m.sorts:
+        b += 4  # grain id per memory slot (the sort's scratch is x_ref, rebuilt after it)
     b += (4 * m.n_cells) / max(1, m.n)
     return b
