@@ -41,8 +41,122 @@ def take_spring_slot(model: ti.template(), nlist: ti.template(), i):
 
 
 @ti.func
+def springs_of(model: ti.template(), history: ti.template(), nlist: ti.template(), i, k):
+    """The history slot of grain i's contact in neighbour slot k and its springs (a new contact takes a
+    free slot, its springs start at zero)."""
+    zero = ti.Vector([0.0, 0.0, 0.0])
+    spring, roll_spring = zero, zero
+    h = ti.cast(nlist.spring_slot[k, i], ti.i32)
+    if h == NO_SPRING:
+        h = take_spring_slot(model, nlist, i)
+        nlist.spring_slot[k, i] = ti.cast(h, ti.u8)
+    else:
+        if ti.static(model.friction):
+            spring = history.tangential[h, i]
+        if ti.static(model.rolling == ROLL_EPSD):
+            roll_spring = history.rolling[h, i]
+    return h, spring, roll_spring
+
+
+@ti.func
+def release_springs(nlist: ti.template(), i, k):
+    """Grain i's contact in neighbour slot k ended: free its history slot."""
+    h = ti.cast(nlist.spring_slot[k, i], ti.i32)
+    if h != NO_SPRING:
+        nlist.spring_slot[k, i] = ti.cast(NO_SPRING, ti.u8)
+        nlist.springs_used[i] &= ~(ti.u32(1) << ti.cast(h, ti.u32))
+
+
+@ti.func
+def pair_contact(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+                 nlist: ti.template(), i, k, j, xi, vi, wi, ri, mi, rj, dx, d2):
+    """The touching pair (i, j) of neighbour slot k: its force and torque on i (returned) and on j
+    (scattered), its springs updated."""
+    zero = ti.Vector([0.0, 0.0, 0.0])
+    rs = ri + rj
+    dist = ti.sqrt(d2)
+    n = dx * (1.0 / ti.max(dist, 1e-30))
+    delta = rs - dist
+    mj = grain_mass(model, sizes, j)
+    # lever arms to the contact point, the middle of the overlap: they sum to the centre
+    # distance, so the pair's torques conserve angular momentum exactly
+    arm_i = ri - 0.5 * delta
+    arm_j = rj - 0.5 * delta
+    vrel = vi - state.v[j]
+    w_rel = zero
+    spring, roll_spring = zero, zero
+    h = NO_SPRING
+    if ti.static(model.has_history):
+        h, spring, roll_spring = springs_of(model, history, nlist, i, k)
+    if ti.static(model.friction):
+        wj = state.omega[j]
+        vrel += (wi * arm_i + wj * arm_j).cross(n)
+        w_rel = wi - wj
+    # sqrt(I_r / m*) of the epsd rolling mode, I_r = 1.4 m_i r_i^2 m_j r_j^2 / (m_i r_i^2 + m_j r_j^2)
+    # (each grain about the contact point, Ai et al. 2011): sqrt(1.4) r for equal grains
+    gyration = 0.0
+    if ti.static(model.rolling == ROLL_EPSD):
+        if ti.static(model.polydisperse):
+            gyration = ti.sqrt(1.4 * ri * ri * rj * rj * (mi + mj) / (mi * ri * ri + mj * rj * rj))
+        else:
+            gyration = ti.static(1.4 ** 0.5 * model.radius)
+    f, ft, tr, spring, roll_spring = contact(model, False, n, delta, vrel, w_rel, ri * rj / rs,
+                                             mi * mj / (mi + mj), gyration, spring, roll_spring)
+    if ti.static(model.has_history):
+        if h != NO_SPRING:
+            if ti.static(model.friction):
+                history.tangential[h, i] = spring
+            if ti.static(model.rolling == ROLL_EPSD):
+                history.rolling[h, i] = roll_spring
+    torque_i = zero
+    if ti.static(model.friction):
+        tq = n.cross(ft)  # torque per unit lever arm: arm_i n x F on i, arm_j n x F on j
+        torque_i = arm_i * tq + tr
+        scatter_add(model, state.torque, j, arm_j * tq - tr)
+    scatter_add(model, state.force, j, -f)
+    return f, torque_i
+
+
+@ti.func
+def wall_contacts(model: ti.template(), history: ti.template(), walls: ti.template(), i, xi, vi, wi, ri, mi, fi,
+                  torque_i):
+    """Grain i's force and torque ``fi``, ``torque_i`` with every wall's added (unrolled at compile time,
+    each wall with its own springs)."""
+    zero = ti.Vector([0.0, 0.0, 0.0])
+    for w in ti.static(range(len(model.walls))):
+        clearance, nrm = wall_clearance_normal(model.walls[w], walls.sampled[w], xi)
+        delta = ri - clearance
+        if delta > 0:
+            n = -nrm  # from the grain towards the wall
+            arm = ri - 0.5 * delta
+            vrel = vi
+            spring, roll_spring = zero, zero
+            if ti.static(model.friction):
+                vrel += (wi * arm).cross(n)
+                spring = history.wall_tangential[w, i]
+            if ti.static(model.rolling == ROLL_EPSD):
+                roll_spring = history.wall_rolling[w, i]
+            f, ft, tr, spring, roll_spring = contact(model, True, n, delta, vrel, wi, ri, mi, 1.4 ** 0.5 * ri,
+                                                     spring, roll_spring)  # sqrt(I_r / m*), I_r = 1.4 m r^2
+            if ti.static(model.friction):
+                history.wall_tangential[w, i] = spring
+                torque_i += arm * n.cross(ft) + tr
+            if ti.static(model.rolling == ROLL_EPSD):
+                history.wall_rolling[w, i] = roll_spring
+            fi += f
+        else:
+            if ti.static(model.friction):
+                history.wall_tangential[w, i] = zero
+            if ti.static(model.rolling == ROLL_EPSD):
+                history.wall_rolling[w, i] = zero
+    return fi, torque_i
+
+
+@ti.func
 def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                 nlist: ti.template(), walls: ti.template()):
+    """Contact forces and torques: each grain's row of the half list (the partner's share scattered),
+    then the walls."""
     # one CPU thread: a serial loop lets Taichi demote the partner atomics to plain adds
     ti.loop_config(serialize=model.serial)
     for i in range(model.n):
@@ -56,7 +170,6 @@ def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template()
                 wi = state.omega[i]
             fi = ti.Vector([0.0, 0.0, 0.0])
             torque_i = ti.Vector([0.0, 0.0, 0.0])
-            zero = ti.Vector([0.0, 0.0, 0.0])
             for k in range(nlist.count[i]):
                 j = nlist.partner[k, i]
                 dx = state.x[j] - xi
@@ -64,89 +177,13 @@ def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template()
                 d2 = dx.dot(dx)
                 rs = ri + rj
                 if d2 < rs * rs and state.alive[j]:
-                    dist = ti.sqrt(d2)
-                    n = dx * (1.0 / ti.max(dist, 1e-30))
-                    delta = rs - dist
-                    mj = grain_mass(model, sizes, j)
-                    # lever arms to the contact point, the middle of the overlap: they sum to the centre
-                    # distance, so the pair's torques conserve angular momentum exactly
-                    arm_i = ri - 0.5 * delta
-                    arm_j = rj - 0.5 * delta
-                    vrel = vi - state.v[j]
-                    w_rel = zero
-                    spring = zero
-                    roll_spring = zero
-                    h = NO_SPRING
-                    if ti.static(model.has_history):
-                        h = ti.cast(nlist.spring_slot[k, i], ti.i32)
-                        if h == NO_SPRING:  # a new contact: take a free history slot, its springs start at 0
-                            h = take_spring_slot(model, nlist, i)
-                            nlist.spring_slot[k, i] = ti.cast(h, ti.u8)
-                        else:
-                            if ti.static(model.friction):
-                                spring = history.tangential[h, i]
-                            if ti.static(model.rolling == ROLL_EPSD):
-                                roll_spring = history.rolling[h, i]
-                    if ti.static(model.friction):
-                        wj = state.omega[j]
-                        vrel += (wi * arm_i + wj * arm_j).cross(n)
-                        w_rel = wi - wj
-                    # sqrt(I_r / m*) of the epsd rolling mode, I_r = 1.4 m_i r_i^2 m_j r_j^2 / (m_i r_i^2 + m_j r_j^2)
-                    # (each grain about the contact point, Ai et al. 2011): sqrt(1.4) r for equal grains
-                    gyration = 0.0
-                    if ti.static(model.rolling == ROLL_EPSD):
-                        if ti.static(model.polydisperse):
-                            gyration = ti.sqrt(1.4 * ri * ri * rj * rj * (mi + mj) / (mi * ri * ri + mj * rj * rj))
-                        else:
-                            gyration = ti.static(1.4 ** 0.5 * model.radius)
-                    f, ft, tr, spring, roll_spring = contact(model, False, n, delta, vrel, w_rel, ri * rj / rs,
-                                                             mi * mj / (mi + mj), gyration, spring, roll_spring)
-                    if ti.static(model.has_history):
-                        if h != NO_SPRING:
-                            if ti.static(model.friction):
-                                history.tangential[h, i] = spring
-                            if ti.static(model.rolling == ROLL_EPSD):
-                                history.rolling[h, i] = roll_spring
-                    if ti.static(model.friction):
-                        tq = n.cross(ft)  # torque per unit lever arm: arm_i n x F on i, arm_j n x F on j
-                        torque_i += arm_i * tq + tr
-                        scatter_add(model, state.torque, j, arm_j * tq - tr)
+                    f, t = pair_contact(model, sizes, state, history, nlist, i, k, j, xi, vi, wi, ri, mi, rj, dx, d2)
                     fi += f
-                    scatter_add(model, state.force, j, -f)
+                    torque_i += t
                 else:
                     if ti.static(model.has_history):
-                        h = ti.cast(nlist.spring_slot[k, i], ti.i32)
-                        if h != NO_SPRING:  # the contact ended: free its history slot
-                            nlist.spring_slot[k, i] = ti.cast(NO_SPRING, ti.u8)
-                            nlist.springs_used[i] &= ~(ti.u32(1) << ti.cast(h, ti.u32))
-            # walls: unrolled at compile time, each with its own history slot
-            for w in ti.static(range(len(model.walls))):
-                clearance, nrm = wall_clearance_normal(model.walls[w], walls.sampled[w], xi)
-                delta = ri - clearance
-                if delta > 0:
-                    n = -nrm  # from the grain towards the wall
-                    arm = ri - 0.5 * delta
-                    vrel = vi
-                    spring = zero
-                    roll_spring = zero
-                    if ti.static(model.friction):
-                        vrel += (wi * arm).cross(n)
-                        spring = history.wall_tangential[w, i]
-                    if ti.static(model.rolling == ROLL_EPSD):
-                        roll_spring = history.wall_rolling[w, i]
-                    f, ft, tr, spring, roll_spring = contact(model, True, n, delta, vrel, wi, ri, mi, 1.4 ** 0.5 * ri,
-                                                             spring, roll_spring)  # sqrt(I_r / m*), I_r = 1.4 m r^2
-                    if ti.static(model.friction):
-                        history.wall_tangential[w, i] = spring
-                        torque_i += arm * n.cross(ft) + tr
-                    if ti.static(model.rolling == ROLL_EPSD):
-                        history.wall_rolling[w, i] = roll_spring
-                    fi += f
-                else:
-                    if ti.static(model.friction):
-                        history.wall_tangential[w, i] = zero
-                    if ti.static(model.rolling == ROLL_EPSD):
-                        history.wall_rolling[w, i] = zero
+                        release_springs(nlist, i, k)
+            fi, torque_i = wall_contacts(model, history, walls, i, xi, vi, wi, ri, mi, fi, torque_i)
             scatter_add(model, state.force, i, fi)
             if ti.static(model.friction):
                 scatter_add(model, state.torque, i, torque_i)
