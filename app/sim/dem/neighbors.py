@@ -165,10 +165,11 @@ def build_row(model: ti.template(), sizes: ti.template(), state: ti.template(), 
 
 # ---------------------------------------------------------------------------- the sort
 # Memory order follows space: every per-grain array is gathered into cell order (``bin_by_cell``), two
-# loops per array (gather into a scratch, copy back). The scratch is the list's x_ref (3 numbers per grain,
-# integers held exactly: n < 2^24 in float32), which the next build rewrites: a sort raises the rebuild
-# flag. Partner indices are mapped to the partners' new slots; pairs stay in their rows (ownership ties go
-# by grain id), their springs move with their grains; the list stays valid until that build.
+# loops per array (gather into a scratch, copy back). The scratch is the force accumulator (3 numbers per
+# grain, integers held exactly: n < 2^24 in float32), which is zero between substeps (``integrate`` clears
+# it) and is left zero. Partner indices are mapped to the partners' new slots; pairs stay in their rows
+# (ownership ties go by grain id), their springs move with their grains, x_ref with its grain: the list
+# stays valid and no build is needed.
 
 @ti.func
 def _value(item: ti.template(), o):
@@ -189,70 +190,73 @@ def _store(item: ti.template(), p, v):
 
 
 @ti.func
-def move_scalars(model: ti.template(), nlist: ti.template(), items: ti.template()):
+def move_scalars(model: ti.template(), nlist: ti.template(), scratch: ti.template(), items: ti.template()):
     """Up to three scalar rows (``(field, row)``, row -1 for a 1-D field) into cell order."""
     for p in range(model.n):
         o = nlist.sorted[p]
         for c in ti.static(range(len(items))):
-            nlist.x_ref[p][c] = ti.cast(_value(items[c], o), float)
+            scratch[p][c] = ti.cast(_value(items[c], o), float)
     for p in range(model.n):
         for c in ti.static(range(len(items))):
-            _store(items[c], p, nlist.x_ref[p][c])
+            _store(items[c], p, scratch[p][c])
 
 
 @ti.func
-def move_rows(model: ti.template(), nlist: ti.template(), field: ti.template(), k0: ti.template(), k1: ti.template()):
+def move_rows(model: ti.template(), nlist: ti.template(), scratch: ti.template(), field: ti.template(), k0: ti.template(),
+              k1: ti.template()):
     """Rows k0..k1-1 (at most three) of a 2-D scalar field into cell order."""
     for p in range(model.n):
         o = nlist.sorted[p]
         for k in ti.static(range(k0, k1)):
-            nlist.x_ref[p][k - k0] = ti.cast(field[k, o], float)
+            scratch[p][k - k0] = ti.cast(field[k, o], float)
     for p in range(model.n):
         for k in ti.static(range(k0, k1)):
-            field[k, p] = ti.cast(nlist.x_ref[p][k - k0], field.dtype)
+            field[k, p] = ti.cast(scratch[p][k - k0], field.dtype)
 
 
 @ti.func
-def move_vector(model: ti.template(), nlist: ti.template(), field: ti.template(), row: ti.template()):
+def move_vector(model: ti.template(), nlist: ti.template(), scratch: ti.template(), field: ti.template(),
+                row: ti.template()):
     """One 3-vector row (row -1: a 1-D field) into cell order."""
     for p in range(model.n):
-        nlist.x_ref[p] = _value((field, row), nlist.sorted[p])
+        scratch[p] = _value((field, row), nlist.sorted[p])
     for p in range(model.n):
         if ti.static(row < 0):
-            field[p] = nlist.x_ref[p]
+            field[p] = scratch[p]
         else:
-            field[row, p] = nlist.x_ref[p]
+            field[row, p] = scratch[p]
 
 
 @ti.func
-def move_partners(model: ti.template(), nlist: ti.template(), k0: ti.template(), k1: ti.template()):
+def move_partners(model: ti.template(), nlist: ti.template(), scratch: ti.template(), k0: ti.template(),
+                  k1: ti.template()):
     """Neighbour slots k0..k1-1 (at most two) into cell order, each partner renamed by its new slot, which
-    x_ref's third component holds; the slots past a row's count become -1."""
+    the scratch's third component holds; the slots past a row's count become -1."""
     for p in range(model.n):
         o = nlist.sorted[p]
         for k in ti.static(range(k0, k1)):
             moved = -1.0
             if k < nlist.count[o]:
-                moved = nlist.x_ref[nlist.partner[k, o]][2]
-            nlist.x_ref[p][k - k0] = moved
+                moved = scratch[nlist.partner[k, o]][2]
+            scratch[p][k - k0] = moved
     for p in range(model.n):
         for k in ti.static(range(k0, k1)):
-            nlist.partner[k, p] = ti.cast(nlist.x_ref[p][k - k0], ti.i32)
+            nlist.partner[k, p] = ti.cast(scratch[p][k - k0], ti.i32)
 
 
 @ti.kernel
 def sort_by_cell(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                  nlist: ti.template()):
-    """Re-order every per-grain array by cell (dead grains last), then flag a rebuild."""
+    """Re-order every per-grain array by cell (dead grains last); the list stays valid."""
     bin_by_cell(model, state, nlist, False)
     for p in range(model.n):  # the new slot of the grain now in slot o
-        nlist.x_ref[nlist.sorted[p]][2] = p
+        state.force[nlist.sorted[p]][2] = p
     for k in ti.static(range(0, model.slots, 2)):
-        move_partners(model, nlist, k, min(k + 2, model.slots))
-    move_scalars(model, nlist, ((nlist.count, -1), (state.alive, -1), (sizes.grain_id, -1)))
+        move_partners(model, nlist, state.force, k, min(k + 2, model.slots))
+    move_scalars(model, nlist, state.force, ((nlist.count, -1), (state.alive, -1), (sizes.grain_id, -1)))
     if ti.static(model.has_history):
         for k in ti.static(range(0, model.slots, 3)):
-            move_rows(model, nlist, nlist.spring_slot, k, min(k + 3, model.slots))
+            move_rows(model, nlist, state.force, nlist.spring_slot, k, min(k + 3, model.slots))
         for p in range(model.n):  # the history slots in use are those a neighbour slot names
             used = ti.u32(0)
             for k in range(nlist.count[p]):
@@ -261,24 +265,24 @@ def sort_by_cell(model: ti.template(), sizes: ti.template(), state: ti.template(
                     used |= ti.u32(1) << h
             nlist.springs_used[p] = used
     if ti.static(model.polydisperse):
-        move_scalars(model, nlist, ((sizes.radius, -1), (sizes.mass, -1)))
-    for field in ti.static((state.x, state.v, state.force)):
-        move_vector(model, nlist, field, -1)
+        move_scalars(model, nlist, state.force, ((sizes.radius, -1), (sizes.mass, -1)))
+    for field in ti.static((state.x, state.v, nlist.x_ref)):
+        move_vector(model, nlist, state.force, field, -1)
     if ti.static(model.friction):
-        move_vector(model, nlist, state.omega, -1)
-        move_vector(model, nlist, state.torque, -1)
+        move_vector(model, nlist, state.force, state.omega, -1)
+        move_vector(model, nlist, state.force, state.torque, -1)
         for h in ti.static(range(model.history_slots)):
-            move_vector(model, nlist, history.tangential, h)
+            move_vector(model, nlist, state.force, history.tangential, h)
         for w in ti.static(range(len(model.walls))):
-            move_vector(model, nlist, history.wall_tangential, w)
+            move_vector(model, nlist, state.force, history.wall_tangential, w)
     if ti.static(model.rolling == ROLL_EPSD):
         for h in ti.static(range(model.history_slots)):
-            move_vector(model, nlist, history.rolling, h)
+            move_vector(model, nlist, state.force, history.rolling, h)
         for w in ti.static(range(len(model.walls))):
-            move_vector(model, nlist, history.wall_rolling, w)
+            move_vector(model, nlist, state.force, history.wall_rolling, w)
     if ti.static(model.coupled):
-        move_scalars(model, nlist, ((state.drag_coeff, -1),))
-        move_vector(model, nlist, state.gas_velocity, -1)
-        move_vector(model, nlist, state.external_force, -1)
-    for _ in range(1):
-        nlist.counters[REBUILD] = 1
+        move_scalars(model, nlist, state.force, ((state.drag_coeff, -1),))
+        move_vector(model, nlist, state.force, state.gas_velocity, -1)
+        move_vector(model, nlist, state.force, state.external_force, -1)
+    for p in range(model.n):
+        state.force[p] = ti.Vector([0.0, 0.0, 0.0])

@@ -519,12 +519,12 @@ class DemSolver:
         self.nlist.counters[REBUILD] = 1
 
     def sort(self) -> None:
-        """Re-order the grains in memory by cell now (queued; the list is rebuilt at the next substep)."""
+        """Re-order the grains in memory by cell now (queued; the neighbour list is carried over, not rebuilt)."""
         if self.m.sorts:
             sort_by_cell(self.m, self.fixed, self.state, self.history, self.nlist)
             self._ids = None
             self._sort_due = False
-            self._builds_at_sort = self._builds_seen + 1  # the build the sort asks for
+            self._builds_at_sort = self._builds_seen
 
     def substep(self) -> None:
         """Queue one substep; reads nothing back (see ``advance`` for the checks)."""
