@@ -10,8 +10,9 @@ kernels receive as ``ti.template()`` arguments; nothing here computes physics.
   friction), force and torque accumulators, alive flag.
 - ``ContactHistory``  the springs of the contacts a grain owns: H history slots per grain
   (tangential with friction, rolling for the elastic-plastic model only), and one per wall.
-- ``NeighborList``  Verlet half list (the smaller grain owns a pair) in (slot, grain) layout,
-  so threads of consecutive grains read consecutive memory on a GPU; with history, each
+- ``NeighborList``  Verlet half list (the smaller grain owns a pair) indexed [slot, grain], laid out
+  slot-major on a GPU (threads of consecutive grains read consecutive memory) and grain-major on a
+  CPU (``rows_field``); with history, each
   neighbour slot names the history slot of its contact (255: not touching) and a bit mask
   marks the grain's history slots in use. So a contact finds its springs without a search,
   springs never move at a rebuild (only the slot numbers travel with their partners), and

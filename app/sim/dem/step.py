@@ -8,7 +8,9 @@ One substep (``substep``, a single kernel whose top-level loops run in order):
    taken implicitly), which also zeroes the accumulators, removes grains that left the
    domain and raises the rebuild flag.
 The host only launches: nothing is read back inside ``advance``'s loop; the counters
-(overflow, removals, builds) are read once at its end. Diagnostics are computed only
+(overflow, removals, builds) are read once at its end, and decide whether the next ``advance``
+first re-orders the grains by cell (``neighbors.sort_by_cell``, every ``model.sort_interval``
+builds). Outside the DEM, grains are seen in id order only (``read``, ``state_arrays``). Diagnostics are computed only
 when asked for. No I/O, no printing.
 """
 import dataclasses
