@@ -31,6 +31,41 @@ import dem_substep as bench  # noqa: E402
 from app.bench.common import append_results  # noqa: E402
 
 
+def settled(beds: pathlib.Path, n: int, shuffle: bool) -> dict:
+    """The LIGGGHTS-poured settled bed of ``n`` grains (benchmarks/dem_throughput.py's cache), its grain ids
+    shuffled when asked (the same permutation for both trees): memory order then has nothing to do with space."""
+    hits = sorted(beds.glob(f"bed_n{n}_*.npz"))
+    if not hits:
+        raise SystemExit(f"no settled bed of {n} grains in {beds}: run benchmarks/dem_throughput.py --liggghts first")
+    z = np.load(hits[-1])
+    bed = {k: np.asarray(z[k]) for k in ("position", "velocity", "omega")}
+    bed["cylinder_radius"] = float(z["cylinder_radius"])
+    if shuffle:
+        perm = np.random.default_rng(12).permutation(n)
+        bed.update({k: bed[k][perm] for k in ("position", "velocity", "omega")})
+    return bed
+
+
+def settled_solver(pkg: str, n: int, precision: str, bed: dict):
+    """dem_throughput.py's fair scene (2 mm grains, skin 0.1 d, Hertz-Mindlin + friction) on the settled bed."""
+    cfgmod = importlib.import_module(pkg + ".config")
+    scenemod = importlib.import_module(pkg + ".scene")
+    demmod = importlib.import_module(pkg + ".sim.dem")
+    pos, radius = bed["position"], bed["cylinder_radius"]
+    top = float(pos[:, 2].max()) + 4 * bench.D
+    text = (f"[run]\nduration = 1.0\nprecision = \"{precision}\"\nthreads = 1\n[domain]\nlo = [{-radius}, {-radius}, 0.0]\n"
+            f"hi = [{radius}, {radius}, {top}]\n[vessel]\nshape = \"cylinder\"\nradius = {radius}\n[particles]\n"
+            f"diameter = {bench.D}\ndensity = {bench.RHO}\ncount = {n}\n[contact]\nmodel = \"hertz_mindlin\"\n"
+            f"youngs_modulus = {bench.E}\npoisson_ratio = {bench.NU}\nrestitution = {bench.REST}\nfriction = {bench.MU}\n"
+            f"[dem]\ndt = {bench.DT}\nskin = {0.1 * bench.D}\n")
+    r = np.full(n, bench.D / 2)
+    scene = scenemod.Scene(cfgmod.load_text(text, "bench.toml"), "bench.toml",
+                           initial={"position": pos, "velocity": bed["velocity"], "radius": r}, serial=True)
+    dem = demmod.DemSolver(scene.model)
+    dem.set_grains(pos, bed["velocity"], r, bed["omega"])
+    return dem
+
+
 def solver(pkg: str, n: int, poly: bool, precision: str, rolling: bool = False):
     cfgmod = importlib.import_module(pkg + ".config")
     scenemod = importlib.import_module(pkg + ".scene")
@@ -66,6 +101,10 @@ def main(argv=None):
     ap.add_argument("--precision", default="float32", choices=("float32", "float64"))
     ap.add_argument("--poly", action="store_true")
     ap.add_argument("--rolling", action="store_true", help="monodisperse bed with epsd rolling (mu_r = 0.1)")
+    ap.add_argument("--bed", default="lattice", choices=("lattice", "settled"),
+                    help="settled: the LIGGGHTS-poured bed of dem_throughput.py (monodisperse, skin 0.1 d)")
+    ap.add_argument("--beds", default=str(ROOT / "runs" / "liggghts_beds"), help="where the settled beds are cached")
+    ap.add_argument("--shuffle", action="store_true", help="shuffle the grain ids of the settled bed (both trees)")
     ap.add_argument("--blocks", type=int, default=9)
     ap.add_argument("--substeps", type=int, default=100)
     ap.add_argument("--no-append", action="store_true")
@@ -82,7 +121,11 @@ def main(argv=None):
     run_a._current = run_b._current  # one Taichi for both: a second ti.init would drop the first's fields
     rows = []
     for n in a.n:
-        dems = {k: solver(k, n, a.poly, a.precision, a.rolling) for k in ("app_a", "app_b")}
+        if a.bed == "settled":
+            bed = settled(pathlib.Path(a.beds), n, a.shuffle)
+            dems = {k: settled_solver(k, n, a.precision, bed) for k in ("app_a", "app_b")}
+        else:
+            dems = {k: solver(k, n, a.poly, a.precision, a.rolling) for k in ("app_a", "app_b")}
         for dem in dems.values():
             dem.advance(200)
         ti.sync()
@@ -98,7 +141,10 @@ def main(argv=None):
                 wall[k].append(1e3 * (time.perf_counter() - w0) / a.substeps)
         rc = [x / y for x, y in zip(cpu["app_a"], cpu["app_b"])]
         rw = [x / y for x, y in zip(wall["app_a"], wall["app_b"])]
-        rows.append({"N": n, "bed": "tri-disperse epsd" if a.poly else ("monodisperse epsd" if a.rolling else "monodisperse"),
+        kind = "tri-disperse epsd" if a.poly else ("monodisperse epsd" if a.rolling else "monodisperse")
+        if a.bed == "settled":
+            kind = "settled (LIGGGHTS), ids shuffled" if a.shuffle else "settled (LIGGGHTS)"
+        rows.append({"N": n, "bed": kind,
                      "A cpu ms/substep": f"{statistics.median(cpu['app_a']):.3f}",
                      "B cpu ms/substep": f"{statistics.median(cpu['app_b']):.3f}",
                      "A/B cpu (median of pairs, min-max)": f"{statistics.median(rc):.3f} ({min(rc):.2f}-{max(rc):.2f})",
@@ -106,8 +152,11 @@ def main(argv=None):
                      "B contacts": dems["app_b"].diagnostics().get("contacts", "-")})
         print(rows[-1], flush=True)
     shutil.rmtree(tmp, ignore_errors=True)
+    bed_text = "squeezed-lattice bed"
+    if a.bed == "settled":
+        bed_text = "settled LIGGGHTS bed (skin 0.1 d" + (", ids shuffled)" if a.shuffle else ")")
     title = (f"DEM substep, two commits in one process (cpu, {a.precision}, threads 1; A = {a.a}, B = {a.b}; "
-             f"squeezed-lattice bed in a cylinder, Hertz-Mindlin + friction, dt = 2e-06 s; {a.blocks} interleaved "
+             f"{bed_text} in a cylinder, Hertz-Mindlin + friction, dt = 2e-06 s; {a.blocks} interleaved "
              f"blocks of {a.substeps} substeps after 200 warm-up)")
     append_results(title, rows, "cpu", dry=a.no_append)
 

@@ -8,6 +8,7 @@ Prints one line: N, precision, median ms per substep over ``--repeats`` blocks a
 particle-substeps/s, bytes per grain, touching pairs.
 
     python benchmarks/dem_substep.py --sizes 10000 --precision float32 --threads 1
+    python benchmarks/dem_substep.py --sizes 100000 --shuffle --sort-interval 0   # the grains left unsorted
 """
 from __future__ import annotations
 
@@ -88,7 +89,14 @@ def main(argv=None):
     ap.add_argument("--settle", type=int, default=0,
                     help="substeps run before the warm-up (the tri-disperse lattice is spaced for its largest grains: "
                          "it needs ~10000 to compact into touching contacts; cheap on a GPU)")
+    ap.add_argument("--shuffle", action="store_true",
+                    help="shuffle the grain ids (memory order then has nothing to do with space)")
+    ap.add_argument("--sort-interval", type=int, default=None,
+                    help="the DEM's sort_interval (list builds between re-orderings by cell; 0: never); default: "
+                         "the model's")
     a = ap.parse_args(argv)
+    import dataclasses
+
     import taichi as ti
 
     from app.sim import runtime
@@ -101,7 +109,13 @@ def main(argv=None):
     arch = runtime.init(a.arch, a.precision, a.threads or None)
     for n in a.sizes:
         scene, pos, r = scene_for(n, a.poly, a.precision, a.threads, arch)
-        dem = DemSolver(scene.model)
+        if a.shuffle:
+            perm = np.random.default_rng(12).permutation(n)
+            pos, r = pos[perm], r[perm]
+        model = scene.model
+        if a.sort_interval is not None and hasattr(model, "sort_interval"):
+            model = dataclasses.replace(model, sort_interval=a.sort_interval)
+        dem = DemSolver(model)
         dem.set_grains(pos, radius=r)
         for _ in range(a.settle // 1000):
             dem.advance(1000)
@@ -118,7 +132,8 @@ def main(argv=None):
         assert d["grains_removed"] == 0 and d["non_finite"] == 0
         print(f"N={n} {a.precision} {'poly' if a.poly else 'mono'} ms/substep={1e3 * med / a.substeps:.4f} "
               f"pss={n * a.substeps / med:.4g} bytes/grain={bytes_per_grain(scene.model, 4 if a.precision == 'float32' else 8):.0f} "
-              f"slots={scene.model.slots} builds={dem.nlist.builds} contacts={d.get('contacts', '-')}", flush=True)
+              f"slots={scene.model.slots} builds={dem.nlist.builds} contacts={d.get('contacts', '-')} "
+              f"shuffled={a.shuffle} sort_interval={getattr(model, 'sort_interval', '-')}", flush=True)
 
 
 if __name__ == "__main__":

@@ -3,7 +3,8 @@
 # for the CPU, packed into $OUT/results.tgz. Usage on the device, from the project root:
 #   source .devkit/setup.sh && FBED_COMMIT=<hash> bash benchmarks/device_run.sh STAGE...
 # Stages: bench (DEM throughput, render cost), dem (the DEM substep alone: a 1M-grain tri-disperse bed with
-# elastic-plastic rolling friction and a 1M monodisperse one, float32, then the Verma bed for 0.05 s from its
+# elastic-plastic rolling friction and a 1M monodisperse one, float32, the latter also with its ids shuffled,
+# sorted by cell and not (dem_substep.py --shuffle [--sort-interval 0]), then the Verma bed for 0.05 s from its
 # fill: particle-substeps/s and bytes_per_grain in runs/verma_dem/summary.json), small (boyce_small with video), boyce (full rig),
 # sweep (the injection-time sweep from the cached bed), verma_start (the full Verma run, started in its
 # own process session so that it outlives this call: the machine stays lent while later calls poll it),
@@ -44,6 +45,8 @@ for stage in "$@"; do
     dem)
       $T bash -c "python3 benchmarks/dem_substep.py --arch cuda --poly --settle 10000 --sizes 1000000 --substeps 500 --repeats 3 &&
         python3 benchmarks/dem_substep.py --arch cuda --sizes 1000000 --substeps 500 --repeats 3 &&
+        python3 benchmarks/dem_substep.py --arch cuda --sizes 1000000 --substeps 500 --repeats 3 --shuffle &&
+        python3 benchmarks/dem_substep.py --arch cuda --sizes 1000000 --substeps 500 --repeats 3 --shuffle --sort-interval 0 &&
         python3 -m app run presets/verma.toml --arch cuda --out runs/verma_dem --overwrite --set run.duration=0.05 \
           --set 'run.start_from=\"\"'" ;;
     render)

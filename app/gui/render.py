@@ -24,7 +24,7 @@ import time as wallclock
 import numpy as np
 import taichi as ti
 
-from ..sim.dem import grain_radius
+from ..sim.dem import grain_id, grain_radius
 
 
 class Colouring(enum.IntEnum):
@@ -71,9 +71,9 @@ class RenderSnapshot:
 
 
 @ti.kernel
-def record_tracer(m: ti.template(), s: ti.template(), out: ti.template()):
-    for i in range(m.n):
-        out.tracer[i] = ti.cast(s.x[i][2], ti.f32)
+def record_tracer(m: ti.template(), g: ti.template(), s: ti.template(), out: ti.template()):
+    for i in range(m.n):  # by grain id: the DEM may re-order its grains in memory
+        out.tracer[grain_id(m, g, i)] = ti.cast(s.x[i][2], ti.f32)
 
 
 @ti.kernel
@@ -100,7 +100,7 @@ def take_snapshot(m: ti.template(), g: ti.template(), s: ti.template(), gas: ti.
                 value = ti.cast(r, ti.f32)
             if ti.static(mode == Colouring.TRACER):
                 # alternate bands of initial height: mixing shows as the bands break up
-                value = lo if (out.tracer[i] / band) % 2.0 < 1.0 else hi
+                value = lo if (out.tracer[grain_id(m, g, i)] / band) % 2.0 < 1.0 else hi
             t = ti.min(ti.max((value - lo) / ti.max(hi - lo, 1e-30), 0.0), 1.0)
             k = ti.atomic_add(out.count[None], 1)
             out.position[k] = ti.cast(x, ti.f32)
@@ -218,7 +218,7 @@ class Renderer:
         m, s = self.dem.m, self.dem.state
         c = self.colouring
         if c == Colouring.TRACER and not self._tracer_recorded:
-            record_tracer(m, s, self.snapshot)
+            record_tracer(m, self.dem.fixed, s, self.snapshot)
             z = self.snapshot.tracer.to_numpy()[: m.n]
             self._band = max(float(np.percentile(z, 95) - self.lo[2]) / 8.0, 1e-9) if m.n else 1.0
             self._tracer_recorded = True

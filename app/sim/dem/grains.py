@@ -1,4 +1,5 @@
-"""Per-grain constants read inside the DEM kernels, and the scatter that adds to another grain.
+"""Per-grain constants read inside the DEM kernels, the grain id of a memory slot, and the scatter that adds
+to another grain.
 
 Monodisperse scenes store no radius or mass per grain: the kernels read the model's
 compile-time constants instead (``ti.static`` on ``model.polydisperse``)."""
@@ -29,3 +30,13 @@ def scatter_add(model: ti.template(), target: ti.template(), j, value):
         target[j] = target[j] + value
     else:
         ti.atomic_add(target[j], value)
+
+
+@ti.func
+def grain_id(model: ti.template(), sizes: ti.template(), i):
+    """The id (the index ``set_grains`` was given) of the grain in memory slot i: grains are re-ordered by
+    cell when ``model.sorts``, so a kernel that keys anything on the grain (a tracer colour) reads this."""
+    g = i
+    if ti.static(model.sorts):
+        g = sizes.grain_id[i]
+    return g

@@ -19,10 +19,10 @@ to the new slot (the springs themselves stay put); each thread writes only its o
 so no second list buffer is needed."""
 import taichi as ti
 
-from ..fields import NO_SPRING, SCAN_BLOCK
-from .grains import grain_radius
+from ..fields import NO_SPRING, ROLL_EPSD, SCAN_BLOCK
+from .grains import grain_id, grain_radius
 
-REBUILD, OVERFLOW, REMOVED, BUILDS, SPRING_OVERFLOW = 0, 1, 2, 3, 4  # nlist.counters
+REBUILD, OVERFLOW, REMOVED, BUILDS, SPRING_OVERFLOW, DEAD = 0, 1, 2, 3, 4, 5  # nlist.counters
 
 
 @ti.func
@@ -41,27 +41,37 @@ def cell_index(model: ti.template(), c):
 
 @ti.func
 def owns(model: ti.template(), sizes: ti.template(), i, ri, j):
-    """Whether the pair (i, j) lives in i's row: the smaller grain owns it, ties to the lower index."""
-    result = j > i
+    """Whether the pair (i, j) lives in i's row: the smaller grain owns it, ties to the lower grain id (not
+    the memory slot, so re-ordering the grains never moves a pair to the other row)."""
+    result = grain_id(model, sizes, j) > grain_id(model, sizes, i)
     if ti.static(model.polydisperse):
         rj = sizes.radius[j]
-        result = rj > ri or (rj == ri and j > i)
+        result = rj > ri or (rj == ri and result)
     return result
 
 
 @ti.func
-def rebuild_if_flagged(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
-                       nlist: ti.template()):
-    """The whole rebuild as top-level loops of the calling kernel; each runs empty unless flagged."""
+def gate(nlist: ti.template(), gated: ti.template()):
+    """1 or 0: a rebuild's loops run over gate * n items (the device flag); a sort's always run."""
+    g = 1
+    if ti.static(gated):
+        g = nlist.counters[REBUILD]
+    return g
+
+
+@ti.func
+def bin_by_cell(model: ti.template(), state: ti.template(), nlist: ti.template(), gated: ti.template()):
+    """Counting sort of the alive grains by cell into ``nlist.sorted`` (``cell_start``: each cell's first
+    entry, then the count); ungated (a sort), the dead grains follow the alive ones, so every slot is named."""
     # one array of n_cells + 1 ints: counts, then inclusive ends (the scan), then starts (each scattered
     # grain takes its slot from the end of its cell downwards)
     nb = (model.n_cells + SCAN_BLOCK - 1) // SCAN_BLOCK
-    for c in range(nlist.counters[REBUILD] * model.n_cells):
+    for c in range(gate(nlist, gated) * model.n_cells):
         nlist.cell_start[c] = 0
-    for i in range(nlist.counters[REBUILD] * model.n):
+    for i in range(gate(nlist, gated) * model.n):
         if state.alive[i]:
             ti.atomic_add(nlist.cell_start[cell_index(model, cell_of(model, state.x[i]))], 1)
-    for b in range(nlist.counters[REBUILD] * nb):
+    for b in range(gate(nlist, gated) * nb):
         total = 0
         for t in range(SCAN_BLOCK):
             c = b * SCAN_BLOCK + t
@@ -69,24 +79,35 @@ def rebuild_if_flagged(model: ti.template(), sizes: ti.template(), state: ti.tem
                 total += nlist.cell_start[c]
         nlist.block_sum[b] = total
     ti.loop_config(serialize=True)
-    for _ in range(nlist.counters[REBUILD]):
+    for _ in range(gate(nlist, gated)):
         run = 0
         for k in range(nb):
             v = nlist.block_sum[k]
             nlist.block_sum[k] = run
             run += v
         nlist.cell_start[model.n_cells] = run
-    for b in range(nlist.counters[REBUILD] * nb):
+        nlist.counters[DEAD] = 0
+    for b in range(gate(nlist, gated) * nb):
         run = nlist.block_sum[b]
         for t in range(SCAN_BLOCK):
             c = b * SCAN_BLOCK + t
             if c < model.n_cells:
                 run += nlist.cell_start[c]
                 nlist.cell_start[c] = run  # the end of cell c
-    for i in range(nlist.counters[REBUILD] * model.n):
+    ti.loop_config(serialize=model.serial)  # one thread: the order within a cell is the same run to run
+    for i in range(gate(nlist, gated) * model.n):
         if state.alive[i]:
             slot = ti.atomic_sub(nlist.cell_start[cell_index(model, cell_of(model, state.x[i]))], 1) - 1
             nlist.sorted[slot] = i
+        elif ti.static(not gated):
+            nlist.sorted[nlist.cell_start[model.n_cells] + ti.atomic_add(nlist.counters[DEAD], 1)] = i
+
+
+@ti.func
+def rebuild_if_flagged(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+                       nlist: ti.template()):
+    """The whole rebuild as top-level loops of the calling kernel; each runs empty unless flagged."""
+    bin_by_cell(model, state, nlist, True)
     for i in range(nlist.counters[REBUILD] * model.n):
         build_row(model, sizes, state, history, nlist, i)
     ti.loop_config(serialize=True)
@@ -140,3 +161,128 @@ def build_row(model: ti.template(), sizes: ti.template(), state: ti.template(), 
     for k in range(cnt):
         nlist.partner[k, i] = new[k]
     nlist.count[i] = cnt
+
+
+# ---------------------------------------------------------------------------- the sort
+# Memory order follows space: every per-grain array is gathered into cell order (``bin_by_cell``), two
+# loops per array (gather into a scratch, copy back). The scratch is the force accumulator (3 numbers per
+# grain, integers held exactly: n < 2^24 in float32), which is zero between substeps (``integrate`` clears
+# it) and is left zero. Partner indices are mapped to the partners' new slots; pairs stay in their rows
+# (ownership ties go by grain id), their springs move with their grains, x_ref with its grain: the list
+# stays valid and no build is needed.
+
+@ti.func
+def _value(item: ti.template(), o):
+    field, row = ti.static(item[0], item[1])
+    if ti.static(row < 0):
+        return field[o]
+    else:
+        return field[row, o]
+
+
+@ti.func
+def _store(item: ti.template(), p, v):
+    field, row = ti.static(item[0], item[1])
+    if ti.static(row < 0):
+        field[p] = ti.cast(v, field.dtype)
+    else:
+        field[row, p] = ti.cast(v, field.dtype)
+
+
+@ti.func
+def move_scalars(model: ti.template(), nlist: ti.template(), scratch: ti.template(), items: ti.template()):
+    """Up to three scalar rows (``(field, row)``, row -1 for a 1-D field) into cell order."""
+    for p in range(model.n):
+        o = nlist.sorted[p]
+        for c in ti.static(range(len(items))):
+            scratch[p][c] = ti.cast(_value(items[c], o), float)
+    for p in range(model.n):
+        for c in ti.static(range(len(items))):
+            _store(items[c], p, scratch[p][c])
+
+
+@ti.func
+def move_rows(model: ti.template(), nlist: ti.template(), scratch: ti.template(), field: ti.template(), k0: ti.template(),
+              k1: ti.template()):
+    """Rows k0..k1-1 (at most three) of a 2-D scalar field into cell order."""
+    for p in range(model.n):
+        o = nlist.sorted[p]
+        for k in ti.static(range(k0, k1)):
+            scratch[p][k - k0] = ti.cast(field[k, o], float)
+    for p in range(model.n):
+        for k in ti.static(range(k0, k1)):
+            field[k, p] = ti.cast(scratch[p][k - k0], field.dtype)
+
+
+@ti.func
+def move_vector(model: ti.template(), nlist: ti.template(), scratch: ti.template(), field: ti.template(),
+                row: ti.template()):
+    """One 3-vector row (row -1: a 1-D field) into cell order."""
+    for p in range(model.n):
+        scratch[p] = _value((field, row), nlist.sorted[p])
+    for p in range(model.n):
+        if ti.static(row < 0):
+            field[p] = scratch[p]
+        else:
+            field[row, p] = scratch[p]
+
+
+@ti.func
+def move_partners(model: ti.template(), nlist: ti.template(), scratch: ti.template(), k0: ti.template(),
+                  k1: ti.template()):
+    """Neighbour slots k0..k1-1 (at most two) into cell order, each partner renamed by its new slot, which
+    the scratch's third component holds; the slots past a row's count become -1."""
+    for p in range(model.n):
+        o = nlist.sorted[p]
+        for k in ti.static(range(k0, k1)):
+            moved = -1.0
+            if k < nlist.count[o]:
+                moved = scratch[nlist.partner[k, o]][2]
+            scratch[p][k - k0] = moved
+    for p in range(model.n):
+        for k in ti.static(range(k0, k1)):
+            nlist.partner[k, p] = ti.cast(scratch[p][k - k0], ti.i32)
+
+
+@ti.kernel
+def sort_by_cell(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+                 nlist: ti.template()):
+    """Re-order every per-grain array by cell (dead grains last); the list stays valid."""
+    bin_by_cell(model, state, nlist, False)
+    for p in range(model.n):  # the new slot of the grain now in slot o
+        state.force[nlist.sorted[p]][2] = p
+    for k in ti.static(range(0, model.slots, 2)):
+        move_partners(model, nlist, state.force, k, min(k + 2, model.slots))
+    move_scalars(model, nlist, state.force, ((nlist.count, -1), (state.alive, -1), (sizes.grain_id, -1)))
+    if ti.static(model.has_history):
+        for k in ti.static(range(0, model.slots, 3)):
+            move_rows(model, nlist, state.force, nlist.spring_slot, k, min(k + 3, model.slots))
+        for p in range(model.n):  # the history slots in use are those a neighbour slot names
+            used = ti.u32(0)
+            for k in range(nlist.count[p]):
+                h = ti.cast(nlist.spring_slot[k, p], ti.u32)
+                if h != ti.u32(NO_SPRING):
+                    used |= ti.u32(1) << h
+            nlist.springs_used[p] = used
+    if ti.static(model.polydisperse):
+        move_scalars(model, nlist, state.force, ((sizes.radius, -1), (sizes.mass, -1)))
+    for field in ti.static((state.x, state.v, nlist.x_ref)):
+        move_vector(model, nlist, state.force, field, -1)
+    if ti.static(model.friction):
+        move_vector(model, nlist, state.force, state.omega, -1)
+        move_vector(model, nlist, state.force, state.torque, -1)
+        for h in ti.static(range(model.history_slots)):
+            move_vector(model, nlist, state.force, history.tangential, h)
+        for w in ti.static(range(len(model.walls))):
+            move_vector(model, nlist, state.force, history.wall_tangential, w)
+    if ti.static(model.rolling == ROLL_EPSD):
+        for h in ti.static(range(model.history_slots)):
+            move_vector(model, nlist, state.force, history.rolling, h)
+        for w in ti.static(range(len(model.walls))):
+            move_vector(model, nlist, state.force, history.wall_rolling, w)
+    if ti.static(model.coupled):
+        move_scalars(model, nlist, state.force, ((state.drag_coeff, -1),))
+        move_vector(model, nlist, state.force, state.gas_velocity, -1)
+        move_vector(model, nlist, state.force, state.external_force, -1)
+    for p in range(model.n):
+        state.force[p] = ti.Vector([0.0, 0.0, 0.0])

@@ -8,9 +8,12 @@ One substep (``substep``, a single kernel whose top-level loops run in order):
    taken implicitly), which also zeroes the accumulators, removes grains that left the
    domain and raises the rebuild flag.
 The host only launches: nothing is read back inside ``advance``'s loop; the counters
-(overflow, removals, builds) are read once at its end. Diagnostics are computed only
+(overflow, removals, builds) are read once at its end, and decide whether the next ``advance``
+first re-orders the grains by cell (``neighbors.sort_by_cell``, every ``model.sort_interval``
+builds). Outside the DEM, grains are seen in id order only (``read``, ``state_arrays``). Diagnostics are computed only
 when asked for. No I/O, no printing.
 """
+import dataclasses
 import math
 
 import numpy as np
@@ -20,7 +23,7 @@ from ..fields import NO_SPRING, ROLL_EPSD, ContactHistory, DemModel, GrainModel,
 from ..geometry import wall_clearance_normal
 from .contact import contact
 from .grains import grain_mass, grain_radius, scatter_add
-from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW, rebuild_if_flagged
+from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW, rebuild_if_flagged, sort_by_cell
 
 
 @ti.func
@@ -40,8 +43,122 @@ def take_spring_slot(model: ti.template(), nlist: ti.template(), i):
 
 
 @ti.func
+def springs_of(model: ti.template(), history: ti.template(), nlist: ti.template(), i, k):
+    """The history slot of grain i's contact in neighbour slot k and its springs (a new contact takes a
+    free slot, its springs start at zero)."""
+    zero = ti.Vector([0.0, 0.0, 0.0])
+    spring, roll_spring = zero, zero
+    h = ti.cast(nlist.spring_slot[k, i], ti.i32)
+    if h == NO_SPRING:
+        h = take_spring_slot(model, nlist, i)
+        nlist.spring_slot[k, i] = ti.cast(h, ti.u8)
+    else:
+        if ti.static(model.friction):
+            spring = history.tangential[h, i]
+        if ti.static(model.rolling == ROLL_EPSD):
+            roll_spring = history.rolling[h, i]
+    return h, spring, roll_spring
+
+
+@ti.func
+def release_springs(nlist: ti.template(), i, k):
+    """Grain i's contact in neighbour slot k ended: free its history slot."""
+    h = ti.cast(nlist.spring_slot[k, i], ti.i32)
+    if h != NO_SPRING:
+        nlist.spring_slot[k, i] = ti.cast(NO_SPRING, ti.u8)
+        nlist.springs_used[i] &= ~(ti.u32(1) << ti.cast(h, ti.u32))
+
+
+@ti.func
+def pair_contact(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+                 nlist: ti.template(), i, k, j, xi, vi, wi, ri, mi, rj, dx, d2):
+    """The touching pair (i, j) of neighbour slot k: its force and torque on i (returned) and on j
+    (scattered), its springs updated."""
+    zero = ti.Vector([0.0, 0.0, 0.0])
+    rs = ri + rj
+    dist = ti.sqrt(d2)
+    n = dx * (1.0 / ti.max(dist, 1e-30))
+    delta = rs - dist
+    mj = grain_mass(model, sizes, j)
+    # lever arms to the contact point, the middle of the overlap: they sum to the centre
+    # distance, so the pair's torques conserve angular momentum exactly
+    arm_i = ri - 0.5 * delta
+    arm_j = rj - 0.5 * delta
+    vrel = vi - state.v[j]
+    w_rel = zero
+    spring, roll_spring = zero, zero
+    h = NO_SPRING
+    if ti.static(model.has_history):
+        h, spring, roll_spring = springs_of(model, history, nlist, i, k)
+    if ti.static(model.friction):
+        wj = state.omega[j]
+        vrel += (wi * arm_i + wj * arm_j).cross(n)
+        w_rel = wi - wj
+    # sqrt(I_r / m*) of the epsd rolling mode, I_r = 1.4 m_i r_i^2 m_j r_j^2 / (m_i r_i^2 + m_j r_j^2)
+    # (each grain about the contact point, Ai et al. 2011): sqrt(1.4) r for equal grains
+    gyration = 0.0
+    if ti.static(model.rolling == ROLL_EPSD):
+        if ti.static(model.polydisperse):
+            gyration = ti.sqrt(1.4 * ri * ri * rj * rj * (mi + mj) / (mi * ri * ri + mj * rj * rj))
+        else:
+            gyration = ti.static(1.4 ** 0.5 * model.radius)
+    f, ft, tr, spring, roll_spring = contact(model, False, n, delta, vrel, w_rel, ri * rj / rs,
+                                             mi * mj / (mi + mj), gyration, spring, roll_spring)
+    if ti.static(model.has_history):
+        if h != NO_SPRING:
+            if ti.static(model.friction):
+                history.tangential[h, i] = spring
+            if ti.static(model.rolling == ROLL_EPSD):
+                history.rolling[h, i] = roll_spring
+    torque_i = zero
+    if ti.static(model.friction):
+        tq = n.cross(ft)  # torque per unit lever arm: arm_i n x F on i, arm_j n x F on j
+        torque_i = arm_i * tq + tr
+        scatter_add(model, state.torque, j, arm_j * tq - tr)
+    scatter_add(model, state.force, j, -f)
+    return f, torque_i
+
+
+@ti.func
+def wall_contacts(model: ti.template(), history: ti.template(), walls: ti.template(), i, xi, vi, wi, ri, mi, fi,
+                  torque_i):
+    """Grain i's force and torque ``fi``, ``torque_i`` with every wall's added (unrolled at compile time,
+    each wall with its own springs)."""
+    zero = ti.Vector([0.0, 0.0, 0.0])
+    for w in ti.static(range(len(model.walls))):
+        clearance, nrm = wall_clearance_normal(model.walls[w], walls.sampled[w], xi)
+        delta = ri - clearance
+        if delta > 0:
+            n = -nrm  # from the grain towards the wall
+            arm = ri - 0.5 * delta
+            vrel = vi
+            spring, roll_spring = zero, zero
+            if ti.static(model.friction):
+                vrel += (wi * arm).cross(n)
+                spring = history.wall_tangential[w, i]
+            if ti.static(model.rolling == ROLL_EPSD):
+                roll_spring = history.wall_rolling[w, i]
+            f, ft, tr, spring, roll_spring = contact(model, True, n, delta, vrel, wi, ri, mi, 1.4 ** 0.5 * ri,
+                                                     spring, roll_spring)  # sqrt(I_r / m*), I_r = 1.4 m r^2
+            if ti.static(model.friction):
+                history.wall_tangential[w, i] = spring
+                torque_i += arm * n.cross(ft) + tr
+            if ti.static(model.rolling == ROLL_EPSD):
+                history.wall_rolling[w, i] = roll_spring
+            fi += f
+        else:
+            if ti.static(model.friction):
+                history.wall_tangential[w, i] = zero
+            if ti.static(model.rolling == ROLL_EPSD):
+                history.wall_rolling[w, i] = zero
+    return fi, torque_i
+
+
+@ti.func
 def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                 nlist: ti.template(), walls: ti.template()):
+    """Contact forces and torques: each grain's row of the half list (the partner's share scattered),
+    then the walls."""
     # one CPU thread: a serial loop lets Taichi demote the partner atomics to plain adds
     ti.loop_config(serialize=model.serial)
     for i in range(model.n):
@@ -55,7 +172,6 @@ def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template()
                 wi = state.omega[i]
             fi = ti.Vector([0.0, 0.0, 0.0])
             torque_i = ti.Vector([0.0, 0.0, 0.0])
-            zero = ti.Vector([0.0, 0.0, 0.0])
             for k in range(nlist.count[i]):
                 j = nlist.partner[k, i]
                 dx = state.x[j] - xi
@@ -63,89 +179,13 @@ def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template()
                 d2 = dx.dot(dx)
                 rs = ri + rj
                 if d2 < rs * rs and state.alive[j]:
-                    dist = ti.sqrt(d2)
-                    n = dx * (1.0 / ti.max(dist, 1e-30))
-                    delta = rs - dist
-                    mj = grain_mass(model, sizes, j)
-                    # lever arms to the contact point, the middle of the overlap: they sum to the centre
-                    # distance, so the pair's torques conserve angular momentum exactly
-                    arm_i = ri - 0.5 * delta
-                    arm_j = rj - 0.5 * delta
-                    vrel = vi - state.v[j]
-                    w_rel = zero
-                    spring = zero
-                    roll_spring = zero
-                    h = NO_SPRING
-                    if ti.static(model.has_history):
-                        h = ti.cast(nlist.spring_slot[k, i], ti.i32)
-                        if h == NO_SPRING:  # a new contact: take a free history slot, its springs start at 0
-                            h = take_spring_slot(model, nlist, i)
-                            nlist.spring_slot[k, i] = ti.cast(h, ti.u8)
-                        else:
-                            if ti.static(model.friction):
-                                spring = history.tangential[h, i]
-                            if ti.static(model.rolling == ROLL_EPSD):
-                                roll_spring = history.rolling[h, i]
-                    if ti.static(model.friction):
-                        wj = state.omega[j]
-                        vrel += (wi * arm_i + wj * arm_j).cross(n)
-                        w_rel = wi - wj
-                    # sqrt(I_r / m*) of the epsd rolling mode, I_r = 1.4 m_i r_i^2 m_j r_j^2 / (m_i r_i^2 + m_j r_j^2)
-                    # (each grain about the contact point, Ai et al. 2011): sqrt(1.4) r for equal grains
-                    gyration = 0.0
-                    if ti.static(model.rolling == ROLL_EPSD):
-                        if ti.static(model.polydisperse):
-                            gyration = ti.sqrt(1.4 * ri * ri * rj * rj * (mi + mj) / (mi * ri * ri + mj * rj * rj))
-                        else:
-                            gyration = ti.static(1.4 ** 0.5 * model.radius)
-                    f, ft, tr, spring, roll_spring = contact(model, False, n, delta, vrel, w_rel, ri * rj / rs,
-                                                             mi * mj / (mi + mj), gyration, spring, roll_spring)
-                    if ti.static(model.has_history):
-                        if h != NO_SPRING:
-                            if ti.static(model.friction):
-                                history.tangential[h, i] = spring
-                            if ti.static(model.rolling == ROLL_EPSD):
-                                history.rolling[h, i] = roll_spring
-                    if ti.static(model.friction):
-                        tq = n.cross(ft)  # torque per unit lever arm: arm_i n x F on i, arm_j n x F on j
-                        torque_i += arm_i * tq + tr
-                        scatter_add(model, state.torque, j, arm_j * tq - tr)
+                    f, t = pair_contact(model, sizes, state, history, nlist, i, k, j, xi, vi, wi, ri, mi, rj, dx, d2)
                     fi += f
-                    scatter_add(model, state.force, j, -f)
+                    torque_i += t
                 else:
                     if ti.static(model.has_history):
-                        h = ti.cast(nlist.spring_slot[k, i], ti.i32)
-                        if h != NO_SPRING:  # the contact ended: free its history slot
-                            nlist.spring_slot[k, i] = ti.cast(NO_SPRING, ti.u8)
-                            nlist.springs_used[i] &= ~(ti.u32(1) << ti.cast(h, ti.u32))
-            # walls: unrolled at compile time, each with its own history slot
-            for w in ti.static(range(len(model.walls))):
-                clearance, nrm = wall_clearance_normal(model.walls[w], walls.sampled[w], xi)
-                delta = ri - clearance
-                if delta > 0:
-                    n = -nrm  # from the grain towards the wall
-                    arm = ri - 0.5 * delta
-                    vrel = vi
-                    spring = zero
-                    roll_spring = zero
-                    if ti.static(model.friction):
-                        vrel += (wi * arm).cross(n)
-                        spring = history.wall_tangential[w, i]
-                    if ti.static(model.rolling == ROLL_EPSD):
-                        roll_spring = history.wall_rolling[w, i]
-                    f, ft, tr, spring, roll_spring = contact(model, True, n, delta, vrel, wi, ri, mi, 1.4 ** 0.5 * ri,
-                                                             spring, roll_spring)  # sqrt(I_r / m*), I_r = 1.4 m r^2
-                    if ti.static(model.friction):
-                        history.wall_tangential[w, i] = spring
-                        torque_i += arm * n.cross(ft) + tr
-                    if ti.static(model.rolling == ROLL_EPSD):
-                        history.wall_rolling[w, i] = roll_spring
-                    fi += f
-                else:
-                    if ti.static(model.friction):
-                        history.wall_tangential[w, i] = zero
-                    if ti.static(model.rolling == ROLL_EPSD):
-                        history.wall_rolling[w, i] = zero
+                        release_springs(nlist, i, k)
+            fi, torque_i = wall_contacts(model, history, walls, i, xi, vi, wi, ri, mi, fi, torque_i)
             scatter_add(model, state.force, i, fi)
             if ti.static(model.friction):
                 scatter_add(model, state.torque, i, torque_i)
@@ -261,6 +301,8 @@ class DemSolver:
     counters; ``nlist.builds`` reads the rebuild count from the device), ``walls``."""
 
     def __init__(self, model: DemModel):
+        if model.sorts and model.n >= 2 ** 24 and ti.lang.impl.current_cfg().default_fp == ti.f32:
+            model = dataclasses.replace(model, sort_interval=0)  # the sort's scratch holds slots in float32
         self.m = self.model = model
         self.fixed = GrainModel(model)
         self.state = GrainState(model)
@@ -270,31 +312,70 @@ class DemSolver:
         self._diag = ti.field(float, 7)
         self._hist = ti.field(ti.i32, 1024)
         self.substeps_done = 0
+        self._ids = None  # host copy of fixed.grain_id (dropped at every sort)
+        self._builds_seen = self._builds_at_sort = 0
+        self._sort_due = False
 
     # -- state in and out -------------------------------------------------------------
+    # Outside the DEM every per-grain array is in grain-id order (the order ``set_grains`` was given);
+    # inside, grain i of memory slot p is ``fixed.grain_id[p]`` once grains are sorted (``model.sorts``).
     def _f(self, a):
         """numpy array in the kernels' float type (float32 or float64)."""
         return np.ascontiguousarray(a, dtype=np.float64 if self.state.v.dtype == ti.f64 else np.float32)
 
     def _read_counters(self) -> np.ndarray:
-        """The one host read of the device counters [rebuild flag, overflow, removed, builds, springs short]."""
+        """The one host read of the device counters [rebuild flag, overflow, removed, builds, springs short, -]."""
         return self.nlist.counters.to_numpy()
 
+    def _order(self):
+        """The grain id held by each memory slot (None: memory order is id order)."""
+        if not self.m.sorts:
+            return None
+        if self._ids is None:
+            self._ids = self.fixed.grain_id.to_numpy()
+        return self._ids
+
+    def _by_id(self, values: np.ndarray, axis: int = 0) -> np.ndarray:
+        """Memory order -> id order along the grain axis."""
+        order = self._order()
+        if order is None:
+            return values
+        out = np.empty_like(values)
+        index = [slice(None)] * values.ndim
+        index[axis] = order
+        out[tuple(index)] = values
+        return out
+
+    @staticmethod
+    def _to_memory(values, order, axis: int = 0):
+        """Id order -> memory order along the grain axis (``order``: the id of each memory slot)."""
+        return values if order is None else np.take(values, order, axis=axis)
+
     def set_grains(self, position, velocity=None, radius=None, omega=None, alive=None):
+        """Place the grains (arrays in grain-id order); every contact spring restarts from zero."""
+        self._upload(None, position, velocity, radius, omega, alive)
+
+    def _upload(self, order, position, velocity=None, radius=None, omega=None, alive=None):
+        """``set_grains`` with the grains laid out in memory as ``order`` says (None: id order)."""
         n = self.m.n
         position = self._f(position)
         if position.shape != (n, 3):
             raise ValueError(f"positions must be ({n}, 3), got {position.shape}")
-        self.state.x.from_numpy(position)
-        self.state.v.from_numpy(self._f(np.zeros((n, 3)) if velocity is None else velocity))
+        mem = lambda a: self._to_memory(a, order)  # noqa: E731
+        self.state.x.from_numpy(mem(position))
+        self.state.v.from_numpy(mem(self._f(np.zeros((n, 3)) if velocity is None else velocity)))
         self.state.force.fill(0)
-        self.state.alive.from_numpy(np.ones(n, np.uint8) if alive is None else np.asarray(alive, np.uint8))
+        self.state.alive.from_numpy(mem(np.ones(n, np.uint8) if alive is None else np.asarray(alive, np.uint8)))
         if self.m.polydisperse:
             r = np.asarray(radius, float)
-            self.fixed.radius.from_numpy(self._f(r))
-            self.fixed.mass.from_numpy(self._f(self.m.density * 4.0 / 3.0 * math.pi * r ** 3))
+            self.fixed.radius.from_numpy(mem(self._f(r)))
+            self.fixed.mass.from_numpy(mem(self._f(self.m.density * 4.0 / 3.0 * math.pi * r ** 3)))
+        if self.m.sorts:
+            ids = np.arange(n, dtype=np.int32) if order is None else np.asarray(order, np.int32)
+            self.fixed.grain_id.from_numpy(ids)
+            self._ids = ids
         if self.m.friction:
-            self.state.omega.from_numpy(self._f(np.zeros((n, 3)) if omega is None else omega))
+            self.state.omega.from_numpy(mem(self._f(np.zeros((n, 3)) if omega is None else omega)))
             self.state.torque.fill(0)
             self.history.tangential.fill(0)
             if self.m.walls:
@@ -312,7 +393,9 @@ class DemSolver:
             self.nlist.spring_slot.fill(NO_SPRING)
             self.nlist.springs_used.fill(0)
         builds = int(self.nlist.counters[BUILDS])
-        self.nlist.counters.from_numpy(np.array([1, 0, 0, builds, 0], np.int32))  # rebuild at the next substep
+        self.nlist.counters.from_numpy(np.array([1, 0, 0, builds, 0, 0], np.int32))  # rebuild at the next substep
+        self._builds_seen = self._builds_at_sort = builds
+        self._sort_due = self.m.sorts  # new grains: order them at the next advance
 
     _READABLE = {"position": ("state", "x"), "velocity": ("state", "v"), "omega": ("state", "omega"),
                  "alive": ("state", "alive"), "force": ("state", "force"), "drag_coeff": ("state", "drag_coeff"),
@@ -333,84 +416,117 @@ class DemSolver:
         values = getattr(getattr(self, bundle), field, None)
         if values is None:
             raise KeyError(f"{name!r} is not held by this scene's DEM (no friction, or not coupled)")
-        return values.to_numpy()
+        return self._by_id(values.to_numpy())
 
     def radii(self) -> np.ndarray:
         if self.m.polydisperse:
-            return self.fixed.radius.to_numpy()
+            return self._by_id(self.fixed.radius.to_numpy())
         return np.full(self.m.n, self.m.radius)
 
     def masses(self) -> np.ndarray:
         if self.m.polydisperse:
-            return self.fixed.mass.to_numpy()
+            return self._by_id(self.fixed.mass.to_numpy())
         return np.full(self.m.n, self.m.mass)
 
     def state_arrays(self) -> dict:
-        """Every changing field (and the neighbour list) as numpy arrays: a full checkpoint."""
+        """Every changing field (and the neighbour list) as numpy arrays in grain-id order, partners named
+        by id, with the memory order (``grain_order``) and the sort's schedule: a full checkpoint."""
         state, history, nlist = self.state, self.history, self.nlist
         counters = self._read_counters()
-        out = {"position": state.x.to_numpy(), "velocity": state.v.to_numpy(), "alive": state.alive.to_numpy(),
-               "radius": self.radii(), "nl_partner": nlist.partner.to_numpy(), "nl_count": nlist.count.to_numpy(),
-               "nl_x_ref": nlist.x_ref.to_numpy(), "removed": np.array(counters[REMOVED]),
-               "substeps_done": np.array(self.substeps_done), "need_build": np.array(int(counters[REBUILD]))}
+        by_id, rows = self._by_id, (lambda f: self._by_id(f.to_numpy(), axis=1))
+        partner = nlist.partner.to_numpy()
+        order = self._order()
+        if order is not None:
+            partner = np.where(partner >= 0, order[np.clip(partner, 0, None)], partner).astype(partner.dtype)
+        out = {"position": by_id(state.x.to_numpy()), "velocity": by_id(state.v.to_numpy()),
+               "alive": by_id(state.alive.to_numpy()), "radius": self.radii(), "nl_partner": by_id(partner, axis=1),
+               "nl_count": by_id(nlist.count.to_numpy()), "nl_x_ref": by_id(nlist.x_ref.to_numpy()),
+               "removed": np.array(counters[REMOVED]), "substeps_done": np.array(self.substeps_done),
+               "need_build": np.array(int(counters[REBUILD]))}
+        if order is not None:
+            out.update(grain_order=order.copy(), sort_due=np.array(int(self._sort_due)),
+                       sort_builds=np.array(int(counters[BUILDS]) - self._builds_at_sort))
         if self.m.has_history:
-            out.update(nl_spring_slot=nlist.spring_slot.to_numpy(), nl_springs_used=nlist.springs_used.to_numpy())
+            out.update(nl_spring_slot=rows(nlist.spring_slot), nl_springs_used=by_id(nlist.springs_used.to_numpy()))
         if self.m.friction:
-            out.update(omega=state.omega.to_numpy(), torque=state.torque.to_numpy(),
-                       tangential=history.tangential.to_numpy())
+            out.update(omega=by_id(state.omega.to_numpy()), torque=by_id(state.torque.to_numpy()),
+                       tangential=rows(history.tangential))
             if self.m.walls:
-                out.update(wall_tangential=history.wall_tangential.to_numpy())
+                out.update(wall_tangential=rows(history.wall_tangential))
         if self.m.rolling == ROLL_EPSD:
-            out.update(rolling=history.rolling.to_numpy())
+            out.update(rolling=rows(history.rolling))
             if self.m.walls:
-                out.update(wall_rolling=history.wall_rolling.to_numpy())
-        out["force"] = state.force.to_numpy()
+                out.update(wall_rolling=rows(history.wall_rolling))
+        out["force"] = by_id(state.force.to_numpy())
         if self.m.coupled:
-            out.update(external_force=state.external_force.to_numpy(), drag_coeff=state.drag_coeff.to_numpy(),
-                       gas_velocity=state.gas_velocity.to_numpy())
+            out.update(external_force=by_id(state.external_force.to_numpy()),
+                       drag_coeff=by_id(state.drag_coeff.to_numpy()), gas_velocity=by_id(state.gas_velocity.to_numpy()))
         return out
 
     def load_state_arrays(self, arrays: dict) -> None:
-        """Restore exactly what ``state_arrays`` returned (same scene model required)."""
+        """Restore exactly what ``state_arrays`` returned (same scene model required), memory order included,
+        so a resumed run repeats the uninterrupted one bit for bit."""
         state, history, nlist = self.state, self.history, self.nlist
-        self.set_grains(arrays["position"], arrays["velocity"], arrays["radius"], arrays.get("omega"),
-                        arrays["alive"])
-        state.force.from_numpy(self._f(arrays["force"]))
-        nlist.partner.from_numpy(arrays["nl_partner"])
-        nlist.count.from_numpy(arrays["nl_count"])
-        nlist.x_ref.from_numpy(self._f(arrays["nl_x_ref"]))
+        order = None
+        if self.m.sorts:
+            order = np.asarray(arrays.get("grain_order", np.arange(self.m.n)), np.int32)
+            if order.shape != (self.m.n,):
+                raise ValueError(f"grain_order must be ({self.m.n},), got {order.shape}")
+        mem = lambda a, axis=0: self._to_memory(np.asarray(a), order, axis)  # noqa: E731
+        self._upload(order, arrays["position"], arrays["velocity"], arrays["radius"], arrays.get("omega"),
+                     arrays["alive"])
+        state.force.from_numpy(mem(self._f(arrays["force"])))
+        partner = np.asarray(arrays["nl_partner"], np.int32)
+        if order is not None:
+            slot = np.empty_like(order)
+            slot[order] = np.arange(self.m.n, dtype=np.int32)
+            partner = np.where(partner >= 0, slot[np.clip(partner, 0, None)], partner).astype(np.int32)
+        nlist.partner.from_numpy(mem(partner, 1))
+        nlist.count.from_numpy(mem(arrays["nl_count"]))
+        nlist.x_ref.from_numpy(mem(self._f(arrays["nl_x_ref"])))
         self.substeps_done = int(arrays["substeps_done"])
         builds = int(nlist.counters[BUILDS])
         # a state written before the springs had their own slots (no nl_spring_slot) restarts its pair
         # springs from zero at a fresh build; the wall springs, per wall then as now, are kept
         current = not self.m.has_history or "nl_spring_slot" in arrays
         need_build = int(arrays["need_build"]) if current else 1
-        nlist.counters.from_numpy(np.array([need_build, 0, int(arrays["removed"]), builds, 0], np.int32))
+        nlist.counters.from_numpy(np.array([need_build, 0, int(arrays["removed"]), builds, 0, 0], np.int32))
+        if self.m.sorts and "grain_order" in arrays:
+            self._sort_due = bool(int(arrays["sort_due"]))
+            self._builds_at_sort = builds - int(arrays["sort_builds"])
         if self.m.has_history and current:
-            nlist.spring_slot.from_numpy(np.asarray(arrays["nl_spring_slot"], np.uint8))
-            nlist.springs_used.from_numpy(np.asarray(arrays["nl_springs_used"], np.uint32))
+            nlist.spring_slot.from_numpy(mem(np.asarray(arrays["nl_spring_slot"], np.uint8), 1))
+            nlist.springs_used.from_numpy(mem(np.asarray(arrays["nl_springs_used"], np.uint32)))
         elif self.m.has_history:
             nlist.count.fill(0)
         if self.m.friction:
-            state.torque.from_numpy(self._f(arrays["torque"]))
+            state.torque.from_numpy(mem(self._f(arrays["torque"])))
             if current:
-                history.tangential.from_numpy(self._f(arrays["tangential"]))
+                history.tangential.from_numpy(mem(self._f(arrays["tangential"]), 1))
             if self.m.walls:
-                history.wall_tangential.from_numpy(self._f(arrays["wall_tangential"]))
+                history.wall_tangential.from_numpy(mem(self._f(arrays["wall_tangential"]), 1))
         if self.m.rolling == ROLL_EPSD:
             if current:
-                history.rolling.from_numpy(self._f(arrays["rolling"]))
+                history.rolling.from_numpy(mem(self._f(arrays["rolling"]), 1))
             if self.m.walls:
-                history.wall_rolling.from_numpy(self._f(arrays["wall_rolling"]))
+                history.wall_rolling.from_numpy(mem(self._f(arrays["wall_rolling"]), 1))
         if self.m.coupled and "drag_coeff" in arrays:
-            state.external_force.from_numpy(self._f(arrays["external_force"]))
-            state.drag_coeff.from_numpy(self._f(arrays["drag_coeff"]))
-            state.gas_velocity.from_numpy(self._f(arrays["gas_velocity"]))
+            state.external_force.from_numpy(mem(self._f(arrays["external_force"])))
+            state.drag_coeff.from_numpy(mem(self._f(arrays["drag_coeff"])))
+            state.gas_velocity.from_numpy(mem(self._f(arrays["gas_velocity"])))
 
     # -- stepping ---------------------------------------------------------------------
     def rebuild(self) -> None:
         """Ask for a rebuild at the next substep (the build itself runs on the device)."""
         self.nlist.counters[REBUILD] = 1
+
+    def sort(self) -> None:
+        """Re-order the grains in memory by cell now (queued; the neighbour list is carried over, not rebuilt)."""
+        if self.m.sorts:
+            sort_by_cell(self.m, self.fixed, self.state, self.history, self.nlist)
+            self._ids = None
+            self._sort_due = False
+            self._builds_at_sort = self._builds_seen
 
     def substep(self) -> None:
         """Queue one substep; reads nothing back (see ``advance`` for the checks)."""
@@ -419,13 +535,20 @@ class DemSolver:
 
     def advance(self, substeps: int) -> None:
         """Queue ``substeps`` substeps, then read the counters once: NeighborOverflow if a rebuild ran out
-        of slots (the substeps after it missed pairs: the run must stop)."""
+        of slots (the substeps after it missed pairs: the run must stop). Grains are first re-ordered by
+        cell when a sort is due (``model.sort_interval`` builds since the last one, decided at the last
+        read of the counters; no read here)."""
+        if self._sort_due:
+            self.sort()
         for _ in range(substeps):
             self.substep()
         self.check()
 
     def check(self) -> None:
         counters = self._read_counters()
+        self._builds_seen = int(counters[BUILDS])
+        if self.m.sorts and self._builds_seen - self._builds_at_sort >= self.m.sort_interval:
+            self._sort_due = True
         over = int(counters[OVERFLOW])
         if counters[SPRING_OVERFLOW]:
             raise NeighborOverflow(f"a grain touches more than {self.m.history_slots} grains at least its size (they "

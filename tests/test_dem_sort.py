@@ -1,0 +1,114 @@
+"""Memory order follows space: the DEM re-orders its grains by cell, and nothing outside it can tell.
+
+Sorting changes only the order of floating-point sums (a grain's contacts are visited in another order),
+so a sorted run matches an unsorted one to rounding, amplified by the contacts over the run; a dropped
+spring, a partner renamed wrong or a grain's arrays left behind would give differences of the order of
+the motion itself. A sorted run resumed from its checkpoint repeats the uninterrupted one bit for bit
+(memory order is part of the checkpoint)."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from dem_helpers import make
+from app.sim.dem import DemSolver
+
+pytestmark = pytest.mark.verification
+
+N = 300
+CONTACT = {"friction": 0.4, "rolling_friction": 0.05, "rolling_model": "epsd"}
+
+
+def scrambled_bed(poly: bool):
+    """300 grains in a box on a jittered lattice, ids shuffled (memory order has nothing to do with
+    space), moving fast enough to rebuild the list every few substeps; tri-disperse when ``poly``."""
+    rng = np.random.default_rng(7)
+    side = 7
+    grid = np.stack(np.meshgrid(*[np.arange(side)] * 3, indexing="ij"), -1).reshape(-1, 3)[:N]
+    pos = (grid - side / 2) * 2.6e-3 + rng.uniform(-1e-4, 1e-4, (N, 3))
+    pos = pos[rng.permutation(N)]
+    vel = rng.normal(0.0, 0.5, (N, 3))
+    radius = rng.choice([0.9e-3, 1.0e-3, 1.2e-3], N) if poly else np.full(N, 1e-3)
+    particles = {"count": N}
+    if poly:
+        particles.update(diameter=0.0, diameters=[1.8e-3, 2.0e-3, 2.4e-3], fractions=[0.34, 0.33, 0.33])
+    # the floor just below the lowest grains: they land on it within the run (wall springs)
+    scene, _ = make(domain={"gravity": [0.0, 0.0, -9.81], "lo": [-0.05, -0.05, -0.0106]}, particles=particles, vessel={"shape": "box"},
+                    contact=CONTACT)
+    return scene, pos, vel, radius
+
+
+def solver(scene, pos, vel, radius, sort_interval):
+    model = dataclasses.replace(scene.model, sort_interval=sort_interval, sort_min_grains=0, serial=True)
+    dem = DemSolver(model)
+    dem.set_grains(pos, vel, radius)
+    return dem
+
+
+def run(dem, fluid_steps, substeps=10):
+    for _ in range(fluid_steps):
+        dem.advance(substeps)
+
+
+@pytest.mark.parametrize("poly", [False, True], ids=["monodisperse", "tri-disperse"])
+def test_sorted_run_matches_unsorted_by_grain_id(poly):
+    scene, pos, vel, radius = scrambled_bed(poly)
+    sorted_, plain = solver(scene, pos, vel, radius, 1), solver(scene, pos, vel, radius, 0)
+    assert sorted_.m.sorts and not plain.m.sorts
+    run(sorted_, 30)
+    run(plain, 30)
+    a, b = sorted_.state_arrays(), plain.state_arrays()
+    order = a["grain_order"]
+    assert (order != np.arange(N)).mean() > 0.9  # really re-ordered ...
+    assert sorted_.nlist.builds >= 10  # ... many times over
+    assert sorted_.nlist.builds == plain.nlist.builds  # the list is carried over a sort, not rebuilt
+    for key, scale in (("position", 0.01), ("velocity", np.abs(b["velocity"]).max()),
+                       ("omega", np.abs(b["omega"]).max())):
+        assert np.abs(a[key] - b[key]).max() < 1e-9 * scale, key
+    np.testing.assert_array_equal(a["alive"], b["alive"])
+    # the same pairs in each grain's row, named by grain id
+    np.testing.assert_array_equal(a["nl_count"], b["nl_count"])
+    for i in range(N):
+        c = a["nl_count"][i]
+        np.testing.assert_array_equal(np.sort(a["nl_partner"][:c, i]), np.sort(b["nl_partner"][:c, i]))
+    # the springs of each grain, whatever history slot each contact took
+    for key in ("tangential", "rolling", "wall_tangential", "wall_rolling"):
+        sa, sb = (np.sort(np.linalg.norm(x[key], axis=-1), axis=0) for x in (a, b))
+        assert sb.max() > 0 and np.abs(sa - sb).max() < 1e-9 * sb.max(), key
+    # every reader outside the DEM sees grain-id order
+    np.testing.assert_array_equal(sorted_.read("position"), a["position"])
+    np.testing.assert_array_equal(sorted_.read("omega"), a["omega"])
+    np.testing.assert_array_equal(sorted_.radii(), radius)
+    np.testing.assert_array_equal(sorted_.masses(), plain.masses())
+    da, db = sorted_.diagnostics(), plain.diagnostics()
+    assert da["contacts"] == db["contacts"] > 0
+    assert abs(da["kinetic_energy"] - db["kinetic_energy"]) < 1e-9 * db["kinetic_energy"]
+
+
+def test_sorted_checkpoint_round_trips_and_resumes_bit_for_bit():
+    scene, pos, vel, radius = scrambled_bed(True)
+    straight = solver(scene, pos, vel, radius, 2)
+    run(straight, 12)
+    saved = straight.state_arrays()
+    assert (saved["grain_order"] != np.arange(N)).any()
+    resumed = DemSolver(straight.m)
+    resumed.load_state_arrays(saved)
+    again = resumed.state_arrays()  # what was saved comes back, every array
+    assert set(again) == set(saved)
+    assert not [k for k in saved if not np.array_equal(saved[k], again[k])]
+    run(straight, 15)
+    run(resumed, 15)
+    a, b = straight.state_arrays(), resumed.state_arrays()
+    assert (a["grain_order"] != saved["grain_order"]).any()  # sorted again after the checkpoint
+    assert not [k for k in a if not np.array_equal(a[k], b[k])]
+
+
+def test_set_grains_takes_grain_id_order_after_a_sort():
+    scene, pos, vel, radius = scrambled_bed(False)
+    dem = solver(scene, pos, vel, radius, 1)
+    run(dem, 3)
+    x = dem.read("position")
+    dem.set_grains(x, np.zeros((N, 3)), radius)
+    np.testing.assert_array_equal(dem.read("position"), x)
+    dem.advance(1)  # sorted again at once: still by id
+    assert np.abs(dem.read("position") - x).max() < 1e-4
