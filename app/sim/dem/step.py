@@ -366,6 +366,11 @@ class DemSolver:
         self.state.v.from_numpy(mem(self._f(np.zeros((n, 3)) if velocity is None else velocity)))
         self.state.force.fill(0)
         self.state.alive.from_numpy(mem(np.ones(n, np.uint8) if alive is None else np.asarray(alive, np.uint8)))
+        if not self.m.polydisperse and radius is not None:
+            r = np.asarray(radius, float)
+            if r.size and np.any(np.abs(r - self.m.radius) > 1e-6 * self.m.radius):  # float32 storage
+                raise ValueError(f"this DEM is single-size (radius {self.m.radius:g} m) but grains of radius "
+                                 f"{r.min():g} to {r.max():g} m were given: build it from a polydisperse scene")
         if self.m.polydisperse:
             r = np.asarray(radius, float)
             self.fixed.radius.from_numpy(mem(self._f(r)))
