@@ -146,6 +146,8 @@ def _add_rcfd(sub) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # each command imports its module when chosen: `fbed --version`, `fbed analyze` and `fbed rcfd` never load
+    # Taichi, and a bad argument is reported before any solver is imported
     args = build_parser().parse_args(argv)
     if args.command is None:
         build_parser().print_help()
