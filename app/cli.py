@@ -23,14 +23,23 @@ import argparse
 import sys
 
 from .config import ConfigError
+from .io.store import VERSION
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fbed", description="GPU CFD-DEM simulator of gas-solid fluidized beds")
-    from .io.store import VERSION
-
     p.add_argument("--version", action="version", version=f"fbed {VERSION}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    _add_run(sub)
+    _add_view(sub)
+    _add_analyze(sub)
+    _add_bench(sub)
+    _add_sweep(sub)
+    _add_rcfd(sub)
+    return p
+
+
+def _add_run(sub) -> None:
     r = sub.add_parser("run", help="run a preset", description="Run a TOML preset and write its outputs.")
     r.add_argument("preset", nargs="?", help="preset file (.toml); optional with --resume")
     r.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
@@ -43,6 +52,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--video", nargs="?", const="", default=None, metavar="FILE",
                    help="write a video (default FILE: video.mp4 in the output folder); same as "
                         "--set video.enabled=true")
+
+
+def _add_view(sub) -> None:
     v = sub.add_parser("view", help="run a preset in a window with live controls",
                        description="Run PRESET in a window: space pause, n step, up/down gas velocity, j jet, "
                                    "c colour, v view, arrows orbit, =/- zoom, p screenshot, esc quit.")
@@ -50,6 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
     v.add_argument("--out", help="output folder (default: runs/<preset name>)")
     v.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto")
+
+
+def _add_analyze(sub) -> None:
     a = sub.add_parser("analyze", help="post-process a finished run (the preset's probes.analysis)",
                        description="Run the analysis named by the run's probes.analysis (boyce: the bubble on "
                                    "the central slab; verma: bubble statistics on the planes; mri: the MRI study's "
@@ -58,6 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "umf runs: the cases side by side (mri_compare.*, umf_compare.*).")
     a.add_argument("run_dir", help="output folder of a run, or of a sweep (mri, umf: its cases side by side)")
     a.add_argument("--kind", choices=("boyce", "verma", "mri", "umf"), help="override the run's probes.analysis")
+
+
+def _add_bench(sub) -> None:
     b = sub.add_parser("bench", help="stress scenes, accuracy against cost, contact stiffness "
                                      "(fbed bench stress|accuracy|stiffness)",
                        description="fbed bench stress: hostile scenes that must finish clean or stop with a clear "
@@ -77,6 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="accuracy, stiffness: keep the rows already in --out's CSV (same --size and --arch) and "
                         "measure only the rest (a bench cut off by a time limit goes on where it stopped)")
     b.add_argument("--limit", type=float, default=600.0, help="wall-clock limit per scene [s] (a hang fails)")
+
+
+def _add_sweep(sub) -> None:
     w = sub.add_parser("sweep", help="run a preset over lists of values",
                        description="Run PRESET for every combination of the --set lists; write sweep.csv.")
     w.add_argument("preset", help="preset file (.toml)")
@@ -90,6 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--scheduler", metavar="ADDRESS",
                    help="submit each case to this Dask distributed scheduler (tcp://host:8786), or 'local' for a "
                         "LocalCluster of --jobs workers here; needs the cluster extra (pip install -e '.[cluster]')")
+
+
+def _add_rcfd(sub) -> None:
     rc = sub.add_parser("rcfd", help="recurrence CFD on a recorded run (fbed rcfd analyze|run|validate)",
                         description="fbed rcfd analyze RUN_DIR: recurrence plot, spectra and period of the frames a "
                                     "run recorded (probes.rcfd_from); fbed rcfd run RUN_DIR: a solids tracer moved "
@@ -119,10 +143,11 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="validate: override a preset key of the runs")
     rc.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto")
-    return p
 
 
 def main(argv: list[str] | None = None) -> int:
+    # each command imports its module when chosen: `fbed --version`, `fbed analyze` and `fbed rcfd` never load
+    # Taichi, and a bad argument is reported before any solver is imported
     args = build_parser().parse_args(argv)
     if args.command is None:
         build_parser().print_help()
@@ -169,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
                                   hint="scenes: " + ", ".join(sc.name for sc in SCENES))
             return stress(args.out, args.scenes, args.arch, args.limit)
         if args.command == "analyze":
-            from .run import analyze
+            from .postprocess import analyze
 
             return analyze(args.run_dir, args.kind)
         if args.command == "rcfd":

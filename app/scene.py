@@ -93,7 +93,7 @@ def grain_count(cfg: Config, walls: list, der: Derived) -> int:
         return p.count
     floor = cfg.domain.lo[2] if cfg.vessel.floor is None else cfg.vessel.floor
     d = np.asarray(der.diameters)
-    mean_volume = float(np.sum(np.asarray(der.number_fractions) * math.pi * d ** 3 / 6))
+    mean_volume = float(np.sum(np.asarray(der.number_fractions) * der.volume(d)))
     area = open_area(cfg, walls, floor + 0.5 * p.bed_height)
     return max(1, int(round(p.fill_solid_fraction * area * p.bed_height / mean_volume)))
 

@@ -76,7 +76,8 @@ def test_splitting_a_coupled_step_keeps_the_physics():
 
 def test_gas_speed_guard_names_the_fastest_cell():
     """A gas-speed stop says where: the 50 m/s jet enters through the 2x2 centre cells of the bottom."""
-    from app.sim.simulation import Guard, Unstable
+    from app.callbacks.guard import Guard
+    from app.sim.simulation import Unstable
 
     sim = Simulation(None, 1e-3, 0, 0.01, flow=jet_solver())
     sim.add(Guard(max_overlap=0.2, max_speed=100.0, max_gas_speed=20.0), interval=1e-3)
@@ -90,7 +91,7 @@ def test_gas_speed_guard_names_the_fastest_cell():
 
 def test_headless_log_lines_say_where_the_gas_is_fastest(capsys):
     """A long GPU run leaves only its log: each line names the fastest gas cell (the jet's column)."""
-    from app.run import Progress
+    from app.callbacks.progress import Progress
 
     sim = Simulation(None, 1e-3, 0, 0.003, flow=jet_solver())
     progress = Progress(sim, "jet", 5.0)  # made before the steps: a line needs a step measured since

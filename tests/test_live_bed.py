@@ -15,7 +15,7 @@ import pytest
 from scipy.optimize import brentq
 
 from app.config import load_text
-from app.run import BedMeasures
+from app.callbacks.bed import BedMeasures
 from app.scene import Scene, build_simulation
 from app.sim import drag
 

@@ -21,7 +21,7 @@ def test_version():
 
 
 def test_a_gpu_sized_scene_on_the_cpu_says_its_time_and_its_small_variant():
-    from app.run import cpu_estimate_note
+    from app.callbacks.progress import cpu_estimate_note
 
     # verma.toml: 965,000 grains, 106 DEM substeps per step, 6500 steps
     note = cpu_estimate_note(ROOT / "presets" / "verma.toml", 965_000, 106, 6500)
@@ -40,7 +40,7 @@ class FakeSim:
 
 
 def test_progress_lines_wait_for_the_compilation_and_the_eta_and_stay_short(monkeypatch, capsys):
-    from app import run as runmod
+    from app.callbacks import progress as runmod
 
     clock = [0.0]
     monkeypatch.setattr(runmod.wallclock, "perf_counter", lambda: clock[0])

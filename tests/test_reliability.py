@@ -257,7 +257,7 @@ def test_a_second_signal_waits_for_the_checkpoint(tmp_path):
 def test_wall_checkpoints_come_early_then_spread(monkeypatch):
     """The first wall checkpoint after 30 s (a run killed in its first minute can resume), then 60, 120 ...
     up to output.checkpoint_wall_interval."""
-    from app import run as runmod
+    from app.callbacks import writers as runmod
 
     clock = [0.0]
     monkeypatch.setattr(runmod.wallclock, "perf_counter", lambda: clock[0])

@@ -41,7 +41,8 @@ def test_accuracy_restitution_error_falls_with_the_step_and_is_small_at_the_defa
 def test_energy_check_measures_growth_from_the_floor_and_one_interval_back():
     """The guard's energy rule on its own (no run): growth from rest is measured from the floor (a bed starting
     to move is not a blow-up), the reference moves once per guard interval, and the factor is the limit."""
-    from app.sim.simulation import Guard, Unstable
+    from app.callbacks.guard import Guard
+    from app.sim.simulation import Unstable
 
     g = Guard(max_overlap=0.2, max_speed=100.0, max_energy_growth=100.0, energy_floor=1e-3, interval=1e-3)
     g._energy_check(0.0, 0.0)

@@ -121,8 +121,14 @@ class Derived:
     friction: bool                      # any tangential force (grain or wall)
     rolling: str                        # 'none' | 'constant_torque' | 'epsd'
 
+    @staticmethod
+    def volume(d):
+        """Volume [m^3] of grains of diameter d [m] (a number or an array)."""
+        return math.pi * np.asarray(d) ** 3 / 6.0
+
     def mass(self, d):
-        return self.density * math.pi * np.asarray(d) ** 3 / 6.0
+        """Mass [kg] of grains of diameter d [m] (a number or an array)."""
+        return self.density * self.volume(d)
 
 
 def size_distribution(cfg: Config) -> tuple[tuple[float, ...], tuple[float, ...]]:

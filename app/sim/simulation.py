@@ -1,7 +1,8 @@
 """The Simulation: owns the clock and the step loop; everything else attaches as a callback.
 
-Owns: simulated time, the step counter, the schedules on which callbacks fire, the stop
-request (from a signal handler), and the guard that stops an unstable run. One step is
+Owns: simulated time, the step counter, the schedules on which callbacks fire and the stop
+request (from a signal handler). The callbacks themselves (writers, the guard that stops an
+unstable run by raising ``Unstable``, progress, checkpoints) live in ``app.callbacks``. One step is
 ``run.step`` seconds: the gas step (when the scene has gas), then the DEM substeps it
 holds (when it has grains). A scene without one of them allocates nothing for it.
 
@@ -274,86 +275,3 @@ class Simulation:
             if h.finish:
                 h.finish(self, reason)
 
-
-class Guard:
-    """Stops a run that went wrong (NaN/inf, runaway overlap, speed or kinetic energy growth; a gas step going
-    unstable or a pressure solve that did not converge) before it writes garbage.
-
-    Its message names the setting to change: a DEM step above the stable limit (forced with
-    dem.force_dt) is the first suspect; otherwise contacts too soft for the impacts."""
-
-    def __init__(self, max_overlap: float, max_speed: float, dt: float = 0.0, dt_limit: float = float("inf"),
-                 max_gas_speed: float = float("inf"), max_divergence: float = float("inf"),
-                 max_energy_growth: float = float("inf"), energy_floor: float = 0.0, interval: float = 0.0):
-        # energy growth: the grains' kinetic energy against the one of the check an interval before, measured
-        # from at least energy_floor [J] (from rest any factor is physical: a bed starting to move)
-        self.max_energy_growth = max_energy_growth
-        self.energy_floor = energy_floor
-        self.interval = interval
-        self._energy_ref: tuple[float, float] | None = None   # (time [s], kinetic energy [J])
-        self.max_gas_speed = max_gas_speed
-        self.max_divergence = max_divergence
-        self.max_overlap = max_overlap
-        self.max_speed = max_speed
-        self.dt = dt
-        self.dt_limit = dt_limit
-        self.last_good_step = 0
-
-    def _gas_check(self, sim: Simulation, d: dict, t: float) -> None:
-        if "gas_non_finite" not in d:
-            return
-        if d["gas_non_finite"]:
-            raise Unstable(f"non-finite gas velocity or pressure at t = {t:.6g} s (gas CFL {d['gas_cfl']:.3g}): "
-                           "lower run.step (the fluid step), raise gas.max_iterations, or check [boundary]")
-        if d["divergence_residual"] > self.max_divergence:
-            raise Unstable(f"the gas's divergence residual is {d['divergence_residual']:.3g} at t = {t:.6g} s "
-                           f"(guard.max_divergence = {self.max_divergence:g}; {d['pressure_iterations']} pressure "
-                           "iterations): the pressure solve did not converge, so gas mass is not conserved: raise "
-                           "gas.max_iterations, or lower run.step")
-        if d["gas_max_speed"] > self.max_gas_speed:
-            raise Unstable(f"the gas moves at {d['gas_max_speed']:.3g} m/s at t = {t:.6g} s (guard.max_gas_speed = "
-                           f"{self.max_gas_speed:g} m/s; gas CFL {d['gas_cfl']:.3g}{sim.gas_fastest_cell()}): the gas step is going unstable: "
-                           "lower run.step (the fluid step) or raise coupling.smoothing_width; raise "
-                           "guard.max_gas_speed if such speeds are real")
-
-    def _advice(self) -> str:
-        if self.dt > self.dt_limit:
-            return (f"the DEM step {self.dt:.3g} s is above the stable limit {self.dt_limit:.3g} s (forced with "
-                    "dem.force_dt): lower dem.dt or set it to 0 (automatic)")
-        return ("contacts are too soft or the step too long for these impacts: raise dem.impact_speed (the step "
-                "is then set for faster impacts) or lower dem.dt_fraction; raising contact.youngs_modulus cuts "
-                "overlaps (at a smaller step)")
-
-    def __call__(self, sim: Simulation) -> None:
-        d = sim.diagnostics()
-        t = sim.time
-        self._gas_check(sim, d, t)
-        if "non_finite" not in d:  # no grains in this scene
-            self.last_good_step = sim.step_count
-            return
-        if d["non_finite"] or not math.isfinite(d["kinetic_energy"]):
-            raise Unstable(f"non-finite grain positions or velocities at t = {t:.6g} s: {self._advice()}")
-        if d["max_overlap"] > self.max_overlap:
-            raise Unstable(f"grains overlap by {100 * d['max_overlap']:.1f}% of a diameter at t = {t:.6g} s "
-                           f"(guard.max_overlap = {100 * self.max_overlap:g}%): {self._advice()}")
-        if d["max_speed"] > self.max_speed:
-            raise Unstable(f"a grain moves at {d['max_speed']:.3g} m/s at t = {t:.6g} s (guard.max_speed = "
-                           f"{self.max_speed:g} m/s; raise it if such speeds are real): {self._advice()}")
-        self._energy_check(d["kinetic_energy"], t)
-        self.last_good_step = sim.step_count
-
-    def _energy_check(self, energy: float, t: float) -> None:
-        """Stop when the kinetic energy grew more than max_energy_growth times since the reference check (one
-        to two guard intervals back; checks in between, from the writers, compare with the same reference)."""
-        if self._energy_ref is not None:
-            t_ref, e_ref = self._energy_ref
-            base = max(e_ref, self.energy_floor)
-            if energy > self.max_energy_growth * base:
-                raise Unstable(
-                    f"the grains' kinetic energy grew {energy / base:.3g}x in {t - t_ref:.3g} s (to {energy:.3g} J) "
-                    f"at t = {t:.6g} s (guard.max_energy_growth = {self.max_energy_growth:g}x per guard.interval): "
-                    f"{self._advice()}. Grains that start overlapping release their stored energy like this: settle "
-                    "the bed with the run's contacts. Raise guard.max_energy_growth if the growth is real")
-            if t - t_ref < self.interval * (1.0 - 1e-9):
-                return
-        self._energy_ref = (t, energy)

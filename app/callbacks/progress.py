@@ -1,0 +1,131 @@
+"""Progress: a bar on a terminal, short log lines otherwise; and the run's log itself (stderr)."""
+from __future__ import annotations
+
+import math
+import pathlib
+import re
+import sys
+import time as wallclock
+
+from rich.progress import BarColumn, Progress as RichProgress, TextColumn
+
+
+def log(msg: str) -> None:
+    """The run's log: one line on stderr (solvers never print; they are given this as ``notify``)."""
+    print(msg, file=sys.stderr, flush=True)
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def _fastest_cell(text: str) -> str:
+    """The short form of Simulation.gas_fastest_cell's description: cell, open volume and gas fraction."""
+    m = re.search(r"cell \(([^)]*)\).*open volume fraction ([\d.]+), gas fraction ([\d.]+)", text)
+    return f" in {m.group(1).replace(' ', '')} open {m.group(2)} eps {m.group(3)}" if m else ""
+
+
+class Progress:
+    """A rich progress bar on a terminal, a log line every few seconds otherwise (under 100 characters).
+
+    The first step compiles the kernels: its wall time is not counted in the rate, and the ETA is shown only
+    once ETA_AFTER seconds of stepping after it have been measured (before that it would be hours off)."""
+
+    ETA_AFTER = 10.0  # s of wall time after the first step
+
+    def __init__(self, sim, name: str, log_interval: float):
+        self.sim = sim
+        self.tty = sys.stderr.isatty()
+        self.bar = None
+        self.t0 = wallclock.perf_counter()
+        self.step0 = sim.step_count
+        self.first = None  # (wall clock, step) when the first step (the compilation) was done
+        self.interval = log_interval
+        if self.tty:
+            self.bar = RichProgress(TextColumn(f"[bold]{name}"), BarColumn(),
+                                    TextColumn("{task.fields[simt]}"), TextColumn("{task.fields[rate]}"),
+                                    TextColumn("{task.fields[eta]}"), transient=False)
+            self.task = self.bar.add_task(name, total=sim.total_steps, completed=sim.step_count, simt="",
+                                          rate="compiling kernels", eta="")
+            self.bar.start()
+
+    def text(self):
+        s = self.sim
+        now = wallclock.perf_counter()
+        if self.first is None and s.step_count > self.step0:
+            self.first = (now, s.step_count)
+            if not self.tty:
+                log(f"fbed: kernels ready after {now - self.t0:.0f} s")
+        if self.first is None:
+            return s, 0.0, None
+        dt = now - self.first[0]
+        rate = (s.step_count - self.first[1]) / dt if dt > 0 else 0.0
+        eta = (s.total_steps - s.step_count) / rate if rate > 0 and dt >= self.ETA_AFTER else None
+        return s, rate, eta
+
+    def __call__(self, sim):
+        s, rate, eta = self.text()
+        if self.bar:
+            self.bar.update(self.task, completed=s.step_count, simt=f"t = {s.time:.4g}/{s.duration:g} s",
+                            rate=f"{rate:.1f} steps/s" if self.first else "compiling kernels",
+                            eta=f"ETA {_duration(eta)}" if eta is not None else "")
+        elif self.first is not None:
+            # log lines are what a long headless (GPU) run leaves: with gas, where its fastest cell is, so a run
+            # that later blows up, or carries a wall channel, shows where its gas was racing (one device read
+            # per line, every output.log_interval of wall time)
+            gas = ""
+            if s.flow is not None:
+                gas = f"  gas {s.diagnostics()['gas_max_speed']:.3g} m/s{_fastest_cell(s.gas_fastest_cell())}"
+            eta_text = f"ETA {_duration(eta)}" if eta is not None else "ETA ..."
+            rate_text = f"{rate:.3g} st/s" if rate > 0 else "... st/s"
+            log(f"t {s.time:.4g}/{s.duration:g} s  step {s.step_count}/{s.total_steps}  {rate_text}  "
+                f"{eta_text}{gas}")
+
+    def finish(self, sim, reason):
+        if self.bar:
+            self(sim)
+            self.bar.stop()
+
+
+# GPU-sized scenes on the CPU: the time is estimated from a measured CPU rate (verma_small: 14,000 grains x 52
+# substeps x 1000 steps in 3.0 min on 2 CPU cores, gas included), so a run of hours says so before it starts
+CPU_PARTICLE_SUBSTEPS_PER_S = 4.0e6
+LONG_ON_CPU = 3600.0  # s
+
+
+def cpu_estimate_note(preset_path: pathlib.Path, n: int, substeps: int, steps: int) -> str | None:
+    est = n * substeps * steps / CPU_PARTICLE_SUBSTEPS_PER_S
+    if est < LONG_ON_CPU:
+        return None
+    small = preset_path.with_name(preset_path.stem + "_small.toml")
+    alt = f"; its small variant runs in minutes: fbed run {small}" if small.exists() else ""
+    return (f"fbed: note: this is a GPU-sized scene ({n:,} grains): on the CPU it takes roughly "
+            f"{_duration(est)} (estimated from verma_small's rate on 2 cores){alt}")
+
+
+def announce(sim, scene, name: str, arch: str, out_dir) -> None:
+    """The run's first log lines: what it holds, where it runs, where its outputs go."""
+    cfg, der, what = scene.cfg, scene.derived, []
+    if sim.dem is not None:
+        what.append(f"{scene.n} grains, DEM step {der.dt:.3g} s x {der.substeps} per {cfg.run.step:g} s step")
+    if sim.flow is not None:
+        what.append(f"gas on {'x'.join(map(str, scene.flow.shape))} cells of {cfg.gas.cell_size:g} m, "
+                    f"fluid step {cfg.run.step:g} s")
+    log(f"fbed: {name}: {'; '.join(what)}; {arch}, {cfg.run.precision}; output in {out_dir}")
+    if sim.step_count < sim.total_steps:
+        log("fbed: compiling kernels (up to a few minutes the first time; Taichi's offline cache in "
+            "~/.cache/taichi makes later starts of the same scene faster)")
+
+
+def cpu_note(scene, preset_path: pathlib.Path, start_step: int) -> None:
+    """On the CPU: log how long a GPU-sized scene will take there (see cpu_estimate_note)."""
+    if scene.derived is None:
+        return
+    steps_left = int(math.ceil(scene.cfg.run.duration / scene.cfg.run.step - 1e-9)) - start_step
+    note = cpu_estimate_note(preset_path, scene.n, scene.derived.substeps, max(0, steps_left))
+    if note:
+        log(note)

@@ -1,0 +1,79 @@
+"""The output folder of `fbed run`: which files are a run's (RUN_OUTPUTS), choosing and protecting the
+folder (never mixing two runs' files), and the stop on a full disk (the last good checkpoint kept)."""
+from __future__ import annotations
+
+import pathlib
+import shutil
+
+import h5py
+
+from .callbacks.progress import log
+from .config import ConfigError
+from .io import store
+
+EXIT_DISK_FULL = 3
+
+
+# every file and folder `fbed run` writes into its output folder (the video under its configured name too):
+# a folder holding any of them holds a run; --overwrite removes exactly these before the new run writes
+RUN_OUTPUTS = ("run.h5", "run.xdmf", "particles.xdmf", "checkpoint.h5", "checkpoint.xdmf", "bed.h5", "bed.xdmf",
+               "config.toml", "summary.json", "summary_units.json", "video.mp4", "analysis")
+RUN_OUTPUT_PATTERNS = ("*.tmp", "screenshot-*.png")
+
+
+def run_outputs(d: pathlib.Path, video_file: str = "") -> list[pathlib.Path]:
+    """The fbed outputs present in folder ``d``."""
+    names = set(RUN_OUTPUTS) | ({video_file} if video_file else set())
+    found = [d / n for n in sorted(names) if (d / n).exists()]
+    for pat in RUN_OUTPUT_PATTERNS:
+        found += sorted(p for p in d.glob(pat) if p not in found)
+    return found
+
+
+def pick_out_dir(preset: pathlib.Path, out: str | None, overwrite: bool, video_file: str = "") -> pathlib.Path:
+    if out:
+        d = pathlib.Path(out)
+        if d.exists() and not d.is_dir():
+            raise ConfigError("is a file, not a folder", str(d), "--out", hint="name a folder (new or holding a run)")
+        if d.exists():
+            held = run_outputs(d, video_file)
+            if held and not overwrite:
+                raise ConfigError(f"already holds a run ({', '.join(p.name for p in held[:4])}"
+                                  f"{', ...' if len(held) > 4 else ''})", str(d), "--out",
+                                  hint="pass --overwrite to replace it, --resume to continue it, or another --out")
+        return d
+    base = pathlib.Path("runs") / preset.stem
+    d, k = base, 1
+    while d.exists() and any(d.iterdir()):
+        k += 1
+        d = base.with_name(f"{base.name}-{k}")
+    return d
+
+
+def remove_outputs(d: pathlib.Path, video_file: str = "") -> None:
+    """--overwrite: the old run's files go before the new run writes, so none of them is left beside it."""
+    for p in run_outputs(d, video_file):
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        else:
+            p.unlink()
+
+
+def stop_disk_full(out_dir: pathlib.Path, summary: dict, err) -> int:
+    """The run stopped on a full disk: say what it needed, keep what was written, and how to go on."""
+    ckpt = out_dir / "checkpoint.h5"
+    try:
+        store.write_json(out_dir / "summary.json", summary)
+    except store.DiskFull:
+        log("fbed: summary.json not written either (no space)")
+    for tmp in out_dir.glob("*.tmp"):
+        tmp.unlink(missing_ok=True)
+    log(f"fbed: stopped: {err}")
+    if ckpt.exists():
+        with h5py.File(ckpt, "r") as f:
+            t = float(f.attrs["time"])
+        log(f"fbed: the last good checkpoint (t = {t:.6g} s) is kept; free some space, then resume with: "
+            f"fbed run --resume {out_dir}")
+    else:
+        log(f"fbed: no checkpoint was written yet; free some space (or give another --out) and run again")
+    return EXIT_DISK_FULL

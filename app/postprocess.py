@@ -1,0 +1,73 @@
+"""`fbed analyze`: a finished run's analysis (probes.analysis) and a sweep's cases side by side; the
+analysis a run does at its end. The analyses themselves live in app/analysis/."""
+from __future__ import annotations
+
+import csv
+import importlib
+import json
+import pathlib
+
+from . import config as cfgmod
+from .callbacks.progress import log
+from .config import ConfigError
+from .io import store
+
+EXIT_OK, EXIT_INPUT = 0, 2
+
+
+def post_process(analysis: str, out_dir: pathlib.Path) -> dict:
+    """Run the preset's analysis on the finished run's files; its key figures go into summary.json."""
+    try:
+        mod = importlib.import_module(f".analysis.{analysis}", "app")
+        figures = mod.summarize(out_dir)
+        log(f"fbed: {analysis} analysis written to {out_dir / 'analysis'}")
+        return figures
+    except Exception as err:  # noqa: BLE001 - an analysis failure must not lose the run's outputs
+        log(f"fbed: the {analysis} analysis failed ({type(err).__name__}: {err}); rerun it with "
+            f"`fbed analyze {out_dir}`")
+        return {"analysis_error": f"{type(err).__name__}: {err}"}
+
+
+def analyze(run_dir: str, kind: str | None = None) -> int:
+    """`fbed analyze RUN_DIR`: the run's analysis (probes.analysis, or ``kind``) into RUN_DIR/analysis."""
+    d = pathlib.Path(run_dir)
+    if (d / "sweep.csv").exists() and not (d / "run.h5").exists():
+        return analyze_sweep(d, kind)
+    if not (d / "run.h5").exists() or not (d / "config.toml").exists():
+        raise ConfigError("not a run folder (no run.h5 / config.toml)", str(d), "RUN_DIR",
+                          hint="give the output folder of an fbed run")
+    cfg = cfgmod.load(d / "config.toml")
+    kind = kind or cfg.probes.analysis
+    if kind == "none":
+        raise ConfigError("the run names no analysis", str(d / "config.toml"), "probes.analysis",
+                          hint="pass --kind boyce or --kind verma")
+    figures = post_process(kind, d)
+    summary_path = d / "summary.json"
+    summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
+    summary.update(figures)
+    store.write_json(summary_path, summary)
+    for k, v in figures.items():
+        print(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}")
+    return EXIT_OK if "analysis_error" not in figures else EXIT_INPUT
+
+
+def analyze_sweep(d: pathlib.Path, kind: str | None = None) -> int:
+    """`fbed analyze SWEEP_DIR`: each case's analysis where it is missing, then the cases side by side
+    (SWEEP_DIR/mri_compare.{csv,md,png} or umf_compare.{md,png})."""
+    with open(d / "sweep.csv", newline="") as f:
+        cases = [r["case"] for r in csv.DictReader(f)]
+    kinds = set()
+    for c in cases:
+        cd = d / c
+        if (cd / "config.toml").exists():
+            kinds.add(kind or cfgmod.load(cd / "config.toml").probes.analysis)
+    if len(kinds) != 1 or next(iter(kinds)) not in ("mri", "umf"):
+        raise ConfigError(f"side-by-side comparison is written for the mri and umf analyses, not {sorted(kinds)}",
+                          str(d), "probes.analysis", hint="analyze each case folder on its own: fbed analyze DIR/case-000")
+    which = next(iter(kinds))
+    for c in cases:
+        cd = d / c
+        if (cd / "run.h5").exists() and not (cd / "analysis" / f"{which}.json").exists():
+            analyze(str(cd), which)
+    print(importlib.import_module(f".analysis.{which}", "app").compare(d).read_text())
+    return EXIT_OK

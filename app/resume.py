@@ -1,0 +1,169 @@
+"""Going on from an earlier state: `fbed run --resume` (its checks: the same scene, readable files; the gas and
+coupler restored) and run.start_from (the preparation preset run once and cached, its state the start)."""
+from __future__ import annotations
+
+import dataclasses
+import fcntl
+import hashlib
+import json
+import pathlib
+
+import h5py
+
+from . import config as cfgmod
+from .callbacks.progress import log
+from .config import ConfigError
+
+
+def prepared_state(cfg, preset_path: pathlib.Path, arch: str, runner, chain: tuple = ()) -> pathlib.Path:
+    """The checkpoint of ``run.start_from``'s preparation preset: reused from the cache
+    (runs/prepared/<name>-<hash of its resolved config>/) when it holds a finished run,
+    else run there now. The hash covers the preparation's own chain, so editing any stage
+    reruns it and everything after it. ``runner``: ``app.run.run`` (given, so this module needs no import of the
+    runner that imports it)."""
+    prep = cfgmod.resolve_path(cfg, cfg.run.start_from)
+    if not prep.exists():
+        raise ConfigError("preparation preset not found", str(prep), "run.start_from",
+                          hint=f"a path relative to {preset_path.name}'s folder")
+    if prep.resolve() in chain:
+        raise ConfigError("run.start_from chain loops back on itself", str(prep), "run.start_from")
+    prep_cfg = cfgmod.load(prep, [])
+    text = cfgmod.dump(prep_cfg)
+    if prep_cfg.run.start_from:  # its own preparation's identity is part of its identity
+        text += str(prepared_state(prep_cfg, prep, arch, runner, chain + (prep.resolve(),)))
+    key = hashlib.sha1(text.encode()).hexdigest()[:10]
+    cache = pathlib.Path("runs") / "prepared" / f"{prep.stem}-{key}"
+    # one process prepares at a time (sweep cases start together): the others wait for it, then reuse its result
+    locks = cache.parent / ".locks"
+    locks.mkdir(parents=True, exist_ok=True)
+    with open(locks / (cache.name + ".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        return _prepare(prep, cache, arch, runner)
+
+
+def _prepare(prep: pathlib.Path, cache: pathlib.Path, arch: str, runner) -> pathlib.Path:
+    summary = cache / "summary.json"
+    status = None  # of the cached preparation: None when there is none to go on from
+    if (cache / "checkpoint.h5").exists() and (cache / "config.toml").exists():
+        try:  # no summary: the preparation was killed after a checkpoint
+            status = json.loads(summary.read_text()).get("status") if summary.exists() else "killed"
+        except ValueError:
+            status = "killed"
+    if status == "finished":
+        log(f"fbed: starting from the prepared state in {cache} ({prep.name}, reused)")
+        return cache / "checkpoint.h5"
+    if status in ("interrupted", "killed"):  # a stopped preparation goes on from its checkpoint
+        log(f"fbed: resuming the preparation {prep.name} in {cache} (it was {status})")
+        rc = runner(None, [], arch=arch, resume=str(cache))
+    else:
+        log(f"fbed: preparing {prep.name} first (cached in {cache} for later runs)")
+        rc = runner(str(prep), [], out=str(cache), arch=arch, overwrite=True)
+    if rc != 0:
+        raise ConfigError(f"the preparation run did not finish (exit {rc}); see {cache}", str(prep), "run.start_from")
+    return cache / "checkpoint.h5"
+
+
+def restore_gas(flow, coupler, gas_arrays: dict) -> None:
+    """Load a checkpoint's gas group: the gas solver's arrays and, under the coupling_ prefix, the coupler's."""
+    flow.load_state_arrays(gas_arrays)
+    if coupler is not None:
+        coupler.load_state_arrays({k[len("coupling_"):]: v for k, v in gas_arrays.items()
+                                   if k.startswith("coupling_")})
+
+
+def restore(sim, scene, arrays, gas_arrays, meta, prepared: bool, resume_dir) -> None:
+    """A prepared or resumed run's gas, coupler and clock (its grains came with the Scene: ``arrays``, the
+    checkpoint's, must be there when the scene has grains). ``resume_dir``: the run folder resumed, or None."""
+    cfg, ckpt = scene.cfg, (resume_dir / "checkpoint.h5" if resume_dir else None)
+    if resume_dir and scene.model is not None and arrays is None:
+        raise ConfigError("the checkpoint does not hold this preset's grains", str(ckpt), "--resume",
+                          hint="resume with the run's own config.toml")
+    if prepared:
+        load_prepared(cfg, sim, sim.flow, sim.coupler, gas_arrays, meta)
+        sim.fresh = True
+    if not resume_dir:
+        return
+    if sim.flow is not None:
+        if gas_arrays is None:
+            raise ConfigError("the checkpoint holds no gas state", str(ckpt), "--resume",
+                              hint="resume with the run's own config.toml")
+        restore_gas(sim.flow, sim.coupler, gas_arrays)
+    sim.step_count = int(meta["step"])
+    sim.fresh = False  # its start was recorded by the run it continues (even one stopped at step 0)
+    if sim.step_count >= sim.total_steps:
+        log(f"{resume_dir}: already at t = {sim.time:g} s >= run.duration; extend it with --set run.duration=...")
+
+
+def load_prepared(cfg, sim, flow, coupler, gas_arrays, meta) -> None:
+    """Start from a prepared state: its gas (when it has one) and its clock (its grains, with their full contact
+    state when the models match, were placed by build_simulation from the Scene's initial grains)."""
+    t = float(meta["time"])
+    steps = t / cfg.run.step
+    if abs(steps - round(steps)) > 1e-6:
+        raise ConfigError(f"the prepared state's time {t:g} s is not a whole number of steps of {cfg.run.step:g} s",
+                          cfg.source or "", "run.step", hint="use the preparation preset's run.step")
+    if flow is not None and gas_arrays is not None:
+        restore_gas(flow, coupler, gas_arrays)
+    sim.step_count = int(round(steps))
+    if sim.step_count >= sim.total_steps:
+        raise ConfigError(f"the prepared state is at t = {t:g} s, past run.duration = {cfg.run.duration:g} s",
+                          cfg.source or "", "run.duration", hint="run.duration is the end time: raise it")
+
+
+# what a resumed run may change: its end, its outputs, its checks and its machine; everything else (the vessel,
+# the grains, the contact model, the gas grid, the step) must be the run's own, or the checkpoint means nothing
+RESUME_FREE = {"run": {"duration", "name", "threads", "precision", "start_from"}, "output": None, "video": None,
+               "guard": None, "probes": None, "boundary": None}
+
+
+def _flat(cfg) -> dict:
+    out = {}
+    for name, section in cfgmod.loader.sections_of(cfg).items():
+        free = RESUME_FREE.get(name, set())
+        if free is None:
+            continue
+        out[f"[{name}]"] = "absent" if section is None else "present"
+        if section is None:
+            continue
+        for f in dataclasses.fields(section):
+            if f.name in free:
+                continue
+            v = getattr(section, f.name)
+            if f.name in ("initial_state", "sdf_file") and v:
+                v = str(cfgmod.resolve_path(cfg, v).resolve())
+            out[f"{name}.{f.name}"] = v
+    return out
+
+
+def check_same_scene(cfg, run_cfg, preset_path: pathlib.Path, out_dir: pathlib.Path) -> None:
+    """Refuse to resume a run with a preset (or --set) whose scene differs from the run's config.toml."""
+    a, b = _flat(cfg), _flat(run_cfg)
+    diff = [k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+    whole = {k[1:-1] for k in diff if k.startswith("[")}  # a section one side lacks: named once, not key by key
+    diff = [k for k in diff if k.startswith("[") or k.split(".")[0] not in whole]
+    if diff:
+        names = ", ".join(diff[:12]) + (f" and {len(diff) - 12} more" if len(diff) > 12 else "")
+        values = "; ".join(f"{k}: {a.get(k, 'absent')!s:.30} here, {b.get(k, 'absent')!s:.30} in the run"
+                           for k in diff[:3])
+        raise ConfigError(f"this preset's scene differs from the run's in {names} ({values})", str(preset_path),
+                          "--resume", hint=f"resume with the run's own settings (fbed run --resume {out_dir}); a "
+                          "resume may change only run.duration, [output], [video], [guard], [probes] and [boundary]")
+
+
+def check_readable(out_dir: pathlib.Path) -> None:
+    """Refuse a run folder whose checkpoint.h5 or run.h5 cannot be read (a damaged file loses nothing more)."""
+    for name, must in (("checkpoint.h5", ("step", "time")), ("run.h5", ())):
+        path = out_dir / name
+        if not path.exists():
+            continue
+        try:
+            with h5py.File(path, "r") as f:
+                missing = [k for k in must if k not in f.attrs]
+                if name == "run.h5" and "series" in f:
+                    f["series"]["time"][...] if "time" in f["series"] else None
+        except Exception as err:  # noqa: BLE001 - h5py raises OSError, KeyError or RuntimeError on damage
+            raise ConfigError(f"{name} is damaged and cannot be read ({str(err).splitlines()[0][:80]})", str(path),
+                              "--resume", hint="move it aside and resume (run.h5: its series restart; "
+                              "checkpoint.h5: nothing to resume), or start again with --overwrite") from None
+        if missing:
+            raise ConfigError(f"{name} lacks {', '.join(missing)}: not an fbed checkpoint", str(path), "--resume")
