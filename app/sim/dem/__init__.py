@@ -3,7 +3,8 @@
 - ``contact.py``   the contact law (normal, tangential, rolling), written once for pairs and walls
 - ``neighbors.py`` the Verlet half list: the device-side rebuild decision, cell list and build; the
                    sort of the grains by cell
-- ``step.py``      the substep (one kernel launch) and ``DemSolver``
+- ``step.py``      the substep (one kernel launch) and the diagnostics kernel
+- ``solver.py``    ``DemSolver``: the bundles, grains in and out by id, advance and checks
 - ``grains.py``    per-grain constants (radius, mass) and the partner scatter
 
 Public API: ``DemSolver``, ``NeighborOverflow``, ``bytes_per_grain``; ``grain_radius``,
@@ -12,6 +13,6 @@ rendering): grains sit in memory in cell order, re-sorted now and then, so a ker
 anything on a grain across steps uses ``grain_id``."""
 from ..fields import bytes_per_grain
 from .grains import grain_id, grain_mass, grain_radius
-from .step import DemSolver, NeighborOverflow
+from .solver import DemSolver, NeighborOverflow
 
 __all__ = ["DemSolver", "NeighborOverflow", "bytes_per_grain", "grain_id", "grain_mass", "grain_radius"]
