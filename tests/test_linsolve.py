@@ -5,7 +5,7 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from app.sim.linsolve import MGPCG, plan_levels
+from app.sim.gas.linsolve import MGPCG, plan_levels
 
 pytestmark = pytest.mark.verification
 
