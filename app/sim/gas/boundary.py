@@ -8,15 +8,9 @@ a cell outside the last cell centre.
 """
 import taichi as ti
 
-from .config import EPS_MIN, INLET, MOVING, OUTLET, WALL
-from .layout import (P_H, P_POUT, Cells, Grid, Inputs, State, cidx, face_cells, fdecode, fidx, is_boundary, solved,
+from .config import INLET, MOVING, OUTLET, WALL
+from .layout import (P_H, P_POUT, Grid, Inputs, State, eps_at, face_cells, fdecode, fidx, is_boundary, solved,
                      tangential, wrap)
-
-
-@ti.func
-def eps_at(g: ti.template(), inp: ti.template(), c):
-    """The gas fraction of cell c as the solver reads it: clamped to [EPS_MIN, 1] (it divides by eps)."""
-    return inp.eps_c[c]
 
 
 @ti.func
@@ -42,7 +36,7 @@ def bc_value(g: ti.template(), inp: ti.template(), b, side, a, J):
         for q in ti.static(range(3)):
             C[q] = ti.min(ti.max(C[q], 0), n[q] - 1)
         C[b] = 0 if side == 0 else n[b] - 1
-        v /= eps_at(g, inp, cidx(g, C))
+        v /= eps_at(inp, C)
     return v
 
 
@@ -110,11 +104,11 @@ def face_grad(g: ti.template(), cl: ti.template(), a, I):
     if ok:
         L, R, hL, hR = face_cells(g, a, I)
         if hL and hR:
-            gr = (cl.pres[cidx(g, R)] - cl.pres[cidx(g, L)]) / h
+            gr = (cl.pres[R] - cl.pres[L]) / h
         elif hR:
-            gr = (cl.pres[cidx(g, R)] - g.par[P_POUT + 2 * a]) / (0.5 * h)
+            gr = (cl.pres[R] - g.par[P_POUT + 2 * a]) / (0.5 * h)
         else:
-            gr = (g.par[P_POUT + 2 * a + 1] - cl.pres[cidx(g, L)]) / (0.5 * h)
+            gr = (g.par[P_POUT + 2 * a + 1] - cl.pres[L]) / (0.5 * h)
     return gr, ok
 
 
@@ -134,7 +128,7 @@ def k_bc_prep(g: Grid, inp: Inputs, st: State):
                 t1, t2 = tangential(a)
                 C = I
                 C[a] = 0 if side == 0 else n[a] - 1
-                v = g.bcv[g.bcv_off[2 * a + side] + (a * n[t1] + I[t1]) * n[t2] + I[t2]] / eps_at(g, inp, cidx(g, C))
+                v = g.bcv[g.bcv_off[2 * a + side] + (a * n[t1] + I[t1]) * n[t2] + I[t2]] / eps_at(inp, C)
             elif kind != OUTLET:
                 v = 0.0
         st.vel_adv[f] = v

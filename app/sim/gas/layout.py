@@ -3,8 +3,8 @@
 Every kernel of the gas takes named bundles, so its signature says what it reads and writes, and
 compiles once per process for any grid (an argpack of ndarrays is specialised on the arrays' types,
 not their sizes). Face arrays hold the u, v and w faces back to back (``face_off``), each in C order of
-its face shape; cell arrays hold the cells in C order, c = (i*ny + j)*nz + k, vector quantities
-component-major (component a at ``a*ncells + c``).
+its face shape; the linear solver's cell vectors hold the cells in C order, c = (i*ny + j)*nz + k,
+and the cell arrays shared with the coupling are (nx, ny, nz) arrays (vec3 for vectors).
 
 Taichi 1.7.4 flattens an argpack's members into kernel arguments by name: member names differ across
 every bundle a kernel takes (and from the local variables of the kernels), and one kernel never takes
@@ -12,9 +12,10 @@ two bundles of the same type.
 """
 import taichi as ti
 
-from .config import INLET, OUTLET  # noqa: F401  (re-exported for the kernels' modules)
+from .config import EPS_MIN
 
 ND1 = ti.types.ndarray(ndim=1)
+ND3 = ti.types.ndarray(ndim=3)
 VEC3I = ti.types.vector(3, ti.i32)
 VEC6I = ti.types.vector(6, ti.i32)
 
@@ -23,14 +24,19 @@ VEC6I = ti.types.vector(6, ti.i32)
 #: [comp][t1][t2], offsets bcv_off; moving-wall and inlet velocities, superficial); face_off: offsets of
 #: the u, v, w faces; scheme: convection (config.CONVECTION); form: 1 "shared" pressure, 0 "gas";
 #: has_walls: vessel walls (cut cells) present; nfaces, ncells; aperture and clear(ance) [m] per face;
-#: open_vol: open volume fraction per cell; par: the float parameters (P_*)
+#: open_vol: open volume fraction per cell (the ``GasFields.vol_frac`` array); par: the float parameters (P_*)
 Grid = ti.types.argpack(dims=VEC3I, wrap=VEC3I, bc_kind=VEC6I, bcv_off=VEC6I, face_off=VEC3I, scheme=ti.i32,
                         form=ti.i32, has_walls=ti.i32, nfaces=ti.i32, ncells=ti.i32, aperture=ND1, clear=ND1,
-                        open_vol=ND1, par=ND1, bcv=ND1)
-#: the coupling's inputs as the solver reads them (cells): eps_c gas fraction (clamped to [EPS_MIN, 1]),
-#: deps_c its rate [1/s], beta_c drag coefficient [kg m^-3 s^-1], us_c solid velocity [m/s] and fx_c
-#: explicit source [N/m^3] (vectors, component-major)
-Inputs = ti.types.argpack(eps_c=ND1, deps_c=ND1, beta_c=ND1, us_c=ND1, fx_c=ND1)
+                        open_vol=ND3, par=ND1, bcv=ND1)
+#: the gas's inputs, written by the coupling (cells, (nx, ny, nz)): gas_eps the gas fraction (read
+#: clamped to [EPS_MIN, 1]), gas_deps_dt its rate [1/s], drag_beta the drag coefficient [kg m^-3 s^-1],
+#: solid_vel the solid velocity [m/s] and ext_force the explicit source [N/m^3] (vec3 arrays)
+Inputs = ti.types.argpack(gas_eps=ND3, gas_deps_dt=ND3, drag_beta=ND3, solid_vel=ND3, ext_force=ND3)
+#: the gas's outputs as the coupling reads them (cells): gas_p pressure [Pa], gas_u interstitial
+#: velocity [m/s] and gas_gradp pressure gradient [Pa/m] at cell centres (the arrays of :data:`Cells`)
+Outputs = ti.types.argpack(gas_p=ND3, gas_u=ND3, gas_gradp=ND3)
+#: the cut-cell geometry as the coupling reads it: open_frac (the open volume fraction), active_cell (i32)
+CellGeometry = ti.types.argpack(open_frac=ND3, active_cell=ND3)
 #: face state of a step: vel (the velocity), vel_old (at the step's start), vel_adv (advected), vel_tmp,
 #: vel_lo, vel_hi (scratch of the advection; the clamps of MacCormack), accel (last step's weighted
 #: acceleration), dpred (last predictor increment), eps_f, beta_f (face gas fraction and drag
@@ -38,10 +44,10 @@ Inputs = ti.types.argpack(eps_c=ND1, deps_c=ND1, beta_c=ND1, us_c=ND1, fx_c=ND1)
 #: scalars (SC_*), read by the host once per step in the record
 State = ti.types.argpack(vel=ND1, vel_old=ND1, vel_adv=ND1, vel_tmp=ND1, vel_lo=ND1, vel_hi=ND1, accel=ND1,
                          dpred=ND1, eps_f=ND1, beta_f=ND1, vel_save=ND1, gsc=ND1)
-#: cell outputs: pres the pressure [Pa] (the state of the incremental projection), u_cell the cell-centred
-#: velocity [m/s] and gradp_cell the pressure gradient [Pa/m] (component-major), div_cell the continuity
-#: residual [1/s]
-Cells = ti.types.argpack(pres=ND1, u_cell=ND1, gradp_cell=ND1, div_cell=ND1)
+#: cell outputs as the solver writes them (the arrays of :data:`Outputs`, (nx, ny, nz)): pres the pressure
+#: [Pa] (the state of the incremental projection), u_cell the cell-centred velocity [m/s] and gradp_cell
+#: the pressure gradient [Pa/m] (vec3), div_cell the continuity residual [1/s]
+Cells = ti.types.argpack(pres=ND3, u_cell=ND3, gradp_cell=ND3, div_cell=ND3)
 
 # float parameters (par[...])
 P_RHO, P_MU, P_H, P_G, P_POUT, P_THMIN, P_TRACE = 0, 1, 2, 3, 6, 12, 13
@@ -113,16 +119,51 @@ def face_cells(g: ti.template(), a, I):
 
 
 @ti.func
-def face_avg(g: ti.template(), arr: ti.template(), base, a, I):
-    """Mean over the two cells of face (a, I) of the cell array arr[base + cell]."""
+def face_mean(g: ti.template(), arr: ti.template(), a, I):
+    """Mean over the two cells of face (a, I) of the scalar cell array arr."""
     L, R, hL, hR = face_cells(g, a, I)
     v = 0.0
     if hL and hR:
-        v = 0.5 * (arr[base + cidx(g, L)] + arr[base + cidx(g, R)])
+        v = 0.5 * (arr[L] + arr[R])
     elif hL:
-        v = arr[base + cidx(g, L)]
+        v = arr[L]
     elif hR:
-        v = arr[base + cidx(g, R)]
+        v = arr[R]
+    return v
+
+
+@ti.func
+def face_mean_comp(g: ti.template(), arr: ti.template(), q: ti.template(), a, I):
+    """Mean over the two cells of face (a, I) of component q of the vec3 cell array arr."""
+    L, R, hL, hR = face_cells(g, a, I)
+    v = 0.0
+    if hL and hR:
+        v = 0.5 * (arr[L][q] + arr[R][q])
+    elif hL:
+        v = arr[L][q]
+    elif hR:
+        v = arr[R][q]
+    return v
+
+
+@ti.func
+def eps_at(inp: ti.template(), C):
+    """The gas fraction of cell C as the solver reads it: clamped to [EPS_MIN, 1] (it divides by eps;
+    guards kernels writing eps <= 0)."""
+    return ti.min(ti.max(inp.gas_eps[C], EPS_MIN), 1.0)
+
+
+@ti.func
+def face_eps(g: ti.template(), inp: ti.template(), a, I):
+    """Face gas fraction: the mean of the (clamped) fractions of the two cells of face (a, I)."""
+    L, R, hL, hR = face_cells(g, a, I)
+    v = 0.0
+    if hL and hR:
+        v = 0.5 * (eps_at(inp, L) + eps_at(inp, R))
+    elif hL:
+        v = eps_at(inp, L)
+    elif hR:
+        v = eps_at(inp, R)
     return v
 
 

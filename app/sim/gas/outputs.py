@@ -7,7 +7,7 @@ off the hot loop) and restores state; the checkpoint arrays keep the names they 
 import numpy as np
 
 from .config import ALIASES, FACES, INLET, MOVING
-from .fields import _k_end_layer_pressures, _k_gas_extremes
+from .fields import _k_end_layer_pressures, _k_gas_extremes, _load
 from .projection import k_outputs
 
 
@@ -70,8 +70,7 @@ class SolverOutputs:
         """Per-cell continuity residual theta*deps/dt + div(eps u) [1/s] of the current velocity,
         with the eps and d(eps)/dt the last step used (those at construction before any step)."""
         self._div = tuple(float(x) for x in k_outputs(self.g, self.inp, self.st, self.cl))
-        self._push()
-        return self._get(self._cl["div_cell"], self._nc).reshape(self.shape)
+        return self._div_cell.to_numpy().astype(np.float64)
 
     def divergence_residual(self) -> float:
         """max|continuity residual| / S of the current velocity, S = the larger gross face-flux
@@ -106,7 +105,7 @@ class SolverOutputs:
         ``pressure_initialised`` as 0-d arrays."""
         fl = self.fields
         out = {"u": self.face_velocity(0), "v": self.face_velocity(1), "w": self.face_velocity(2),
-               "pressure": self._get(self._cl["pres"], self._nc).reshape(self.shape),
+               "pressure": fl.p.to_numpy().astype(np.float64),
                "eps": fl.eps.to_numpy(), "deps_dt": fl.deps_dt.to_numpy(), "beta": fl.beta.to_numpy(),
                "solid_velocity": fl.us.to_numpy(), "explicit_source": fl.f_exp.to_numpy(),
                "acceleration": self._get(self._st["accel"], self._nf),
@@ -137,7 +136,7 @@ class SolverOutputs:
         self.set_solid_velocity(get("solid_velocity", sh3))
         self.set_explicit_source(get("explicit_source", sh3))
         self.set_face_velocity(*(get(n, self._fshapes[a]) for a, n in enumerate("uvw")))
-        self._put(self._cl["pres"], get("pressure", sh).ravel())
+        _load(self.fields.p, get("pressure", sh))
         self._put(self._st["accel"], get("acceleration", (self._nf,)))
         self._put(self._st["dpred"], get("predictor_increment", (self._nf,)))
         for fi, face in enumerate(FACES):
@@ -148,6 +147,6 @@ class SolverOutputs:
         self.time = float(get("time", ()))
         self.steps = int(get("steps", ()))
         self._p_init_pending = not bool(get("pressure_initialised", ()))
-        # refresh the cell outputs (u_gas, grad_p, p) from the restored state
-        self._pull()
+        # refresh the face coefficients and the cell outputs (u_gas, grad_p) from the restored state
+        self._face_coefficients()
         self.divergence()

@@ -11,9 +11,9 @@ term sit on the diagonal. Cut-cell walls enter as ghost values u_G = -u_P (1 - t
 """
 import taichi as ti
 
-from .boundary import eps_at, face_grad, ghost_coef
+from .boundary import face_grad, ghost_coef
 from .layout import (P_G, P_H, P_MU, P_RHO, P_THMIN, SC_DV, SC_NSW, SC_UOLD, SC_VACT, SC_VTHR, Cells, Grid, Inputs,
-                     State, cidx, face_avg, face_cells, fdecode, fidx, solved, wrap)
+                     State, eps_at, face_cells, face_eps, face_mean_comp, fdecode, fidx, solved, wrap)
 
 VISCOUS_CHUNK = 2  # red-black sweeps per launch of the viscous predictor (each stops itself on the device;
 # each is a copy of the sweep in the compiled kernel: 4 cost 50% more compile time in all than 2)
@@ -29,14 +29,12 @@ def face_beta(g: ti.template(), inp: ti.template(), a, I):
     r = 0.0
     cnt = 0.0
     if hL:
-        c = cidx(g, L)
-        r += inp.beta_c[c] / eps_at(g, inp, c) ** m1
+        r += inp.drag_beta[L] / eps_at(inp, L) ** m1
         cnt += 1.0
     if hR:
-        c = cidx(g, R)
-        r += inp.beta_c[c] / eps_at(g, inp, c) ** m1
+        r += inp.drag_beta[R] / eps_at(inp, R) ** m1
         cnt += 1.0
-    e = face_avg(g, inp.eps_c, 0, a, I)
+    e = face_eps(g, inp, a, I)
     return e ** m1 * r / ti.max(cnt, 1.0)
 
 
@@ -45,7 +43,7 @@ def k_face_coef(g: Grid, inp: Inputs, st: State):
     """Face gas fraction (mean of the two cells) and face drag coefficient, once per step."""
     for f in range(g.nfaces):
         a, I = fdecode(g, f)
-        st.eps_f[f] = face_avg(g, inp.eps_c, 0, a, I)
+        st.eps_f[f] = face_eps(g, inp, a, I)
         st.beta_f[f] = face_beta(g, inp, a, I)
 
 
@@ -59,7 +57,6 @@ def _visc_colour(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti
     mu = g.par[P_MU]
     h = g.par[P_H]
     thmin = g.par[P_THMIN]
-    nc = g.ncells
     for f in range(nf):
         a, I = fdecode(g, f)
         if (I[0] + I[1] + I[2]) % 2 == colour and solved(g, f, a, I):
@@ -67,7 +64,7 @@ def _visc_colour(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti
             bP = st.beta_f[f]
             D = rho * eP / dt + bP
             R = rho * eP / dt * st.vel_adv[f] + rho * eP * g.par[P_G + a] \
-                + face_avg(g, inp.fx_c, a * nc, a, I) + bP * face_avg(g, inp.us_c, a * nc, a, I)
+                + face_mean_comp(g, inp.ext_force, a, a, I) + bP * face_mean_comp(g, inp.solid_vel, a, a, I)
             gp, okp = face_grad(g, cl, a, I)
             if okp:
                 em = 1.0

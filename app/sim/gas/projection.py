@@ -34,9 +34,8 @@ def cell_balance(g: ti.template(), inp: ti.template(), st: ti.template(), vb: ti
     """(net outflow rate, gross flow rate) of cell I per unit volume [1/s] of the face velocity vb,
     incl. theta*deps."""
     h = g.par[P_H]
-    c = cidx(g, I)
-    th = g.open_vol[c]
-    de = inp.deps_c[c]
+    th = g.open_vol[I]
+    de = inp.gas_deps_dt[I]
     net = th * de
     gross = th * ti.abs(de)
     n = g.dims
@@ -97,7 +96,7 @@ def k_build(g: Grid, inp: Inputs, cl: Cells, st: State, mg: Multigrid, ks: Krylo
         I = ti.Vector([i, j, k])
         c = cidx(g, I)
         b = 0.0
-        if g.open_vol[c] > 0.0:
+        if g.open_vol[I] > 0.0:
             net, gross = cell_balance(g, inp, st, st.vel, I)
             b = -net
             ti.atomic_max(st.gsc[SC_SMAX], gross)
@@ -132,20 +131,18 @@ def cell_outputs(g: ti.template(), inp: ti.template(), st: ti.template(), cl: ti
     """Cell-centred gas velocity and pressure gradient, divergence and its scale (reductions);
     nothing unless ``on``."""
     n = g.dims
-    nc = g.ncells
     if on:
         st.gsc[SC_DMAX] = 0.0
         st.gsc[SC_SMAX] = 0.0
     for i, j, k in ti.ndrange(n[0] * on, n[1], n[2]):
         I = ti.Vector([i, j, k])
-        c = cidx(g, I)
-        active = g.open_vol[c] > 0.0
+        active = g.open_vol[I] > 0.0
         net = 0.0
         if active:
             net, gross = cell_balance(g, inp, st, st.vel, I)
             ti.atomic_max(st.gsc[SC_DMAX], ti.abs(net))
             ti.atomic_max(st.gsc[SC_SMAX], gross)
-        cl.div_cell[c] = net
+        cl.div_cell[I] = net
         for a in ti.static(range(3)):
             J = I
             J[a] += 1
@@ -164,8 +161,8 @@ def cell_outputs(g: ti.template(), inp: ti.template(), st: ti.template(), cl: ti
                     cnt += 1.0
                 if cnt > 0.0:
                     gp /= cnt
-            cl.u_cell[a * nc + c] = uc
-            cl.gradp_cell[a * nc + c] = gp
+            cl.u_cell[I][a] = uc
+            cl.gradp_cell[I][a] = gp
 
 
 @ti.kernel
@@ -189,9 +186,10 @@ def k_correct(g: Grid, inp: Inputs, mg: Multigrid, ks: Krylov, st: State, cl: Ce
         if ok:
             kap, _ = kappa(g, st, a, I, dt)
             st.vel[f] -= kap * gr
-    for c in range(g.ncells * on):
-        if g.open_vol[c] > 0.0:
-            cl.pres[c] += ks.sol[c]
+    for i, j, k in ti.ndrange(n[0] * on, n[1], n[2]):
+        I = ti.Vector([i, j, k])
+        if g.open_vol[I] > 0.0:
+            cl.pres[I] += ks.sol[cidx(g, I)]
     for f in range(nf):
         a, I = fdecode(g, f)
         if g.wrap[a] == 1 and I[a] == n[a]:

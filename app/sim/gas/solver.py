@@ -12,7 +12,7 @@ import taichi as ti
 from . import advection, boundary, layout, predictor, projection
 from .config import CONVECTION, FACES, INLET, KINDS, MOVING, OUTLET, PRESSURE_FORMS, THETA_MIN, VISCOUS_REDUCTION
 from .config import ALIASES, FlowConfig, StepInfo
-from .fields import GasFields, _as_cell_array, _load, k_pull, k_push
+from .fields import GasFields, _as_cell_array, _load
 from .grid import cut_cells
 from .layout import NPAR, NSC, P_G, P_H, P_MU, P_POUT, P_RHO, P_THMIN, P_TRACE, k_copy
 from .linsolve import MGPCG
@@ -42,7 +42,7 @@ class FlowSolver(SolverOutputs):
         per = cfg.periodic
         self.cut = cut = cut_cells(grid, cfg.walls, int(cfg.aperture_samples), per, float(cfg.min_open_fraction))
         self.fields = GasFields(grid, cut)
-        self._reduced = ti.field(float, 6)  # device-side reductions (diagnostics, end-layer pressures)
+        self._reduced = _zeros(6)  # device-side reductions (diagnostics, end-layer pressures)
         self.mg = MGPCG(cfg.shape, per)
         kinds = [KINDS[cfg.bc(f).kind] for f in FACES]
         self._kinds = kinds
@@ -67,18 +67,15 @@ class FlowSolver(SolverOutputs):
         # ---- the bundles
         self._aperture = _zeros(nf)
         self._clear = _zeros(nf) if has_walls else self._aperture
-        self._open_vol = _zeros(nc)
         self._par = _zeros(NPAR)
         self._bcv = _zeros(off)
         self.g = layout.Grid(dims=ti.Vector(list(cfg.shape), ti.i32), wrap=ti.Vector([int(p) for p in per], ti.i32),
                              bc_kind=ti.Vector(kinds, ti.i32), bcv_off=ti.Vector(bcv_off, ti.i32),
                              face_off=ti.Vector(self._face_off, ti.i32), scheme=CONVECTION[cfg.convection],
                              form=PRESSURE_FORMS[cfg.pressure_form], has_walls=int(has_walls), nfaces=nf, ncells=nc,
-                             aperture=self._aperture, clear=self._clear, open_vol=self._open_vol, par=self._par,
+                             aperture=self._aperture, clear=self._clear, open_vol=self.fields.vol_frac, par=self._par,
                              bcv=self._bcv)
-        self._in = dict(eps_c=_zeros(nc), deps_c=_zeros(nc), beta_c=_zeros(nc), us_c=_zeros(3 * nc),
-                        fx_c=_zeros(3 * nc))
-        self.inp = layout.Inputs(**self._in)
+        self.inp = self.fields.inputs  # the coupling's arrays themselves: nothing is copied in
         sa = {k: _zeros(nf) for k in ("vel", "vel_old", "vel_adv", "vel_tmp", "accel", "dpred", "eps_f", "beta_f",
                                       "vel_save")}
         if cfg.convection == "maccormack":
@@ -88,8 +85,10 @@ class FlowSolver(SolverOutputs):
         sa["gsc"] = _zeros(NSC)
         self._st = sa
         self.st = layout.State(**sa)
-        self._cl = dict(pres=_zeros(nc), u_cell=_zeros(3 * nc), gradp_cell=_zeros(3 * nc), div_cell=_zeros(nc))
-        self.cl = layout.Cells(**self._cl)
+        fl = self.fields
+        self._div_cell = ti.ndarray(float, shape=cfg.shape)
+        self._div_cell.fill(0.0)
+        self.cl = layout.Cells(pres=fl.p, u_cell=fl.u_gas, gradp_cell=fl.grad_p, div_cell=self._div_cell)
         # ---- constant data
         par = np.zeros(NPAR)
         par[P_RHO], par[P_MU], par[P_H] = cfg.rho, cfg.mu, cfg.h
@@ -101,7 +100,6 @@ class FlowSolver(SolverOutputs):
         self._put(self._aperture, np.concatenate([ap.ravel() for ap in cut.apertures]))
         if has_walls:
             self._put(self._clear, np.concatenate([np.minimum(c, 1e30).ravel() for c in cut.clearance]))
-        self._put(self._open_vol, cut.volume.ravel())
         for fi, face in enumerate(FACES):
             if kinds[fi] in (INLET, MOVING):
                 self._set_bcv(fi, np.broadcast_to(np.asarray(cfg.bc(face).velocity, float),
@@ -117,17 +115,11 @@ class FlowSolver(SolverOutputs):
         self._s_pred = 0.0
         self._div = (0.0, 0.0)
         self._p_init_pending = True
-        self._pull()
+        self._face_coefficients()
 
-    def _pull(self) -> None:
-        fl, i = self.fields, self._in
-        k_pull(fl.eps, fl.deps_dt, fl.beta, fl.us, fl.f_exp, i["eps_c"], i["deps_c"], i["beta_c"], i["us_c"],
-               i["fx_c"])
+    def _face_coefficients(self) -> None:
+        """Face gas fraction and drag coefficient from the current inputs."""
         predictor.k_face_coef(self.g, self.inp, self.st)
-
-    def _push(self) -> None:
-        fl, c = self.fields, self._cl
-        k_push(c["pres"], c["u_cell"], c["gradp_cell"], fl.p, fl.u_gas, fl.grad_p)
 
     # ------------------------------------------------------------------ host <-> bundle arrays
     @staticmethod
@@ -218,8 +210,7 @@ class FlowSolver(SolverOutputs):
         """Set the pressure [Pa] (scalar or (nx, ny, nz)); it is the starting point of the
         incremental projection. Without it, the first :meth:`step` first computes a consistent
         pressure by a throw-away step from the initial velocity."""
-        a = _as_cell_array(p, self.shape, "pressure")
-        self._put(self._cl["pres"], a.ravel())
+        _load(self.fields.p, _as_cell_array(p, self.shape, "pressure"))
         self._p_init_pending = False
 
     # ------------------------------------------------------------------ the step
@@ -257,7 +248,7 @@ class FlowSolver(SolverOutputs):
         (:meth:`MGPCG.budget`), or a refinement round is due (float32 at its precision floor)."""
         cfg = self.config
         g, inp, st, cl = self.g, self.inp, self.st, self.cl
-        self._pull()
+        self._face_coefficients()
         advection.k_advect(g, inp, st, dt)
         boundary.k_bc_prep(g, inp, st)
         # red-black Gauss-Seidel sweeps until the estimated error, change * r/(1-r) with r the
@@ -285,7 +276,6 @@ class FlowSolver(SolverOutputs):
         uold, umax, nsw, dmax, smax, s_ref = (float(x) for x in rec[:6])
         self._s_pred = s_ref
         self._div = (dmax, smax)
-        self._push()
         div = dmax / s_ref if s_ref > 0 else 0.0
         self.time += dt
         self.steps += 1
