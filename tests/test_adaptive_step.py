@@ -7,7 +7,7 @@ import pytest
 
 from app.sim.coupling import Coupler
 from app.sim.dem import DemSolver
-from app.sim.flow import FlowSolver
+from app.sim.gas import FlowSolver
 from app.sim.simulation import Simulation
 
 from dem_helpers import make

@@ -8,7 +8,7 @@ from scipy.optimize import brentq
 
 from app.sim.coupling import Coupler
 from app.sim.dem import DemSolver
-from app.sim.flow import FlowSolver
+from app.sim.gas import FlowSolver
 
 from dem_helpers import make
 

@@ -1,4 +1,4 @@
-"""Multigrid-preconditioned CG (app.sim.linsolve): convergence to the requested tolerance,
+"""Multigrid-preconditioned CG (app.sim.gas.linsolve): convergence to the requested tolerance,
 checked against an independent scipy residual, and grid-independent iteration counts."""
 import numpy as np
 import pytest

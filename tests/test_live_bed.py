@@ -21,7 +21,7 @@ from app.scene import Scene
 from app.sim import drag
 from app.sim.coupling import Coupler
 from app.sim.dem import DemSolver
-from app.sim.flow import FlowSolver
+from app.sim.gas import FlowSolver
 from app.sim.simulation import Simulation
 
 from dem_helpers import merged, toml_text

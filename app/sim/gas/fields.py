@@ -108,6 +108,23 @@ class GasFields:
             c[a] = ti.min(ti.max(c[a], 0), self.shape[a] - 1)
         return c
 
+    @ti.func
+    def velocity_at(self, gout: ti.template(), x):
+        """Gas velocity [m/s] at point x [m]: trilinear interpolation of the cell velocity of the outputs
+        bundle ``gout`` (:attr:`outputs`, a kernel argument) (clamped at the box)."""
+        q = (x - ti.Vector(self.origin)) / self.h - 0.5
+        U = ti.Vector([0.0, 0.0, 0.0])
+        i0 = ti.cast(ti.floor(q), ti.i32)
+        fr = q - ti.cast(i0, float)
+        for d in ti.static(ti.ndrange(2, 2, 2)):
+            w = 1.0
+            c = ti.Vector([0, 0, 0])
+            for a in ti.static(range(3)):
+                w *= fr[a] if d[a] == 1 else 1.0 - fr[a]
+                c[a] = ti.min(ti.max(i0[a] + d[a], 0), self.shape[a] - 1)
+            U += w * gout.gas_u[c]
+        return U
+
 
 def _load(field, values) -> None:
     """field.from_numpy in the array's own float type (no implicit f64 -> f32 narrowing in Taichi)."""
