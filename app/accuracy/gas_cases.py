@@ -41,7 +41,7 @@ def _coupled(sections: dict, positions: np.ndarray, radius: float):
     from ..scene import Scene
     from ..sim.coupling import Coupler
     from ..sim.dem import DemSolver
-    from ..sim.flow import FlowSolver
+    from ..sim.gas import FlowSolver
 
     radii = np.full(len(positions), radius)
     grains = {"position": positions, "velocity": np.zeros_like(positions), "radius": radii}
@@ -191,16 +191,16 @@ def pipe_flow(cells_across: int, tolerance: float, axis_offset: float = 0.0) -> 
     to 1% by then (from rest it would take three times as long). ``axis_offset`` [cells] shifts the
     axis off a cell centre. Returns the RMS error of the axial velocity over the open faces, relative
     to the exact centreline value."""
-    from ..sim import flow
+    from ..sim import gas
     from ..sim.geometry import CylinderWall
 
     h = 1.0 / cells_across
     c = (cells_across / 2 + 1.5 + axis_offset) * h
     wall_ = CylinderWall(center=(c, c), radius=0.5)
-    per = flow.periodic()
-    cfg = flow.FlowConfig(shape=(cells_across + 3, cells_across + 3, 1), h=h, rho=1.0, mu=PIPE_MU,
+    per = gas.periodic()
+    cfg = gas.FlowConfig(shape=(cells_across + 3, cells_across + 3, 1), h=h, rho=1.0, mu=PIPE_MU,
                           gravity=(0, 0, 0), bcs={"z-": per, "z+": per}, walls=(wall_,), tol=tolerance)
-    s = flow.FlowSolver(cfg)
+    s = gas.FlowSolver(cfg)
     xyz = s.grid.face_centres(2)
     r2 = (xyz[..., 0] - c) ** 2 + (xyz[..., 1] - c) ** 2
     u_exact = np.maximum(PIPE_FORCE / (4 * PIPE_MU) * (0.25 - r2), 0.0)
@@ -245,16 +245,16 @@ def lid_driven_cavity(n: int = 64, re: float = 100.0, lid_speed: float = 1.0, si
     n x n cells (one periodic cell in y), walls at x = 0, size and z = 0, the top (z+) lid
     moving at ``lid_speed`` along +x; Re = rho U L / mu sets mu; no gravity.
     """
-    from ..sim import flow
+    from ..sim import gas
 
     if n < 2 or re <= 0 or lid_speed == 0 or size <= 0:
         raise ValueError("cavity: need n >= 2, re > 0, lid_speed != 0, size > 0")
     mu = rho * abs(lid_speed) * size / re
-    bcs = {"x-": flow.wall(), "x+": flow.wall(), "y-": flow.periodic(), "y+": flow.periodic(), "z-": flow.wall(),
-           "z+": flow.moving_wall((lid_speed, 0.0, 0.0))}
+    bcs = {"x-": gas.wall(), "x+": gas.wall(), "y-": gas.periodic(), "y+": gas.periodic(), "z-": gas.wall(),
+           "z+": gas.moving_wall((lid_speed, 0.0, 0.0))}
     kw = dict(shape=(n, 1, n), h=size / n, rho=rho, mu=mu, gravity=(0.0, 0.0, 0.0), bcs=bcs, tol=1e-6)
     kw.update(overrides)
-    return flow.FlowConfig(**kw)
+    return gas.FlowConfig(**kw)
 
 
 def cavity_centrelines(solver):
@@ -278,9 +278,9 @@ def cavity_flow(cells: int, tolerance: float, convection: str, lid_cfl: float, r
     """Re = 100 lid-driven unit cavity (lid 1 m/s) from rest to ``seconds`` at steps of ``lid_cfl`` cells
     per step at the lid: RMS difference from Ghia's centreline velocities (u on x = 1/2, w on z = 1/2,
     all their points). 10 s, as the preset: the flow then drifts by ~1e-3 per second."""
-    from ..sim import flow
+    from ..sim import gas
 
-    s = flow.FlowSolver(lid_driven_cavity(cells, re=100.0, tol=tolerance, convection=convection))
+    s = gas.FlowSolver(lid_driven_cavity(cells, re=100.0, tol=tolerance, convection=convection))
     dt = lid_cfl / cells
     n = round(seconds / dt)
     wall = _timed_steps(lambda: s.step(dt), n)

@@ -50,18 +50,14 @@ iterations without waiting, each of which does nothing once the solve has stoppe
 one record per batch (:meth:`MGPCG.solve`; the gas solver reads it with its own step record).
 """
 import dataclasses
-import math
-from typing import Sequence
 
-import numpy as np
 import taichi as ti
 
 from . import multigrid as mgm
 from .multigrid import (S_ACTIVE, S_BNORM, S_CNT, S_CONV, S_DONE, S_FIRST, S_IT, S_LAST, S_PAP, S_R0, S_RINF,
-                        S_RZ, S_RZN, S_RZO, S_SCALE, S_SUM, S_THR, S_TRUE, Multigrid, decode, local, on, plan_levels,
-                        stencil)
+                        S_RZ, S_RZN, S_RZO, S_SCALE, S_SUM, S_THR, S_TRUE, Multigrid, decode, on, plan_levels, stencil)
 
-__all__ = ["MGPCG", "SolveInfo", "Krylov", "plan_levels", "solve_record"]
+__all__ = ["SolveInfo", "Krylov", "plan_levels", "solve_record"]  # the solver object: app.sim.gas.linsolve.MGPCG
 
 ND1 = mgm.ND1
 #: level-0 vectors of the outer CG: sol the solution (and initial guess), res the residual, prec /
