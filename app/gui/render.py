@@ -78,8 +78,8 @@ def record_tracer(m: ti.template(), s: ti.template(), out: ti.template()):
 
 @ti.kernel
 def take_snapshot(m: ti.template(), g: ti.template(), s: ti.template(), gas: ti.template(),
-                  gas_eps: ti.types.ndarray(), mode: ti.template(), slab: ti.template(), y_centre: ti.f32, half_width: ti.f32,
-                  lo: ti.f32, hi: ti.f32, band: ti.f32, out: ti.template()):
+                  gas_eps: ti.types.ndarray(), mode: ti.template(), slab: ti.template(), y_centre: ti.f32,
+                  half_width: ti.f32, lo: ti.f32, hi: ti.f32, band: ti.f32, out: ti.template()):
     """Copy the visible grains of the DEM state into ``out`` with their colours (inputs first)."""
     out.count[None] = 0
     for i in range(m.n):

@@ -1,10 +1,11 @@
 """Gas solver of fbed: volume-averaged incompressible gas on a uniform staggered grid.
 
 Owns: the gas flow set-up (:class:`FlowConfig`, boundary conditions :class:`BC`), the solver
-(:class:`FlowSolver`: one fractional step per call of :meth:`FlowSolver.step`), the Taichi
-field bundle shared with the coupling code (:class:`GasFields`). (The lid-driven cavity, a
-verification scene, is set up with the accuracy cases, :mod:`app.accuracy.gas_cases`.) It knows nothing about particles: the coupling code
-writes the gas fraction, its rate of change and the drag coefficients into the bundle.
+(:class:`FlowSolver`: one fractional step per call of :meth:`FlowSolver.step`), the arrays
+shared with the coupling code (:class:`GasFields`). (The lid-driven cavity, a verification
+scene, is set up with the accuracy cases, :mod:`app.accuracy.gas_cases`.) It knows nothing
+about particles: the coupling code writes the gas fraction, its rate of change and the drag
+coefficients into those arrays.
 
 Equations (u = interstitial gas velocity, eps = gas volume fraction, m = 1 for the
 "shared" pressure form, Model A, and m = 0 for the "gas" form, Model B)::

@@ -243,7 +243,8 @@ def k_pcg_finish(mg: Multigrid, ks: Krylov, singular: ti.i32):
 @ti.func
 def solve_record(mg: ti.template()):
     """(iterations, max|r|, converged, scale, initial max|r|, done) of the current solve."""
-    return ti.Vector([mg.ctrl[S_IT], mg.ctrl[S_RINF], mg.ctrl[S_CONV], mg.ctrl[S_SCALE], mg.ctrl[S_R0], mg.ctrl[S_DONE]])
+    return ti.Vector([mg.ctrl[S_IT], mg.ctrl[S_RINF], mg.ctrl[S_CONV], mg.ctrl[S_SCALE], mg.ctrl[S_R0],
+                      mg.ctrl[S_DONE]])
 
 
 @ti.kernel
