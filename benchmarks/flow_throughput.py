@@ -34,17 +34,17 @@ H, DT, U_IN = 0.006, 1e-3, 0.5
 
 
 def scene(shape, precision_tol: float):
-    from app.sim import flow
+    from app.sim import gas
     from app.sim.geometry import CylinderWall
 
     nx, ny, nz = shape
     radius = (min(nx, ny) / 2 - 1) * H
     cyl = CylinderWall(center=(nx * H / 2, ny * H / 2), radius=radius)
-    cfg = flow.FlowConfig(shape=shape, h=H, rho=1.2, mu=1.8e-5, gravity=(0.0, 0.0, -9.81), walls=(cyl,),
+    cfg = gas.FlowConfig(shape=shape, h=H, rho=1.2, mu=1.8e-5, gravity=(0.0, 0.0, -9.81), walls=(cyl,),
                           pressure_form="shared", convection="maccormack", tol=precision_tol,
                           min_open_fraction=0.0,  # the cut cells of every row before 2026-12-01 (then its default)
-                          bcs={"bottom": flow.velocity_inlet((0.0, 0.0, U_IN)), "top": flow.pressure_outlet(0.0)})
-    s = flow.FlowSolver(cfg)
+                          bcs={"bottom": gas.velocity_inlet((0.0, 0.0, U_IN)), "top": gas.pressure_outlet(0.0)})
+    s = gas.FlowSolver(cfg)
     rng = np.random.default_rng(1)
     bed = np.zeros(shape, bool)
     bed[:, :, : int(0.4 * nz)] = True

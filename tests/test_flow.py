@@ -1,8 +1,8 @@
-"""Gas solver (app.sim.flow): physical checks with stated tolerances.
+"""Gas solver (app.sim.gas): physical checks with stated tolerances.
 
 Every run goes through ``_advance``, which asserts after each projection that the pressure
 solve converged and that the continuity residual is below the solver tolerance (relative to
-the gross face-flux rate of a cell, see the flow module doc). Measured errors at the time of
+the gross face-flux rate of a cell, see the gas package doc). Measured errors at the time of
 writing are quoted next to each tolerance.
 """
 import json
@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from app.sim import flow
+from app.sim import gas
 from app.sim.geometry import CylinderWall, PlaneWall
 
 from flow_helpers import jet_solver
 
 pytestmark = pytest.mark.verification
 
-PER = flow.periodic()
+PER = gas.periodic()
 
 
 def _advance(solver, nsteps, dt):
@@ -55,20 +55,20 @@ def _numpy_divergence(solver):
 # ----------------------------------------------------------------------------- set-up validation
 def test_config_validation_messages():
     good = dict(shape=(4, 4, 4), h=0.01)
-    flow.FlowConfig(**good)
+    gas.FlowConfig(**good)
     bad = [
         dict(shape=(4, 0, 4)), dict(h=-1.0), dict(rho=0.0), dict(mu=-1e-5), dict(gravity=(0, 0)),
-        dict(bcs={"front": flow.wall()}), dict(bcs={"x-": PER}),
-        dict(bcs={"top": flow.moving_wall((0.0, 0.0, 1.0))}), dict(convection="upwind"),
-        dict(pressure_form="both"), dict(tol=0.0), dict(max_iter=0), dict(bcs={"z-": flow.BC("jet")}),
-        dict(bcs={"bottom": flow.velocity_inlet((0, 0, np.nan))}), dict(aperture_samples=0),
+        dict(bcs={"front": gas.wall()}), dict(bcs={"x-": PER}),
+        dict(bcs={"top": gas.moving_wall((0.0, 0.0, 1.0))}), dict(convection="upwind"),
+        dict(pressure_form="both"), dict(tol=0.0), dict(max_iter=0), dict(bcs={"z-": gas.BC("jet")}),
+        dict(bcs={"bottom": gas.velocity_inlet((0, 0, np.nan))}), dict(aperture_samples=0),
     ]
     for kw in bad:
         with pytest.raises(ValueError):
-            flow.FlowConfig(**{**good, **kw})
-    cfg = flow.FlowConfig(**good, bcs={"bottom": flow.velocity_inlet((0, 0, 1.0)), "top": flow.pressure_outlet()})
+            gas.FlowConfig(**{**good, **kw})
+    cfg = gas.FlowConfig(**good, bcs={"bottom": gas.velocity_inlet((0, 0, 1.0)), "top": gas.pressure_outlet()})
     assert cfg.bc("z-").kind == "velocity_inlet" and cfg.bc("x+").kind == "wall"
-    s = flow.FlowSolver(cfg)
+    s = gas.FlowSolver(cfg)
     for call in (lambda: s.set_eps(0.0), lambda: s.set_eps(np.ones((4, 4, 3))), lambda: s.set_beta(-1.0),
                  lambda: s.set_inlet_profile("top", np.ones((4, 4))),
                  lambda: s.set_inlet_profile("bottom", np.ones((3, 4))), lambda: s.step(0.0),
@@ -88,9 +88,9 @@ def test_pipe_periodic_centreline_over_mean_is_two():
     discrete section). Tolerance 5% (measured 0.45%); the centreline value itself is within 2% of
     G R^2 / (4 mu) (measured 0.2%)."""
     mu, G = 0.1, 1.0
-    cfg = flow.FlowConfig(shape=(18, 18, 4), h=H_PIPE, rho=1.0, mu=mu, gravity=(0, 0, 0),
+    cfg = gas.FlowConfig(shape=(18, 18, 4), h=H_PIPE, rho=1.0, mu=mu, gravity=(0, 0, 0),
                           bcs={"z-": PER, "z+": PER}, walls=(CYL,), tol=1e-10)
-    s = flow.FlowSolver(cfg)
+    s = gas.FlowSolver(cfg)
     s.set_explicit_source((0.0, 0.0, G))
     _advance(s, 120, 0.05)  # 6 s >> R^2/(5.78 nu) = 0.43 s: steady to ~1e-6
     w = s.face_velocity(2)[:, :, 0]
@@ -105,9 +105,9 @@ def test_pipe_inlet_outlet_mass_balance():
     """Velocity inlet (bottom) and pressure outlet (top) on the cylinder: volumetric flow in equals
     flow out to 1e-6 relative (measured ~5e-12), and equals U times the open inlet area."""
     U = 0.2
-    cfg = flow.FlowConfig(shape=(18, 18, 24), h=H_PIPE, rho=1.0, mu=0.01, gravity=(0, 0, -9.81), walls=(CYL,),
-                          tol=1e-10, bcs={"bottom": flow.velocity_inlet((0, 0, U)), "top": flow.pressure_outlet()})
-    s = flow.FlowSolver(cfg)
+    cfg = gas.FlowConfig(shape=(18, 18, 24), h=H_PIPE, rho=1.0, mu=0.01, gravity=(0, 0, -9.81), walls=(CYL,),
+                          tol=1e-10, bcs={"bottom": gas.velocity_inlet((0, 0, U)), "top": gas.pressure_outlet()})
+    s = gas.FlowSolver(cfg)
     _advance(s, 15, 0.02)
     q_in = -s.boundary_flux("bottom")
     q_out = s.boundary_flux("top")
@@ -131,9 +131,9 @@ def test_plane_channel_poiseuille(walls):
     else:
         ny, y0, y1 = 18, 0.3 * h, 16.3 * h
         wl = (PlaneWall((0, y0, 0), (0, 1, 0)), PlaneWall((0, y1, 0), (0, -1, 0)))
-    cfg = flow.FlowConfig(shape=(4, ny, 1), h=h, rho=1.0, mu=mu, gravity=(0, 0, 0), walls=wl, tol=1e-10,
+    cfg = gas.FlowConfig(shape=(4, ny, 1), h=h, rho=1.0, mu=mu, gravity=(0, 0, 0), walls=wl, tol=1e-10,
                           bcs={"x-": PER, "x+": PER, "z-": PER, "z+": PER})
-    s = flow.FlowSolver(cfg)
+    s = gas.FlowSolver(cfg)
     s.set_explicit_source((G, 0, 0))
     _advance(s, 120, 0.05)  # diffusion time H^2/(pi^2 nu) ~ 1 s; 6 s simulated
     u = s.face_velocity(0)[0, :, 0]
@@ -153,9 +153,9 @@ def test_taylor_green_decay_rate():
     n, nu = 64, 0.05
     L = 2 * np.pi
     h = L / n
-    cfg = flow.FlowConfig(shape=(n, n, 1), h=h, rho=1.0, mu=nu, gravity=(0, 0, 0), tol=1e-8,
-                          bcs={f: PER for f in flow.FACES})
-    s = flow.FlowSolver(cfg)
+    cfg = gas.FlowConfig(shape=(n, n, 1), h=h, rho=1.0, mu=nu, gravity=(0, 0, 0), tol=1e-8,
+                          bcs={f: PER for f in gas.FACES})
+    s = gas.FlowSolver(cfg)
     xu, xv = s.grid.face_centres(0), s.grid.face_centres(1)
     s.set_face_velocity(np.sin(xu[..., 0]) * np.cos(xu[..., 1]), -np.cos(xv[..., 0]) * np.sin(xv[..., 1]),
                         np.zeros(s.grid.face_shape(2)))
@@ -193,7 +193,7 @@ def test_lid_driven_cavity_re100_matches_ghia(reference_dir):
     assert cfg.particles is None  # single phase: no grains allocated
     scene = Scene(cfg, str(preset))
     assert scene.model is None and scene.flow.mu == pytest.approx(0.01)
-    s = flow.FlowSolver(scene.flow)
+    s = gas.FlowSolver(scene.flow)
     _advance(s, round(cfg.run.duration / cfg.run.step), cfg.run.step)
     from app.bench.gas_cases import cavity_centrelines
 
@@ -206,11 +206,11 @@ def test_lid_driven_cavity_re100_matches_ghia(reference_dir):
 
 # ----------------------------------------------------------------------------- porous column
 def _column(form, eps_layer=0.5, beta_layer=1.0e4, deps_layer=0.0, U=0.1):
-    per = flow.periodic()
-    cfg = flow.FlowConfig(shape=(4, 4, 40), h=0.01, rho=1.2, mu=1.8e-5, gravity=(0, 0, 0), pressure_form=form,
+    per = gas.periodic()
+    cfg = gas.FlowConfig(shape=(4, 4, 40), h=0.01, rho=1.2, mu=1.8e-5, gravity=(0, 0, 0), pressure_form=form,
                           tol=1e-10, bcs={"x-": per, "x+": per, "y-": per, "y+": per,
-                                          "bottom": flow.velocity_inlet((0, 0, U)), "top": flow.pressure_outlet()})
-    s = flow.FlowSolver(cfg)
+                                          "bottom": gas.velocity_inlet((0, 0, U)), "top": gas.pressure_outlet()})
+    s = gas.FlowSolver(cfg)
     layer = np.zeros(cfg.shape, bool)
     layer[:, :, 10:30] = True  # L = 20 cells = 0.2 m
     s.set_eps(np.where(layer, eps_layer, 1.0))
@@ -254,9 +254,9 @@ def test_gas_at_rest_is_hydrostatic():
     """Closed box with a pressure outlet on top and gravity: the gas stays at rest and
     dp/dz = -rho g (incremental projection with an initial pressure pass: no spurious flow driven
     by the no-slip walls; measured |u| ~ 3e-10 m/s)."""
-    cfg = flow.FlowConfig(shape=(8, 8, 16), h=0.01, rho=1.2, mu=1.8e-5, gravity=(0, 0, -9.81), tol=1e-9,
-                          bcs={"top": flow.pressure_outlet(100.0)})
-    s = flow.FlowSolver(cfg)
+    cfg = gas.FlowConfig(shape=(8, 8, 16), h=0.01, rho=1.2, mu=1.8e-5, gravity=(0, 0, -9.81), tol=1e-9,
+                          bcs={"top": gas.pressure_outlet(100.0)})
+    s = gas.FlowSolver(cfg)
     _advance(s, 10, 1e-3)
     p = s.pressure()
     assert np.allclose(np.diff(p, axis=2) / 0.01, -1.2 * 9.81, rtol=1e-6)
@@ -281,32 +281,32 @@ def test_jet_at_cfl_8_is_stable():
 
 # ----------------------------------------------------------------------------- field bundle
 @ti.kernel
-def _write_inputs(g: ti.template()):
-    for i, j, k in g.eps:
-        g.eps[i, j, k] = 0.5
-        g.beta[i, j, k] = 1.0e4 if 10 <= k < 30 else 0.0
+def _write_inputs(gin: gas.layout.Inputs):
+    for i, j, k in gin.gas_eps:
+        gin.gas_eps[i, j, k] = 0.5
+        gin.drag_beta[i, j, k] = 1.0e4 if 10 <= k < 30 else 0.0
 
 
 @ti.kernel
-def _probe(g: ti.template(), out: ti.types.ndarray()):
+def _probe(g: ti.template(), gout: gas.layout.Outputs, out: ti.types.ndarray()):
     for _ in range(1):
-        u = g.velocity_at(ti.Vector([0.02, 0.02, 0.2]))
+        u = g.velocity_at(gout, ti.Vector([0.02, 0.02, 0.2]))
         out[0] = u[2]
-        out[1] = g.grad_p[1, 1, 20][2]
+        out[1] = gout.gas_gradp[1, 1, 20][2]
 
 
 def test_bundle_fields_written_in_kernels():
     """The coupling code writes eps/beta in its own kernels and reads velocity / pressure gradient:
     same result as the host setters (Model B column, eps = 0.5 everywhere, beta in the layer)."""
-    per = flow.periodic()
-    cfg = flow.FlowConfig(shape=(4, 4, 40), h=0.01, rho=1.2, mu=1.8e-5, gravity=(0, 0, 0), tol=1e-10,
+    per = gas.periodic()
+    cfg = gas.FlowConfig(shape=(4, 4, 40), h=0.01, rho=1.2, mu=1.8e-5, gravity=(0, 0, 0), tol=1e-10,
                           bcs={"x-": per, "x+": per, "y-": per, "y+": per,
-                               "bottom": flow.velocity_inlet((0, 0, 0.1)), "top": flow.pressure_outlet()})
-    s = flow.FlowSolver(cfg)
-    _write_inputs(s.fields)
+                               "bottom": gas.velocity_inlet((0, 0, 0.1)), "top": gas.pressure_outlet()})
+    s = gas.FlowSolver(cfg)
+    _write_inputs(s.fields.inputs)
     _advance(s, 5, 1e-3)
     out = np.zeros(2)
-    _probe(s.fields, out)
+    _probe(s.fields, s.fields.outputs, out)
     assert out[0] == pytest.approx(0.1 / 0.5, rel=1e-6)  # interstitial = superficial / eps
     assert out[1] == pytest.approx(-1.0e4 * 0.1 / 0.5, rel=1e-6)  # Model B: dp/dz = -beta u
     assert np.allclose(s.cell_velocity()[..., 2], 0.2, rtol=1e-6)
@@ -316,9 +316,9 @@ def test_bundle_fields_written_in_kernels():
 def test_state_arrays_restart_is_exact():
     """A solver restored from state_arrays() continues like the original (checkpoints): same
     velocities to 1e-10 m/s (2 m/s jet; only the order of parallel reductions differs)."""
-    cfg = flow.FlowConfig(shape=(8, 8, 12), h=0.01, rho=1.2, mu=1.8e-5, tol=1e-9,
-                          bcs={"bottom": flow.velocity_inlet((0, 0, 0.3)), "top": flow.pressure_outlet(5.0)})
-    a = flow.FlowSolver(cfg)
+    cfg = gas.FlowConfig(shape=(8, 8, 12), h=0.01, rho=1.2, mu=1.8e-5, tol=1e-9,
+                          bcs={"bottom": gas.velocity_inlet((0, 0, 0.3)), "top": gas.pressure_outlet(5.0)})
+    a = gas.FlowSolver(cfg)
     prof = np.full((8, 8), 0.3)
     prof[3:5, 3:5] = 2.0
     a.set_inlet_profile("bottom", prof)
@@ -328,7 +328,7 @@ def test_state_arrays_restart_is_exact():
     a.set_beta(np.where(eps < 1, 2e3, 0.0))
     _advance(a, 4, 2e-3)
     state = a.state_arrays()
-    b = flow.FlowSolver(cfg)
+    b = gas.FlowSolver(cfg)
     b.load_state_arrays(state)
     assert np.array_equal(b.pressure(), a.pressure())
     _advance(a, 3, 2e-3)

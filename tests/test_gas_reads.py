@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from app.sim import flow
+from app.sim import gas
 from app.sim.geometry import CylinderWall
 
 from kernel_counter import KernelCounter
@@ -24,10 +24,10 @@ def _bed_scene(shape=(16, 16, 24)):
     beta 1.5e4-1.95e4 in the lower 40%, 0.5 m/s inflow, pressure outlet, Model A, MacCormack."""
     nx, ny, nz = shape
     cyl = CylinderWall(center=(nx * H / 2, ny * H / 2), radius=(min(nx, ny) / 2 - 1) * H)
-    cfg = flow.FlowConfig(shape=shape, h=H, rho=1.2, mu=1.8e-5, gravity=(0.0, 0.0, -9.81), walls=(cyl,),
+    cfg = gas.FlowConfig(shape=shape, h=H, rho=1.2, mu=1.8e-5, gravity=(0.0, 0.0, -9.81), walls=(cyl,),
                           pressure_form="shared", convection="maccormack", tol=1e-6,
-                          bcs={"bottom": flow.velocity_inlet((0.0, 0.0, 0.5)), "top": flow.pressure_outlet(0.0)})
-    s = flow.FlowSolver(cfg)
+                          bcs={"bottom": gas.velocity_inlet((0.0, 0.0, 0.5)), "top": gas.pressure_outlet(0.0)})
+    s = gas.FlowSolver(cfg)
     rng = np.random.default_rng(3)
     eps = np.ones(shape)
     beta = np.zeros(shape)

@@ -1,11 +1,11 @@
-"""Multigrid-preconditioned CG (app.sim.linsolve): convergence to the requested tolerance,
+"""Multigrid-preconditioned CG (app.sim.gas.linsolve): convergence to the requested tolerance,
 checked against an independent scipy residual, and grid-independent iteration counts."""
 import numpy as np
 import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from app.sim.linsolve import MGPCG, plan_levels
+from app.sim.gas.linsolve import MGPCG, plan_levels
 
 pytestmark = pytest.mark.verification
 

@@ -21,9 +21,9 @@ from scipy.optimize import brentq
 from ..config import load
 from ..config.loader import build
 from ..scene import Scene, build_simulation
-from ..sim import flow as gas
+from ..sim import gas
 from ..sim import runtime
-from ..sim.flow import FlowSolver
+from ..sim.gas import FlowSolver
 from ..sim.geometry import CylinderWall
 from .cases import Case, Unavailable
 

@@ -78,8 +78,8 @@ def record_tracer(m: ti.template(), g: ti.template(), s: ti.template(), out: ti.
 
 @ti.kernel
 def take_snapshot(m: ti.template(), g: ti.template(), s: ti.template(), gas: ti.template(),
-                  mode: ti.template(), slab: ti.template(), y_centre: ti.f32, half_width: ti.f32,
-                  lo: ti.f32, hi: ti.f32, band: ti.f32, out: ti.template()):
+                  gas_eps: ti.types.ndarray(), mode: ti.template(), slab: ti.template(), y_centre: ti.f32,
+                  half_width: ti.f32, lo: ti.f32, hi: ti.f32, band: ti.f32, out: ti.template()):
     """Copy the visible grains of the DEM state into ``out`` with their colours (inputs first)."""
     out.count[None] = 0
     for i in range(m.n):
@@ -95,7 +95,7 @@ def take_snapshot(m: ti.template(), g: ti.template(), s: ti.template(), gas: ti.
             if ti.static(mode == Colouring.HEIGHT):
                 value = ti.cast(x[2], ti.f32)
             if ti.static(mode == Colouring.VOID_FRACTION):
-                value = ti.cast(gas.eps[gas.cell_of(x)], ti.f32)
+                value = ti.cast(gas_eps[gas.cell_of(x)], ti.f32)
             if ti.static(mode == Colouring.SIZE):
                 value = ti.cast(r, ti.f32)
             if ti.static(mode == Colouring.TRACER):
@@ -170,6 +170,7 @@ class Renderer:
         self._tracer_recorded = False
         self._band = 1.0  # [m] width of the tracer bands (set from the bed when the tracer is recorded)
         self._gas = flow.fields if flow is not None else _Absent()
+        self._gas_eps = flow.fields.eps if flow is not None else ti.ndarray(ti.f32, (1, 1, 1))  # the gas's own array
         self.window = ti.ui.Window(title, (settings.width, settings.height), show_window=show_window, vsync=False)
         self.canvas = self.window.get_canvas()
         self.scene = self.window.get_scene()
@@ -225,7 +226,7 @@ class Renderer:
         lo, hi = self.colour_range()
         slab = self.settings.view == "slab"
         yc = 0.5 * (self.lo[1] + self.hi[1])
-        take_snapshot(m, self.dem.fixed, s, self._gas, c, slab, yc, self.slab_half_width(), lo, hi,
+        take_snapshot(m, self.dem.fixed, s, self._gas, self._gas_eps, c, slab, yc, self.slab_half_width(), lo, hi,
                       self._band, self.snapshot)
         return int(self.snapshot.count[None])
 

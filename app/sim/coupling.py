@@ -3,7 +3,8 @@
 Owns: the deposit of grain volume onto the gas grid (cloud-in-cell, wall-aware, optionally
 smoothed, clipped at eps_min), the interpolation of gas quantities to the grains with the
 same weights, and the momentum exchange (the drag law's coefficient on the gas diagonal
-and the implicit drag on the grains). It reads the DEM's and the gas's field bundles and
+and the implicit drag on the grains). It reads the DEM's and the gas's bundles (the gas's as
+argpacks of its own arrays: ``GasFields.inputs``, ``.outputs``, ``.geometry``) and
 writes their coupling inputs; it never prints or writes files.
 
 Weights. A grain at x spreads over the 8 cells around it with trilinear weights w_c
@@ -31,7 +32,8 @@ import numpy as np
 import taichi as ti
 
 from . import drag
-from .dem import grain_mass, grain_radius
+from .dem import grain_radius
+from .gas.layout import CellGeometry, Inputs, Outputs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,7 +81,7 @@ def _stencil(gf: ti.template(), x):
 
 
 @ti.func
-def _weights(gf: ti.template(), x):
+def _weights(gf: ti.template(), geo: ti.template(), x):
     """The 8 cells (clamped indices) and their wall-aware, renormalised weights."""
     i0, fr = _stencil(gf, x)
     w = ti.Vector([0.0] * 8)
@@ -96,7 +98,7 @@ def _weights(gf: ti.template(), x):
                 inside = False
             c[a] = ti.min(ti.max(c[a], 0), gf.shape[a] - 1)
         if inside:
-            wk *= gf.vol_frac[c]
+            wk *= geo.open_frac[c]
         else:
             wk = 0.0
         w[k] = wk
@@ -115,21 +117,22 @@ def _weights(gf: ti.template(), x):
 
 
 @ti.kernel
-def deposit(m: ti.template(), g: ti.template(), s: ti.template(), gf: ti.template(), cf: ti.template()):
+def deposit(m: ti.template(), g: ti.template(), s: ti.template(), gf: ti.template(), geo: CellGeometry,
+            cf: ti.template()):
     for I in ti.grouped(cf.solid):
         cf.solid[I] = 0.0
     for i in range(m.n):
         if s.alive[i]:
             r = grain_radius(m, g, i)
             vol = 4.0 / 3.0 * 3.141592653589793 * r * r * r
-            cells, w = _weights(gf, s.x[i])
+            cells, w = _weights(gf, geo, s.x[i])
             for k in ti.static(range(8)):
                 c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
                 ti.atomic_add(cf.solid[c], w[k] * vol)
 
 
 @ti.kernel
-def smooth_pass(gf: ti.template(), f: ti.template(), tmp: ti.template()):
+def smooth_pass(gf: ti.template(), geo: CellGeometry, f: ti.template(), tmp: ti.template()):
     """One conservative diffusion pass of an extensive cell quantity f (grain volume, drag
     coefficient sums): the flux between open neighbours I, J is alpha min(phi_I, phi_J) (c_J - c_I),
     with c = f / phi the amount per full cell volume and phi the open volume fraction. So a
@@ -139,16 +142,16 @@ def smooth_pass(gf: ti.template(), f: ti.template(), tmp: ti.template()):
     sum to at most 6 alpha < 1."""
     for I in ti.grouped(f):
         acc = f[I]
-        if gf.active[I]:
-            pI = ti.max(gf.vol_frac[I], 1e-12)
+        if geo.active_cell[I]:
+            pI = ti.max(geo.open_frac[I], 1e-12)
             cI = f[I] / pI
             for a in ti.static(range(3)):
                 for sgn in ti.static((-1, 1)):
                     J = I
                     J[a] += sgn
                     if 0 <= J[a] < gf.shape[a]:
-                        if gf.active[J]:
-                            pJ = ti.max(gf.vol_frac[J], 1e-12)
+                        if geo.active_cell[J]:
+                            pJ = ti.max(geo.open_frac[J], 1e-12)
                             acc += SMOOTH_ALPHA * ti.min(pI, pJ) * (f[J] / pJ - cI)
         tmp[I] = acc
     for I in ti.grouped(f):
@@ -156,47 +159,50 @@ def smooth_pass(gf: ti.template(), f: ti.template(), tmp: ti.template()):
 
 
 @ti.kernel
-def void_fraction(cm: ti.template(), gf: ti.template(), cf: ti.template(), dt: float, first: ti.i32):
-    """eps = 1 - solid / open cell volume, clipped at eps_min; d(eps)/dt against the previous step."""
+def void_fraction(cm: ti.template(), gf: ti.template(), geo: CellGeometry, cf: ti.template(), dt: float,
+                  first: ti.i32, gin: Inputs):
+    """eps = 1 - solid / open cell volume, clipped at eps_min; d(eps)/dt against the previous step: the
+    gas's inputs (``gin``, its own arrays)."""
     cf.clipped[None] = 0
     vcell = gf.h * gf.h * gf.h
     for I in ti.grouped(cf.solid):
         e = 1.0
-        if gf.active[I]:
-            e = 1.0 - cf.solid[I] / (vcell * ti.max(gf.vol_frac[I], 1e-12))
+        if geo.active_cell[I]:
+            e = 1.0 - cf.solid[I] / (vcell * ti.max(geo.open_frac[I], 1e-12))
             if e < cm.eps_min:
                 e = ti.cast(cm.eps_min, float)
                 cf.clipped[None] += 1
         prev = cf.eps_prev[I]
         if first:
             prev = e
-        gf.deps_dt[I] = (e - prev) / dt
-        gf.eps[I] = e
+        gin.gas_deps_dt[I] = (e - prev) / dt
+        gin.gas_eps[I] = e
         cf.eps_prev[I] = e
 
 
 @ti.kernel
 def exchange(cm: ti.template(), m: ti.template(), g: ti.template(), s: ti.template(), gf: ti.template(),
-             cf: ti.template()):
-    """Per-grain drag coefficient, gas velocity and explicit force; the reaction onto the gas cells."""
+             geo: CellGeometry, gout: Outputs, cf: ti.template(), gin: Inputs):
+    """Per-grain drag coefficient, gas velocity and explicit force from the gas's outputs (``gout``) and
+    gas fraction; the reaction onto the gas cells (the sums in ``cf``; Model B's explicit source in ``gin``)."""
     for I in ti.grouped(cf.k_sum):
         cf.k_sum[I] = 0.0
         cf.k_v[I] = ti.Vector([0.0, 0.0, 0.0])
         if ti.static(cm.model_b):
-            gf.f_exp[I] = ti.Vector([0.0, 0.0, 0.0])
+            gin.ext_force[I] = ti.Vector([0.0, 0.0, 0.0])
     for i in range(m.n):
         if s.alive[i]:
             r = grain_radius(m, g, i)
             vol = 4.0 / 3.0 * 3.141592653589793 * r * r * r
-            cells, w = _weights(gf, s.x[i])
+            cells, w = _weights(gf, geo, s.x[i])
             eps = 0.0
             ug = ti.Vector([0.0, 0.0, 0.0])
             gp = ti.Vector([0.0, 0.0, 0.0])
             for k in ti.static(range(8)):
                 c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
-                eps += w[k] * gf.eps[c]
-                ug += w[k] * gf.u_gas[c]
-                gp += w[k] * gf.grad_p[c]
+                eps += w[k] * gin.gas_eps[c]
+                ug += w[k] * gout.gas_u[c]
+                gp += w[k] * gout.gas_gradp[c]
             v = s.v[i]
             slip = (ug - v).norm()
             phi = ti.max(1.0 - eps, 0.0)
@@ -210,8 +216,8 @@ def exchange(cm: ti.template(), m: ti.template(), g: ti.template(), s: ti.templa
                 # everywhere (as in Model A): both forms then give the same pressure drop
                 for k in ti.static(range(8)):
                     c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
-                    vc = gf.h * gf.h * gf.h * ti.max(gf.vol_frac[c], 1e-12)
-                    ti.atomic_add(gf.f_exp[c], -w[k] * buoyancy / vc)
+                    vc = gf.h * gf.h * gf.h * ti.max(geo.open_frac[c], 1e-12)
+                    ti.atomic_add(gin.ext_force[c], -w[k] * buoyancy / vc)
             else:
                 s.external_force[i] = -vol * gp
             s.drag_coeff[i] = kp
@@ -223,17 +229,17 @@ def exchange(cm: ti.template(), m: ti.template(), g: ti.template(), s: ti.templa
 
 
 @ti.kernel
-def drag_on_gas(gf: ti.template(), cf: ti.template()):
-    """beta and us per cell from the (smoothed) sums of w K and w K v."""
+def drag_on_gas(gf: ti.template(), geo: CellGeometry, cf: ti.template(), gin: Inputs):
+    """beta and us per cell (the gas's inputs ``gin``) from the (smoothed) sums of w K and w K v."""
     vcell = gf.h * gf.h * gf.h
     for I in ti.grouped(cf.k_sum):
         k = cf.k_sum[I]
-        vc = vcell * ti.max(gf.vol_frac[I], 1e-12)
-        gf.beta[I] = k / vc
+        vc = vcell * ti.max(geo.open_frac[I], 1e-12)
+        gin.drag_beta[I] = k / vc
         us = ti.Vector([0.0, 0.0, 0.0])
         if k > 0:
             us = cf.k_v[I] / k
-        gf.us[I] = us
+        gin.solid_vel[I] = us
 
 
 class Coupler:
@@ -249,22 +255,22 @@ class Coupler:
 
     def deposit(self, dt: float) -> None:
         """Grains -> eps and d(eps)/dt on the gas grid."""
-        d = self.dem
-        deposit(d.m, d.fixed, d.state, self.gf, self.cf)
+        d, gf = self.dem, self.gf
+        deposit(d.m, d.fixed, d.state, gf, gf.geometry, self.cf)
         for _ in range(self.cm.smoothing_passes):
-            smooth_pass(self.gf, self.cf.solid, self.cf.solid_tmp)
-        void_fraction(self.cm, self.gf, self.cf, dt, int(self._first))
+            smooth_pass(gf, gf.geometry, self.cf.solid, self.cf.solid_tmp)
+        void_fraction(self.cm, gf, gf.geometry, self.cf, dt, int(self._first), gf.inputs)
         self._first = False
 
     def exchange(self) -> None:
         """Drag coefficients onto the gas diagonal and onto the grains (uses the current gas velocity)."""
-        d = self.dem
-        exchange(self.cm, d.m, d.fixed, d.state, self.gf, self.cf)
+        d, gf = self.dem, self.gf
+        exchange(self.cm, d.m, d.fixed, d.state, gf, gf.geometry, gf.outputs, self.cf, gf.inputs)
         # the gas feels the drag spread like the grains' volume, so beta and eps agree cell by cell
         for _ in range(self.cm.smoothing_passes):
-            smooth_pass(self.gf, self.cf.k_sum, self.cf.solid_tmp)
-            smooth_pass(self.gf, self.cf.k_v, self.cf.vec_tmp)
-        drag_on_gas(self.gf, self.cf)
+            smooth_pass(gf, gf.geometry, self.cf.k_sum, self.cf.solid_tmp)
+            smooth_pass(gf, gf.geometry, self.cf.k_v, self.cf.vec_tmp)
+        drag_on_gas(gf, gf.geometry, self.cf, gf.inputs)
 
     def step(self, dt: float) -> None:
         """The coupling half of a fluid step: deposit, then exchange (the gas step and DEM substeps follow)."""

@@ -1,0 +1,198 @@
+"""The pressure solver object: :class:`MGPCG` (method in :mod:`app.sim.gas.pcg`).
+
+It allocates the two bundles of the solve from the level plan, launches the set-up, the V-cycles and
+the outer iterations, and reads one record per batch. Callers that fill the system inside their own
+kernels take :attr:`MGPCG.mg` (transmissibilities of level 0 at ``trans[face(mg, 0, a, I)]``, the control
+scalars ``ctrl``) and :attr:`MGPCG.ks` (right-hand side ``rhs[c]``, solution / initial guess ``sol[c]``,
+cell c = (i*ny + j)*nz + k); :meth:`MGPCG.set_system` and :meth:`MGPCG.solution` do the same from numpy.
+"""
+import math
+from typing import Sequence
+
+import numpy as np
+import taichi as ti
+
+from . import multigrid as mgm
+from . import pcg
+from .pcg import SolveInfo, plan_levels
+
+__all__ = ["MGPCG", "SolveInfo", "plan_levels"]
+
+
+def _zeros(n):
+    a = ti.ndarray(float, shape=(max(int(n), 1),))
+    a.fill(0.0)
+    return a
+
+
+class MGPCG:
+    """Multigrid-preconditioned CG on a (nx, ny, nz) cell grid (state in the bundles ``mg`` and ``ks``)."""
+
+    def __init__(self, shape: Sequence[int], periodic: Sequence[bool] = (False, False, False), *,
+                 min_coarse_cells: int = 8, max_levels: int = 16, coarse_iterations: int | None = None):
+        self.shape = tuple(int(n) for n in shape)
+        if len(self.shape) != 3 or min(self.shape) < 1:
+            raise ValueError(f"grid shape must be three positive ints, got {shape!r}")
+        self.periodic = tuple(bool(p) for p in periodic)
+        plan = plan_levels(self.shape, int(min_coarse_cells), int(max_levels))
+        self.nlevels = len(plan)
+        self.level_shapes = [lv["shape"] for lv in plan]
+        self.level_jacobi = [any(self.periodic[a] and s[a] > 1 and s[a] % 2 == 1 for a in range(3))
+                             for s in self.level_shapes]
+        lev, nfaces, ncells_all = mgm.level_table(plan)
+        n0 = int(np.prod(self.shape))
+        ncoarse = int(np.prod(plan[-1]["shape"]))
+        if coarse_iterations is None:
+            coarse_iterations = min(ncoarse, max(8, 3 * max(plan[-1]["shape"])), 100)
+        self.coarse_iterations = int(coarse_iterations)
+        # a coarsest grid too large for one thread (dimensions that do not halve, e.g. 33^3) is
+        # smoothed in parallel instead; the outer CG then needs more iterations (choose grid
+        # dimensions with factors of 2 for multigrid efficiency)
+        self.coarse_parallel = ncoarse > mgm.COARSE_SERIAL_MAX
+        self._lev = ti.ndarray(ti.i32, shape=lev.shape)
+        self._lev.from_numpy(lev)
+        self._dval = _zeros(6)
+        self._sc = _zeros(mgm.NSCAL)
+        self.mg = mgm.Multigrid(lev=self._lev, trans=_zeros(nfaces), diag=_zeros(ncells_all),
+                                xs=_zeros(ncells_all), bs=_zeros(ncells_all), rs=_zeros(ncells_all),
+                                cg_p=_zeros(ncoarse), cg_ap=_zeros(ncoarse), dirichlet=self._dval, ctrl=self._sc,
+                                periodic=ti.Vector([int(p) for p in self.periodic], ti.i32), ncell0=n0,
+                                coarse_iters=self.coarse_iterations)
+        self._x, self._b0 = _zeros(n0), _zeros(n0)
+        self.ks = pcg.Krylov(sol=self._x, res=_zeros(n0), prec=_zeros(n0), prec_old=_zeros(n0),
+                             dirn=_zeros(n0), a_dirn=_zeros(n0), rhs=self._b0)
+        self.last: SolveInfo | None = None
+        self._singular = False
+        self._max_iter = 0
+        self._launched = 0
+
+    # ---------------------------------------------------------------- host helpers
+    def set_system(self, tx=None, ty=None, tz=None, b=None, x0=None) -> None:
+        """Copy level-0 transmissibilities / right-hand side / initial guess from numpy."""
+        for a, t in enumerate((tx, ty, tz)):
+            if t is not None:
+                fs = list(self.shape)
+                fs[a] += 1
+                t = np.ascontiguousarray(t, dtype=np.float64)
+                if t.shape != tuple(fs):
+                    raise ValueError(f"transmissibility of axis {a} must have shape {tuple(fs)}, got {t.shape}")
+                pcg._k_set_faces(self.mg, a, t)
+        for vec, v in ((self._b0, b), (self._x, x0)):
+            if v is not None:
+                v = np.ascontiguousarray(np.broadcast_to(np.asarray(v, np.float64), self.shape))
+                pcg._k_cells_in(vec, v)
+
+    def _cells(self, vec) -> np.ndarray:
+        out = np.zeros(self.shape)
+        pcg._k_cells_out(vec, out)
+        return out
+
+    def solution(self) -> np.ndarray:
+        return self._cells(self._x)
+
+    def rhs(self) -> np.ndarray:
+        return self._cells(self._b0)
+
+    def transmissibility(self, a: int) -> np.ndarray:
+        fs = list(self.shape)
+        fs[a] += 1
+        out = np.zeros(fs)
+        pcg._k_get_faces(self.mg, a, out)
+        return out
+
+    def set_dirichlet(self, values: Sequence[float]) -> None:
+        """Outside value of each domain face (x-, x+, y-, y+, z-, z+) where its T > 0."""
+        dv = np.asarray(values, np.float64)
+        if dv.shape != (6,):
+            raise ValueError(f"dirichlet needs 6 values (x-, x+, y-, y+, z-, z+), got shape {dv.shape}")
+        self._dval.from_numpy(np.ascontiguousarray(dv, dtype=self._dval.to_numpy().dtype))
+
+    # ---------------------------------------------------------------- solve
+    def _vcycle(self) -> None:
+        mg = self.mg
+        L = self.nlevels - 1
+        for l in range(L):
+            (mgm.k_down_j if self.level_jacobi[l] else mgm.k_down)(mg, l)
+        if self.coarse_parallel:
+            for k in range(mgm.COARSE_SMOOTH_SWEEPS):
+                mgm.k_coarse_smooth(mg, L, int(k == 0))
+        else:
+            mgm.k_coarse(mg, L, int(self._singular))
+        for l in reversed(range(L)):
+            (mgm.k_up_j if self.level_jacobi[l] else mgm.k_up)(mg, l)
+
+    def begin(self, tol: float, max_iter: int, *, singular: bool = False, scale: float | None = None,
+              device_scale: bool = False) -> None:
+        """Start a solve of A x = b (level-0 T, b, x already in the bundles) from the current x; launches
+        only (nothing is read back). ``scale``: see :meth:`solve`; ``device_scale``: a caller's kernel has
+        written the scale into the solver's scalars (``mg.ctrl[S_SCALE]``)."""
+        if not (tol > 0.0):
+            raise ValueError(f"tolerance must be > 0, got {tol}")
+        mg, ks = self.mg, self.ks
+        self._singular = bool(singular)
+        self._max_iter = int(max_iter)
+        self._launched = 0
+        mgm.k_diag(mg, 0)
+        for l in range(self.nlevels - 1):
+            mgm.k_coarsen(mg, l)
+        mode = 2 if device_scale else (0 if scale is None else 1)
+        pcg.k_pcg_begin(mg, ks, int(self._singular), float(tol), mode, float(scale or 0.0))
+        self._vcycle()
+        pcg.k_pcg_from(mg, ks, int(self._singular))
+
+    def launch(self, iterations: int) -> None:
+        """Queue up to ``iterations`` more outer iterations (each stops itself on the device once the
+        solve has converged, stagnated or reached max_iter), then the final zero-mean step (once)."""
+        n = max(0, min(int(iterations), self._max_iter - self._launched))
+        sg = int(self._singular)
+        mg, ks = self.mg, self.ks
+        for _ in range(n):
+            pcg.k_pcg_iter(mg, ks, self._max_iter)
+            self._vcycle()
+            pcg.k_pcg_from(mg, ks, sg)
+        self._launched += n
+        pcg.k_pcg_finish(mg, ks, sg)
+
+    @property
+    def exhausted(self) -> bool:
+        """Every iteration up to max_iter has been launched."""
+        return self._launched >= self._max_iter
+
+    def budget(self) -> int:
+        """Iterations to launch before the first look: the last solve's count and half as many more
+        (at least 4 more). The launches past convergence do nothing on the device; a solve that
+        needs more gets further batches, each with one more read."""
+        last = self.last.iterations if self.last is not None else 8
+        return max(4, last + max(4, last // 2))
+
+    def info_from(self, rec) -> SolveInfo:
+        """A :class:`SolveInfo` from a record (:func:`app.sim.gas.pcg.solve_record`) read from the device."""
+        it, rinf, conv, scale, r0 = (float(x) for x in rec[:5])
+        if scale > 0:
+            rel, rel0 = rinf / scale, r0 / scale
+        else:
+            rel, rel0 = (0.0 if rinf == 0 else math.inf), (0.0 if r0 == 0 else math.inf)
+        info = SolveInfo(int(round(it)), rel, bool(conv > 0.5), scale, rel0)
+        self.last = info
+        return info
+
+    def solve(self, tol: float = 1e-6, max_iter: int = 200, *, singular: bool = False,
+              scale: float | None = None) -> SolveInfo:
+        """Solve A x = b (level-0 T, b, x already in the bundles) from the current x.
+
+        Stops when ``max|b - A x| <= tol * scale``; ``scale`` defaults to ``max|b|`` (after the
+        zero-mean projection when ``singular``). ``singular``: no Dirichlet face at all (pure
+        Neumann/periodic): b is projected onto zero mean and x returned with zero mean.
+        The iterations are launched in batches (:meth:`budget`) and their convergence is decided on
+        the device; the host reads one record per batch (one in all when the budget suffices).
+        Returns a :class:`SolveInfo` (also kept as ``last``).
+        """
+        self.begin(tol, max_iter, singular=singular, scale=scale)
+        n = self.budget()
+        while True:
+            self.launch(n)
+            rec = pcg.k_record(self.mg)
+            if rec[5] > 0.5 or self.exhausted:
+                break
+            n = max(4, n // 2)
+        return self.info_from(rec)

@@ -1,0 +1,378 @@
+"""The multigrid hierarchy of the pressure solver and its V-cycle (the preconditioner of :mod:`.pcg`).
+
+Owns: the level plan (:func:`plan_levels`), the :data:`Multigrid` bundle (every level's
+transmissibilities, diagonal, smoother vectors, the level table and the solve's control
+scalars) and the V-cycle kernels. The method is described in :mod:`app.sim.gas.pcg`.
+
+Level layout: ``lev[l, L_*]`` gives level l's dims, its cell offset ``L_CO`` into the
+per-cell arrays (``diag``, ``xs``, ``bs``, ``rs`` hold every level back to back), the offsets
+``L_FOX + a`` of its faces in ``t`` and its coarsening ratio. The kernels take the bundle, so
+they compile once per process whatever the grid.
+"""
+import numpy as np
+import taichi as ti
+
+NMETA = 16
+# per-level slots of lev[l, ...]
+L_NX, L_NY, L_NZ, L_CO, L_FOX, L_FOY, L_FOZ, L_RX, L_RY, L_RZ, L_NCELL = range(11)
+# the solve's scalars (sc[...]), kept on the device so that the host launches iterations without waiting
+S_RZ, S_RZN, S_RZO, S_PAP, S_RINF, S_SUM, S_CNT, S_BNORM = range(8)
+# S_ACTIVE 1 while iterating; S_FIRST restart the flexible CG; S_LAST the last true residual, -1 none
+# yet; S_DONE 1 once the solution is final (zero mean taken); S_SCALE the residual scale, S_THR = tol * scale
+S_ACTIVE, S_IT, S_THR, S_LAST, S_FIRST, S_R0, S_SCALE, S_CONV, S_TRUE, S_DONE = range(8, 18)
+NSCAL = 24
+
+PRE_SWEEPS = 2
+POST_SWEEPS = 2
+COARSE_SERIAL_MAX = 512  # largest coarsest grid solved by the one-thread CG
+COARSE_SMOOTH_SWEEPS = 4  # symmetric red-black double sweeps on a larger coarsest grid
+JACOBI_WEIGHT = 0.8
+
+ND1 = ti.types.ndarray(ndim=1)
+#: the hierarchy: lev (i32, [levels, NMETA]); trans: the transmissibilities of every level's faces;
+#: diag, xs (smoother iterate), bs (level right-hand side), rs (level residual): cells of every level;
+#: cg_p, cg_ap the coarsest CG's vectors; dirichlet the six Dirichlet values; ctrl the solve's scalars
+#: (S_*); periodic axes; ncell0 cells of level 0; coarse_iters iterations of the coarsest CG.
+#: (Taichi 1.7.4 flattens an argpack's members into kernel arguments by name: member names must differ
+#: across the bundles of one kernel and from its local variables.)
+Multigrid = ti.types.argpack(lev=ti.types.ndarray(ndim=2), trans=ND1, diag=ND1, xs=ND1, bs=ND1, rs=ND1, cg_p=ND1,
+                             cg_ap=ND1, dirichlet=ND1, ctrl=ND1, periodic=ti.types.vector(3, ti.i32),
+                             ncell0=ti.i32, coarse_iters=ti.i32)
+
+
+def plan_levels(shape, min_coarse_cells=8, max_levels=16):
+    """Grid shapes of the multigrid hierarchy and the coarsening ratio of each level (host only)."""
+    levels = [dict(shape=tuple(shape), hrel=(1, 1, 1), ratio=(1, 1, 1))]
+    while len(levels) < max_levels:
+        s, hr = levels[-1]["shape"], levels[-1]["hrel"]
+        if int(np.prod(s)) <= min_coarse_cells:
+            break
+        coupled = [s[a] > 1 for a in range(3)]
+        if not any(coupled):
+            break
+        hmin = min(hr[a] for a in range(3) if coupled[a])
+        even = [coupled[a] and s[a] % 2 == 0 for a in range(3)]
+        r = tuple(2 if (even[a] and hr[a] <= 1.5 * hmin) else 1 for a in range(3))
+        if r == (1, 1, 1):
+            r = tuple(2 if even[a] else 1 for a in range(3))
+        if r == (1, 1, 1):
+            break
+        levels[-1]["ratio"] = r
+        levels.append(dict(shape=tuple(s[a] // r[a] for a in range(3)), hrel=tuple(hr[a] * r[a] for a in range(3)),
+                           ratio=(1, 1, 1)))
+    return levels
+
+
+def level_table(plan):
+    """(lev table, total faces, total cells) of a plan (host)."""
+    lev = np.zeros((len(plan), NMETA), np.int32)
+    off = co = 0
+    for l, lv in enumerate(plan):
+        s = lv["shape"]
+        lev[l, L_NX:L_NZ + 1] = s
+        lev[l, L_RX:L_RZ + 1] = lv["ratio"]
+        lev[l, L_NCELL] = int(np.prod(s))
+        lev[l, L_CO] = co
+        co += int(np.prod(s))
+        for a in range(3):
+            fs = list(s)
+            fs[a] += 1
+            lev[l, L_FOX + a] = off
+            off += int(np.prod(fs))
+    return lev, off, co
+
+
+# ============================================================================ Taichi functions
+@ti.func
+def dims(mg: ti.template(), l):
+    return ti.Vector([mg.lev[l, L_NX], mg.lev[l, L_NY], mg.lev[l, L_NZ]])
+
+
+@ti.func
+def _ratio(mg: ti.template(), l):
+    return ti.Vector([mg.lev[l, L_RX], mg.lev[l, L_RY], mg.lev[l, L_RZ]])
+
+
+@ti.func
+def on(mg: ti.template()):
+    """1 while the solve iterates, else 0: every loop of an iteration runs over on * cells, so
+    launches after convergence (the host launches a fixed count without waiting) do nothing."""
+    return ti.cast(mg.ctrl[S_ACTIVE] > 0.0, ti.i32)
+
+
+@ti.func
+def _ncell(mg: ti.template(), l):
+    return mg.lev[l, L_NCELL] * on(mg)
+
+
+@ti.func
+def local(n, I):
+    """Local (level-relative) cell index of I in a grid of dims n."""
+    return (I[0] * n[1] + I[1]) * n[2] + I[2]
+
+
+@ti.func
+def decode(n, c):
+    return ti.Vector([c // (n[1] * n[2]), (c // n[2]) % n[1], c % n[2]])
+
+
+@ti.func
+def face(mg: ti.template(), l, a, I):
+    """Index into ``t`` of the face of axis a with (face) index I at level l."""
+    d = dims(mg, l)
+    d[a] += 1
+    return mg.lev[l, L_FOX + a] + (I[0] * d[1] + I[1]) * d[2] + I[2]
+
+
+@ti.func
+def stencil(mg: ti.template(), l, v: ti.template(), vo, I, affine: ti.template()):
+    """(diag, sum T x_nb, sum T (x_c - x_nb)) at cell I of level l for the vector v[vo + local]."""
+    n = dims(mg, l)
+    xc = v[vo + local(n, I)]
+    d = 0.0
+    s = 0.0
+    ax = 0.0
+    for a in ti.static(range(3)):
+        for side in ti.static(range(2)):
+            F = I
+            F[a] += side
+            t = mg.trans[face(mg, l, a, F)]
+            if t != 0.0:
+                J = I
+                J[a] += 2 * side - 1
+                xn = 0.0
+                inside = (J[a] >= 0) and (J[a] < n[a])
+                if (not inside) and mg.periodic[a] == 1:
+                    J[a] = (J[a] + n[a]) % n[a]
+                    inside = True
+                if inside:
+                    xn = v[vo + local(n, J)]
+                else:
+                    if ti.static(affine):
+                        xn = mg.dirichlet[2 * a + side]
+                d += t
+                s += t * xn
+                ax += t * (xc - xn)
+    return d, s, ax
+
+
+@ti.func
+def level_diag(mg: ti.template(), l):
+    n = dims(mg, l)
+    co = mg.lev[l, L_CO]
+    for c in range(mg.lev[l, L_NCELL]):
+        I = decode(n, c)
+        d = 0.0
+        for a in ti.static(range(3)):
+            for side in ti.static(range(2)):
+                F = I
+                F[a] += side
+                d += mg.trans[face(mg, l, a, F)]
+        mg.diag[co + c] = d
+
+
+@ti.func
+def _rb_sweep(mg: ti.template(), l, color):
+    n = dims(mg, l)
+    co = mg.lev[l, L_CO]
+    for c in range(_ncell(mg, l)):
+        I = decode(n, c)
+        if (I[0] + I[1] + I[2]) % 2 == color and mg.diag[co + c] > 0.0:
+            d, s, _ = stencil(mg, l, mg.xs, co, I, False)
+            mg.xs[co + c] = (mg.bs[co + c] + s) / d
+
+
+@ti.func
+def _residual(mg: ti.template(), l):
+    n = dims(mg, l)
+    co = mg.lev[l, L_CO]
+    for c in range(_ncell(mg, l)):
+        r = 0.0
+        if mg.diag[co + c] > 0.0:
+            I = decode(n, c)
+            _, _, ax = stencil(mg, l, mg.xs, co, I, False)
+            r = mg.bs[co + c] - ax
+        mg.rs[co + c] = r
+
+
+@ti.func
+def _jacobi_sweep(mg: ti.template(), l):
+    _residual(mg, l)
+    co = mg.lev[l, L_CO]
+    for c in range(_ncell(mg, l)):
+        dg = mg.diag[co + c]
+        if dg > 0.0:
+            mg.xs[co + c] += JACOBI_WEIGHT * mg.rs[co + c] / dg
+
+
+@ti.func
+def _zero_x(mg: ti.template(), l):
+    co = mg.lev[l, L_CO]
+    for c in range(_ncell(mg, l)):
+        mg.xs[co + c] = 0.0
+
+
+@ti.func
+def _restrict(mg: ti.template(), l):
+    L = l + 1
+    r = _ratio(mg, l)
+    n = dims(mg, l)
+    N = dims(mg, L)
+    rb = mg.lev[l, L_CO]
+    cb = mg.lev[L, L_CO]
+    for C in range(_ncell(mg, L)):
+        K = decode(N, C)
+        s = 0.0
+        for d in range(8):
+            o = ti.Vector([d & 1, (d >> 1) & 1, (d >> 2) & 1])
+            if o[0] < r[0] and o[1] < r[1] and o[2] < r[2]:
+                s += mg.rs[rb + local(n, K * r + o)]
+        mg.bs[cb + C] = s
+
+
+@ti.func
+def _prolong(mg: ti.template(), l):
+    L = l + 1
+    r = _ratio(mg, l)
+    n = dims(mg, l)
+    N = dims(mg, L)
+    co = mg.lev[l, L_CO]
+    cb = mg.lev[L, L_CO]
+    for c in range(_ncell(mg, l)):
+        if mg.diag[co + c] > 0.0:
+            K = decode(n, c) // r
+            mg.xs[co + c] += mg.xs[cb + local(N, K)]
+
+
+# ============================================================================ kernels
+@ti.kernel
+def k_diag(mg: Multigrid, l: ti.i32):
+    level_diag(mg, l)
+
+
+@ti.kernel
+def k_coarsen(mg: Multigrid, l: ti.i32):
+    """Transmissibilities and diagonal of level l+1 from level l."""
+    L = l + 1
+    r = _ratio(mg, l)
+    N = dims(mg, L)
+    for a in ti.static(range(3)):
+        nfa = N
+        nfa[a] += 1
+        b1 = ti.static((a + 1) % 3)
+        b2 = ti.static((a + 2) % 3)
+        for c in range(nfa[0] * nfa[1] * nfa[2]):
+            K = decode(nfa, c)
+            s = 0.0
+            for d in range(4):
+                o1 = d & 1
+                o2 = (d >> 1) & 1
+                if o1 < r[b1] and o2 < r[b2]:
+                    F = K * r
+                    F[b1] += o1
+                    F[b2] += o2
+                    s += mg.trans[face(mg, l, a, F)]
+            s /= r[a]
+            if mg.periodic[a] == 1 and N[a] == 1:
+                s = 0.0
+            mg.trans[face(mg, L, a, K)] = s
+    level_diag(mg, L)
+
+
+@ti.kernel
+def k_down(mg: Multigrid, l: ti.i32):
+    _zero_x(mg, l)
+    for _s in ti.static(range(PRE_SWEEPS)):
+        _rb_sweep(mg, l, 0)
+        _rb_sweep(mg, l, 1)
+    _residual(mg, l)
+    _restrict(mg, l)
+
+
+@ti.kernel
+def k_down_j(mg: Multigrid, l: ti.i32):
+    _zero_x(mg, l)
+    for _s in ti.static(range(PRE_SWEEPS)):
+        _jacobi_sweep(mg, l)
+    _residual(mg, l)
+    _restrict(mg, l)
+
+
+@ti.kernel
+def k_up(mg: Multigrid, l: ti.i32):
+    _prolong(mg, l)
+    for _s in ti.static(range(POST_SWEEPS)):
+        _rb_sweep(mg, l, 1)
+        _rb_sweep(mg, l, 0)
+
+
+@ti.kernel
+def k_up_j(mg: Multigrid, l: ti.i32):
+    _prolong(mg, l)
+    for _s in ti.static(range(POST_SWEEPS)):
+        _jacobi_sweep(mg, l)
+
+
+@ti.kernel
+def k_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32):
+    """Jacobi-PCG on the (tiny) coarsest level, by one thread (none once the solve has stopped)."""
+    for _t in range(on(mg)):
+        n = dims(mg, l)
+        nc = mg.lev[l, L_NCELL]
+        co = mg.lev[l, L_CO]
+        mean = 0.0
+        if singular:
+            cnt = 0.0
+            for c in range(nc):
+                if mg.diag[co + c] > 0.0:
+                    mean += mg.bs[co + c]
+                    cnt += 1.0
+            if cnt > 0.0:
+                mean /= cnt
+        rz = 0.0
+        for c in range(nc):
+            r = 0.0
+            z = 0.0
+            if mg.diag[co + c] > 0.0:
+                r = mg.bs[co + c] - mean
+                z = r / mg.diag[co + c]
+            mg.rs[co + c] = r
+            mg.xs[co + c] = 0.0
+            mg.cg_p[c] = z
+            rz += r * z
+        for _it in range(mg.coarse_iters):
+            pap = 0.0
+            for c in range(nc):
+                ap = 0.0
+                if mg.diag[co + c] > 0.0:
+                    _, _, ax = stencil(mg, l, mg.cg_p, 0, decode(n, c), False)
+                    ap = ax
+                mg.cg_ap[c] = ap
+                pap += ap * mg.cg_p[c]
+            if pap > 0.0 and rz > 0.0:
+                alpha = rz / pap
+                rzn = 0.0
+                for c in range(nc):
+                    mg.xs[co + c] += alpha * mg.cg_p[c]
+                    mg.rs[co + c] -= alpha * mg.cg_ap[c]
+                    if mg.diag[co + c] > 0.0:
+                        rzn += mg.rs[co + c] * mg.rs[co + c] / mg.diag[co + c]
+                beta = rzn / rz
+                for c in range(nc):
+                    z = 0.0
+                    if mg.diag[co + c] > 0.0:
+                        z = mg.rs[co + c] / mg.diag[co + c]
+                    mg.cg_p[c] = z + beta * mg.cg_p[c]
+                rz = rzn
+
+
+@ti.kernel
+def k_coarse_smooth(mg: Multigrid, l: ti.i32, first: ti.i32):
+    """Large coarsest level (dimensions that do not halve): symmetric red-black sweeps in parallel
+    instead of the one-thread CG."""
+    if first:
+        _zero_x(mg, l)
+    _rb_sweep(mg, l, 0)
+    _rb_sweep(mg, l, 1)
+    _rb_sweep(mg, l, 1)
+    _rb_sweep(mg, l, 0)

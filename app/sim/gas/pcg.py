@@ -1,0 +1,281 @@
+"""Multigrid-preconditioned conjugate gradients for the variable-coefficient pressure equation.
+
+Owns: :class:`MGPCG`, a solver for the symmetric cell-centred system
+
+    (A x)_c = sum over the six faces f of c of  T_f (x_c - x_nb(f))  =  b_c
+
+on a uniform (nx, ny, nz) grid, where ``T_f >= 0`` is a face *transmissibility* given by
+the caller (for the gas pressure: aperture * eps_f * kappa_f / h^2). A face on the domain
+boundary with ``T_f > 0`` is a Dirichlet face whose outside value ``x_nb`` is the
+Dirichlet value of that domain face; ``T_f = 0`` there means no flux (Neumann). Along a
+periodic axis the first and last faces are the same face (the caller gives both the same
+``T``) and join the last and first cells. Cells whose faces all have ``T = 0`` are
+inactive: they keep ``x = 0`` and are left out of every norm.
+
+Method
+------
+* Outer iteration: flexible (Polak-Ribiere) preconditioned CG, which tolerates the slightly
+  non-linear preconditioner below. Stops when ``max|r| <= tol * scale`` for the true
+  residual r = b - A x (recomputed when the recursive one gets there: in float32 they drift
+  apart); when the true residual stops halving between such checks the solve returns
+  unconverged (precision floor: a caller can solve again for the remaining residual) (``scale`` defaults
+  to ``max|b|``; the gas solver passes the gross face-flux scale so that ``tol`` bounds the
+  divergence relative to the through-flow). With no Dirichlet face the matrix is singular:
+  the right-hand side and every preconditioned residual are projected onto zero mean
+  (over active cells) and the solution is returned with zero mean.
+* Preconditioner (:mod:`.multigrid`): one geometric-multigrid V-cycle. Coarsening halves every
+  axis whose length is even and whose spacing is not already coarser than 1.5x the finest coupled
+  axis (semi-coarsening keeps coarse cells near-cubic, e.g. 32x32x116 -> 16x16x58 ->
+  8x8x29 -> 4x4x29); when no axis qualifies but the grid is still larger than
+  ``min_coarse_cells``, any even axis is halved (-> 2x2x29 -> 1x1x29). Coarse
+  transmissibility = (sum of the fine faces a coarse face covers) / (coarsening ratio
+  normal to it), i.e. the arithmetic mean of the fine coefficients rediscretised at the
+  coarse spacing. Transfer is piecewise constant (restriction sums the children,
+  prolongation injects). Smoother: red-black Gauss-Seidel, two sweeps red->black going down
+  and two black->red coming up (a symmetric cycle); levels with an odd periodic length,
+  where red-black colouring is inconsistent, use damped Jacobi (weight 0.8).
+* Coarsest level: Jacobi-preconditioned CG, a fixed number of iterations (the number of
+  cells when that is small, so tiny coarse grids are solved exactly), run by one thread
+  inside one kernel (the coarsest grid has tens of cells). When the dimensions do not halve
+  far enough (coarsest grid > 512 cells, e.g. 33^3) it gets 4 parallel symmetric red-black
+  double sweeps instead: still a valid preconditioner, but the outer iteration count then
+  grows with the grid; choose dimensions with factors of 2.
+
+Implementation: the state is two bundles of ndarrays, :data:`app.sim.gas.multigrid.Multigrid`
+(the hierarchy and the solve's control) and :data:`Krylov` (the level-0 vectors), so every
+kernel compiles once per process whatever the grid. Every loop over cells is the outermost loop
+of its kernel, so it runs in parallel on CPU and CUDA. The iteration's control (convergence, the
+true-residual check, stagnation, max_iter) runs on the device: the host launches a batch of
+iterations without waiting, each of which does nothing once the solve has stopped, and reads
+one record per batch (:meth:`MGPCG.solve`; the gas solver reads it with its own step record).
+"""
+import dataclasses
+
+import taichi as ti
+
+from . import multigrid as mgm
+from .multigrid import (S_ACTIVE, S_BNORM, S_CNT, S_CONV, S_DONE, S_FIRST, S_IT, S_LAST, S_PAP, S_R0, S_RINF,
+                        S_RZ, S_RZN, S_RZO, S_SCALE, S_SUM, S_THR, S_TRUE, Multigrid, decode, on, plan_levels, stencil)
+
+__all__ = ["SolveInfo", "Krylov", "plan_levels", "solve_record"]  # the solver object: app.sim.gas.linsolve.MGPCG
+
+ND1 = mgm.ND1
+#: level-0 vectors of the outer CG: sol the solution (and initial guess), res the residual, prec /
+#: prec_old the preconditioned residual and its last value, dirn the search direction, a_dirn = A dirn,
+#: rhs the right-hand side
+Krylov = ti.types.argpack(sol=ND1, res=ND1, prec=ND1, prec_old=ND1, dirn=ND1, a_dirn=ND1, rhs=ND1)
+
+
+@dataclasses.dataclass(frozen=True)
+class SolveInfo:
+    """Outcome of one solve: outer iterations, final ``max|r| / scale``, whether it reached tol."""
+
+    iterations: int
+    residual: float
+    converged: bool
+    scale: float
+    initial_residual: float
+
+
+# ============================================================================ kernels
+@ti.func
+def _true_residual(mg: ti.template(), ks: ti.template(), nc):
+    """r = b - A x (affine, with the Dirichlet values) over the first nc cells (nc = 0: nothing);
+    max|r| into S_TRUE. It also feeds the next V-cycle (bs)."""
+    n = mgm.dims(mg, 0)
+    mg.ctrl[S_TRUE] = 0.0
+    for c in range(nc):
+        r = 0.0
+        if mg.diag[c] > 0.0:
+            _, _, ax = stencil(mg, 0, ks.sol, 0, decode(n, c), True)
+            r = ks.rhs[c] - ax
+            ti.atomic_max(mg.ctrl[S_TRUE], ti.abs(r))
+        else:
+            ks.sol[c] = 0.0
+        ks.res[c] = r
+        mg.bs[c] = r
+
+
+@ti.kernel
+def k_pcg_begin(mg: Multigrid, ks: Krylov, singular: ti.i32, tol: float, scale_mode: ti.i32, scale: float):
+    """Project b (singular case), measure max|b|, r = b - A x; the stopping threshold tol * scale with
+    scale = max|b| (scale_mode 0), the argument (1) or mg.ctrl[S_SCALE] as a caller's kernel left it (2);
+    the solve is active unless r already meets it."""
+    nc = mg.ncell0
+    mg.ctrl[S_SUM] = 0.0
+    mg.ctrl[S_CNT] = 0.0
+    for c in range(nc):
+        if singular and mg.diag[c] > 0.0:
+            mg.ctrl[S_SUM] += ks.rhs[c]
+            mg.ctrl[S_CNT] += 1.0
+    mg.ctrl[S_BNORM] = 0.0
+    for c in range(nc):
+        if mg.diag[c] > 0.0:
+            if singular and mg.ctrl[S_CNT] > 0.0:
+                ks.rhs[c] -= mg.ctrl[S_SUM] / mg.ctrl[S_CNT]
+            ti.atomic_max(mg.ctrl[S_BNORM], ti.abs(ks.rhs[c]))
+    _true_residual(mg, ks, nc)
+    if scale_mode == 0:
+        mg.ctrl[S_SCALE] = mg.ctrl[S_BNORM]
+    elif scale_mode == 1:
+        mg.ctrl[S_SCALE] = scale
+    mg.ctrl[S_THR] = tol * mg.ctrl[S_SCALE]
+    mg.ctrl[S_R0] = mg.ctrl[S_TRUE]
+    mg.ctrl[S_RINF] = mg.ctrl[S_TRUE]
+    mg.ctrl[S_IT] = 0.0
+    mg.ctrl[S_LAST] = -1.0
+    mg.ctrl[S_FIRST] = 1.0
+    mg.ctrl[S_DONE] = 0.0
+    conv = mg.ctrl[S_TRUE] <= mg.ctrl[S_THR]
+    mg.ctrl[S_CONV] = ti.select(conv, 1.0, 0.0)
+    mg.ctrl[S_ACTIVE] = ti.select(conv, 0.0, 1.0)
+
+
+@ti.kernel
+def k_pcg_from(mg: Multigrid, ks: Krylov, singular: ti.i32):
+    """z = V-cycle output (zero mean if singular); new search direction (flexible CG; a restart
+    when S_FIRST is set). Nothing once the solve has stopped."""
+    nc = mg.ncell0 * on(mg)
+    mg.ctrl[S_SUM] = 0.0
+    mg.ctrl[S_CNT] = 0.0
+    for c in range(nc):
+        if singular and mg.diag[c] > 0.0:
+            mg.ctrl[S_SUM] += mg.xs[c]
+            mg.ctrl[S_CNT] += 1.0
+    mg.ctrl[S_RZN] = 0.0
+    mg.ctrl[S_RZO] = 0.0
+    for c in range(nc):
+        m = 0.0
+        if singular and mg.ctrl[S_CNT] > 0.0:
+            m = mg.ctrl[S_SUM] / mg.ctrl[S_CNT]
+        z = 0.0
+        if mg.diag[c] > 0.0:
+            z = mg.xs[c] - m
+        zo = ks.prec[c]
+        ks.prec_old[c] = zo
+        ks.prec[c] = z
+        r = ks.res[c]
+        mg.ctrl[S_RZN] += r * z
+        mg.ctrl[S_RZO] += r * zo
+    for c in range(nc):
+        beta = 0.0
+        if mg.ctrl[S_FIRST] == 0.0 and mg.ctrl[S_RZ] != 0.0:
+            beta = (mg.ctrl[S_RZN] - mg.ctrl[S_RZO]) / mg.ctrl[S_RZ]
+        ks.dirn[c] = ks.prec[c] + beta * ks.dirn[c]
+    if nc > 0:
+        mg.ctrl[S_RZ] = mg.ctrl[S_RZN]
+
+
+@ti.kernel
+def k_pcg_iter(mg: Multigrid, ks: Krylov, max_iter: ti.i32):
+    """One outer iteration, decided on the device: x += alpha p, r -= alpha A p; when the recursive
+    residual meets the threshold, the true residual b - A x is measured: converged if it meets it
+    too, stagnated (stop, the caller may refine) if it did not halve since the last such check,
+    else a restart from it. Stops at max_iter. Nothing once the solve has stopped."""
+    n = mgm.dims(mg, 0)
+    nc = mg.ncell0 * on(mg)
+    mg.ctrl[S_PAP] = 0.0
+    for c in range(nc):
+        ap = 0.0
+        if mg.diag[c] > 0.0:
+            _, _, ax = stencil(mg, 0, ks.dirn, 0, decode(n, c), False)
+            ap = ax
+        ks.a_dirn[c] = ap
+        mg.ctrl[S_PAP] += ap * ks.dirn[c]
+    mg.ctrl[S_TRUE] = 0.0
+    for c in range(nc):
+        alpha = 0.0
+        if mg.ctrl[S_PAP] > 0.0:
+            alpha = mg.ctrl[S_RZ] / mg.ctrl[S_PAP]
+        ks.sol[c] += alpha * ks.dirn[c]
+        r = ks.res[c] - alpha * ks.a_dirn[c]
+        ks.res[c] = r
+        mg.bs[c] = r
+        if mg.diag[c] > 0.0:
+            ti.atomic_max(mg.ctrl[S_TRUE], ti.abs(r))
+    cand = 0
+    if nc > 0:
+        mg.ctrl[S_IT] += 1.0
+        mg.ctrl[S_RINF] = mg.ctrl[S_TRUE]
+        mg.ctrl[S_FIRST] = 0.0
+        if mg.ctrl[S_RINF] <= mg.ctrl[S_THR]:
+            cand = 1
+    # the recursively updated residual drifts from b - A x in float32: confirm with the true one
+    _true_residual(mg, ks, mg.ncell0 * cand)
+    if cand == 1:
+        t = mg.ctrl[S_TRUE]
+        mg.ctrl[S_RINF] = t
+        if t <= mg.ctrl[S_THR]:
+            mg.ctrl[S_CONV] = 1.0
+            mg.ctrl[S_ACTIVE] = 0.0
+        elif mg.ctrl[S_LAST] >= 0.0 and t > 0.5 * mg.ctrl[S_LAST]:
+            mg.ctrl[S_ACTIVE] = 0.0  # stagnated at the precision floor: let the caller refine
+        else:
+            mg.ctrl[S_LAST] = t
+            mg.ctrl[S_FIRST] = 1.0
+    if nc > 0 and mg.ctrl[S_IT] >= ti.cast(max_iter, float):
+        mg.ctrl[S_ACTIVE] = 0.0
+
+
+@ti.kernel
+def k_pcg_finish(mg: Multigrid, ks: Krylov, singular: ti.i32):
+    """Once the solve has stopped (and only once): the zero-mean solution of a singular system."""
+    fin = 0
+    if mg.ctrl[S_ACTIVE] == 0.0 and mg.ctrl[S_DONE] == 0.0:
+        fin = 1
+    nc = mg.ncell0 * fin * singular
+    mg.ctrl[S_SUM] = 0.0
+    mg.ctrl[S_CNT] = 0.0
+    for c in range(nc):
+        if mg.diag[c] > 0.0:
+            mg.ctrl[S_SUM] += ks.sol[c]
+            mg.ctrl[S_CNT] += 1.0
+    for c in range(nc):
+        m = 0.0
+        if mg.ctrl[S_CNT] > 0.0:
+            m = mg.ctrl[S_SUM] / mg.ctrl[S_CNT]
+        if mg.diag[c] > 0.0:
+            ks.sol[c] -= m
+    if fin == 1:
+        mg.ctrl[S_DONE] = 1.0
+
+
+@ti.func
+def solve_record(mg: ti.template()):
+    """(iterations, max|r|, converged, scale, initial max|r|, done) of the current solve."""
+    return ti.Vector([mg.ctrl[S_IT], mg.ctrl[S_RINF], mg.ctrl[S_CONV], mg.ctrl[S_SCALE], mg.ctrl[S_R0],
+                      mg.ctrl[S_DONE]])
+
+
+@ti.kernel
+def k_record(mg: Multigrid) -> ti.types.vector(6, ti.f64):
+    return solve_record(mg)
+
+
+# ---- host <-> level-0 transfer (used by tests and by callers without their own kernels)
+@ti.kernel
+def _k_set_faces(mg: Multigrid, a: ti.i32, src: ti.types.ndarray()):
+    # loop bounds built without a dynamic-index store (Taichi 1.7.4 gets ndrange bounds wrong
+    # after ``d[a] += 1`` with a runtime a)
+    n = mgm.dims(mg, 0)
+    for i, j, k in ti.ndrange(n[0] + (a == 0), n[1] + (a == 1), n[2] + (a == 2)):
+        mg.trans[mgm.face(mg, 0, a, ti.Vector([i, j, k]))] = src[i, j, k]
+
+
+@ti.kernel
+def _k_get_faces(mg: Multigrid, a: ti.i32, dst: ti.types.ndarray()):
+    n = mgm.dims(mg, 0)
+    for i, j, k in ti.ndrange(n[0] + (a == 0), n[1] + (a == 1), n[2] + (a == 2)):
+        dst[i, j, k] = mg.trans[mgm.face(mg, 0, a, ti.Vector([i, j, k]))]
+
+
+@ti.kernel
+def _k_cells_in(v: ti.types.ndarray(), src: ti.types.ndarray()):
+    for i, j, k in src:
+        v[(i * src.shape[1] + j) * src.shape[2] + k] = src[i, j, k]
+
+
+@ti.kernel
+def _k_cells_out(v: ti.types.ndarray(), dst: ti.types.ndarray()):
+    for i, j, k in dst:
+        dst[i, j, k] = v[(i * dst.shape[1] + j) * dst.shape[2] + k]

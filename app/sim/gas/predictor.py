@@ -1,0 +1,150 @@
+"""The momentum predictor: face coefficients and the implicit drag/viscous update by red-black sweeps.
+
+Per face, backward Euler with the incremental pressure::
+
+    (rho eps/dt + beta) u* - div(eps mu grad u*) = rho eps/dt u~ - eps^m grad p^n + rho eps g + f + beta u_s
+
+solved in place by red-black Gauss-Seidel sweeps (the viscous stencil couples a face only to faces of
+the other parity), from the last step's predictor increment as initial iterate; beta and every wall
+term sit on the diagonal. Cut-cell walls enter as ghost values u_G = -u_P (1 - t)/t (see
+:mod:`app.sim.gas`).
+"""
+import taichi as ti
+
+from .boundary import face_grad, ghost_coef
+from .layout import (P_G, P_H, P_MU, P_RHO, P_THMIN, SC_DV, SC_NSW, SC_UOLD, SC_VACT, SC_VTHR, Cells, Grid, Inputs,
+                     State, eps_at, face_cells, face_eps, face_mean_comp, fdecode, fidx, solved, wrap)
+
+VISCOUS_CHUNK = 2  # red-black sweeps per launch of the viscous predictor (each stops itself on the device;
+# each is a copy of the sweep in the compiled kernel: 4 cost 50% more compile time in all than 2)
+
+
+@ti.func
+def face_beta(g: ti.template(), inp: ti.template(), a, I):
+    """Face drag coefficient [kg m^-3 s^-1]: eps_f^(m+1) * mean(beta/eps^(m+1)) of the two cells, so
+    that the drag resistance of the face is the series resistance of its two half-cells and the
+    pressure drop of a 1-D flow through any eps/beta layering is exact (eps_f: mean of the cells)."""
+    L, R, hL, hR = face_cells(g, a, I)
+    m1 = g.form + 1
+    r = 0.0
+    cnt = 0.0
+    if hL:
+        r += inp.drag_beta[L] / eps_at(inp, L) ** m1
+        cnt += 1.0
+    if hR:
+        r += inp.drag_beta[R] / eps_at(inp, R) ** m1
+        cnt += 1.0
+    e = face_eps(g, inp, a, I)
+    return e ** m1 * r / ti.max(cnt, 1.0)
+
+
+@ti.kernel
+def k_face_coef(g: Grid, inp: Inputs, st: State):
+    """Face gas fraction (mean of the two cells) and face drag coefficient, once per step."""
+    for f in range(g.nfaces):
+        a, I = fdecode(g, f)
+        st.eps_f[f] = face_eps(g, inp, a, I)
+        st.beta_f[f] = face_beta(g, inp, a, I)
+
+
+@ti.func
+def _visc_colour(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.template(), dt, colour, nf):
+    """Gauss-Seidel update, in place on the velocity, of the faces of one colour (parity of
+    i+j+k) among the first nf faces (all, or none once the sweeps have stopped): the viscous
+    stencil couples a face only to faces of the other colour."""
+    n = g.dims
+    rho = g.par[P_RHO]
+    mu = g.par[P_MU]
+    h = g.par[P_H]
+    thmin = g.par[P_THMIN]
+    for f in range(nf):
+        a, I = fdecode(g, f)
+        if (I[0] + I[1] + I[2]) % 2 == colour and solved(g, f, a, I):
+            eP = st.eps_f[f]
+            bP = st.beta_f[f]
+            D = rho * eP / dt + bP
+            R = rho * eP / dt * st.vel_adv[f] + rho * eP * g.par[P_G + a] \
+                + face_mean_comp(g, inp.ext_force, a, a, I) + bP * face_mean_comp(g, inp.solid_vel, a, a, I)
+            gp, okp = face_grad(g, cl, a, I)
+            if okp:
+                em = 1.0
+                if g.form == 1:
+                    em = eP
+                R -= em * gp  # incremental projection: the predictor feels the last pressure
+            cw = mu * eP / (h * h)
+            clP = 1e30
+            if g.has_walls == 1:
+                clP = ti.max(g.clear[f], 0.0)
+            for b in range(3):
+                if not (g.wrap[b] == 1 and n[b] == 1) and mu > 0.0:
+                    for side in range(2):
+                        J = I
+                        J[b] += 2 * side - 1
+                        ghost = False
+                        if b == a:
+                            if g.wrap[a] == 1:
+                                J[a] = wrap(J[a], n[a])
+                        elif J[b] < 0 or J[b] >= n[b]:
+                            if g.wrap[b] == 1:
+                                J[b] = wrap(J[b], n[b])
+                            else:
+                                ghost = True
+                        if ghost:
+                            # a vessel wall closer than the domain face (clearance extrapolated
+                            # linearly across the boundary) takes precedence over the domain ghost
+                            th = 1.0
+                            if g.has_walls == 1 and clP > 0.0:
+                                Jo = I
+                                Jo[b] -= 2 * side - 1
+                                if Jo[b] >= 0 and Jo[b] < n[b]:
+                                    clQ = 2.0 * clP - g.clear[fidx(g, a, Jo)]
+                                    if clQ < 0.0:
+                                        th = clP / (clP - clQ)
+                            if th < 0.5:
+                                D += cw / ti.max(th, thmin)
+                            else:
+                                al, ga = ghost_coef(g, inp, b, side, a, J)
+                                D += cw * (1.0 - al)
+                                R += cw * ga
+                        else:
+                            q = fidx(g, a, J)
+                            solid = False
+                            clQ = 1.0
+                            if g.has_walls == 1:
+                                clQ = g.clear[q]
+                                solid = g.aperture[q] <= 0.0 or clQ < 0.0
+                            if solid:
+                                th = 1.0
+                                if clQ < 0.0:
+                                    th = clP / (clP - clQ)
+                                th = ti.min(ti.max(th, thmin), 1.0)
+                                D += cw / th
+                            else:
+                                eQ = st.eps_f[q]
+                                cq = mu * 0.5 * (eP + eQ) / (h * h)
+                                D += cq
+                                R += cq * st.vel[q]
+            unew = R / D
+            ti.atomic_max(st.gsc[SC_DV], ti.abs(unew - st.vel[f]))
+            st.vel[f] = unew
+
+
+@ti.kernel
+def k_visc(g: Grid, inp: Inputs, cl: Cells, st: State, dt: float, first: ti.i32, factor: float, bc_speed: float,
+           max_sweeps: ti.i32):
+    """VISCOUS_CHUNK red-black Gauss-Seidel sweeps of the implicit predictor, each only while the
+    sweeps go on: they stop (on the device) when the largest change of a face velocity is at most
+    factor * max(max|u_old|, bc_speed) or after max_sweeps. ``first`` starts the count."""
+    if first:
+        st.gsc[SC_NSW] = 0.0
+        st.gsc[SC_VACT] = 1.0
+        st.gsc[SC_VTHR] = factor * ti.max(ti.max(st.gsc[SC_UOLD], bc_speed), 1e-30)
+    for _s in ti.static(range(VISCOUS_CHUNK)):
+        nf = g.nfaces * ti.cast(st.gsc[SC_VACT] > 0.0, ti.i32)
+        st.gsc[SC_DV] = 0.0
+        _visc_colour(g, inp, cl, st, dt, 0, nf)
+        _visc_colour(g, inp, cl, st, dt, 1, nf)
+        if nf > 0:
+            st.gsc[SC_NSW] += 1.0
+            if st.gsc[SC_DV] <= st.gsc[SC_VTHR] or st.gsc[SC_NSW] >= ti.cast(max_sweeps, float):
+                st.gsc[SC_VACT] = 0.0

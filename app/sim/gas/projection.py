@@ -1,0 +1,234 @@
+"""The pressure projection: the variable-coefficient Poisson system, the correction, the cell outputs.
+
+Incremental: u = u* - kappa grad phi, p^(n+1) = p^n + phi, kappa = eps^m / (rho eps/dt + beta) on
+faces. Cell continuity theta d(eps)/dt + (1/h) sum_faces (+-) a eps_f u_f = 0 gives
+sum T_f (phi_c - phi_nb) = -div(eps u*) - theta d(eps)/dt, T_f = a eps_f kappa_f / h^2, solved by
+:class:`app.sim.gas.linsolve.MGPCG`. The kernels write the system into the linear solver's bundles
+(:data:`~app.sim.gas.multigrid.Multigrid`, :data:`~app.sim.gas.pcg.Krylov`) and read its solution
+there: the solver's bundles are its interface, not private state.
+"""
+import taichi as ti
+
+from . import multigrid as mgm
+from .boundary import face_grad, has_grad
+from .config import OUTLET
+from .layout import (P_H, P_RHO, P_TRACE, SC_CORR, SC_DMAX, SC_NSW, SC_SMAX, SC_SPRED, SC_SREF, SC_UMAX, SC_UOLD,
+                     Cells, Grid, Inputs, State, cidx, face_cells, fdecode, fidx, is_boundary, solved)
+from .multigrid import Multigrid
+from .pcg import Krylov, solve_record
+
+
+@ti.func
+def kappa(g: ti.template(), st: ti.template(), a, I, dt):
+    """Face coefficient of the pressure correction, eps^m / (rho eps/dt + beta) [m^3 s/kg], and eps_f."""
+    e = st.eps_f[fidx(g, a, I)]
+    be = st.beta_f[fidx(g, a, I)]
+    em = 1.0
+    if g.form == 1:
+        em = e
+    return em / (g.par[P_RHO] * e / dt + be), e
+
+
+@ti.func
+def cell_balance(g: ti.template(), inp: ti.template(), st: ti.template(), vb: ti.template(), I):
+    """(net outflow rate, gross flow rate) of cell I per unit volume [1/s] of the face velocity vb,
+    incl. theta*deps."""
+    h = g.par[P_H]
+    th = g.open_vol[I]
+    de = inp.gas_deps_dt[I]
+    net = th * de
+    gross = th * ti.abs(de)
+    n = g.dims
+    for a in ti.static(range(3)):
+        for side in ti.static(range(2)):
+            J = I
+            J[a] += side
+            if g.wrap[a] == 1 and J[a] == n[a]:
+                J[a] = 0  # the periodic duplicate face may be stale before the final copy
+            f = fidx(g, a, J)
+            q = g.aperture[f] * st.eps_f[f] * vb[f] / h
+            net += q if side == 1 else -q
+            gross += ti.abs(q)
+    return net, gross
+
+
+@ti.kernel
+def k_build(g: Grid, inp: Inputs, cl: Cells, st: State, mg: Multigrid, ks: Krylov, dt: float, again: ti.i32):
+    """Outlet faces get their predicted velocity (not ``again``: a refinement round projects the
+    corrected field once more); the pressure system's T and b into the linear solver's bundles; the
+    residual scale of the solve (the gross-flux scale of the predicted field, or the reference scale
+    in a refinement round) into its control scalars."""
+    n = g.dims
+    h = g.par[P_H]
+    nfo = g.nfaces
+    if again:
+        nfo = 0
+    for f in range(nfo):
+        a, I = fdecode(g, f)
+        if is_boundary(g, a, I) and g.aperture[f] > 0.0:
+            side = 0 if I[a] == 0 else 1
+            if g.bc_kind[2 * a + side] == OUTLET:
+                # zero-gradient velocity: the interior neighbour's prediction with its own pressure
+                # push swapped for this face's (so a steady state extrapolates p linearly to p_out)
+                J = I
+                J[a] = 1 if side == 0 else n[a] - 1
+                J[a] = ti.min(ti.max(J[a], 0), n[a])
+                u = st.vel[fidx(g, a, J)]
+                gJ, okJ = face_grad(g, cl, a, J)
+                if okJ:
+                    kJ, _ = kappa(g, st, a, J, dt)
+                    u += kJ * gJ
+                gb, okb = face_grad(g, cl, a, I)
+                kb, eb = kappa(g, st, a, I, dt)
+                st.vel[f] = u - kb * gb
+    for f in range(g.nfaces):
+        a, I = fdecode(g, f)
+        t = 0.0
+        apf = g.aperture[f]
+        if has_grad(g, a, I):
+            kap, e = kappa(g, st, a, I, dt)
+            t = apf * e * kap / (h * h)
+            if is_boundary(g, a, I):
+                t *= 2.0  # outlet: the pressure is fixed half a cell away
+        mg.trans[mgm.face(mg, 0, a, I)] = t
+    st.gsc[SC_SMAX] = 0.0
+    for i, j, k in ti.ndrange(n[0], n[1], n[2]):
+        I = ti.Vector([i, j, k])
+        c = cidx(g, I)
+        b = 0.0
+        if g.open_vol[I] > 0.0:
+            net, gross = cell_balance(g, inp, st, st.vel, I)
+            b = -net
+            ti.atomic_max(st.gsc[SC_SMAX], gross)
+        ks.rhs[c] = b
+        ks.sol[c] = 0.0  # the solve is for the pressure increment
+    if not again:
+        st.gsc[SC_SPRED] = st.gsc[SC_SMAX]
+        st.gsc[SC_SREF] = st.gsc[SC_SMAX]
+    mg.ctrl[mgm.S_SCALE] = st.gsc[SC_SREF]
+    st.gsc[SC_CORR] = 0.0
+
+
+@ti.func
+def _face_grad_inc(g: ti.template(), ks: ti.template(), a, I):
+    """Gradient of the pressure increment (the MG solution, 0 outside outlets) across face (a, I)."""
+    h = g.par[P_H]
+    gr = 0.0
+    ok = has_grad(g, a, I)
+    if ok:
+        L, R, hL, hR = face_cells(g, a, I)
+        if hL and hR:
+            gr = (ks.sol[cidx(g, R)] - ks.sol[cidx(g, L)]) / h
+        elif hR:
+            gr = ks.sol[cidx(g, R)] / (0.5 * h)
+        else:
+            gr = -ks.sol[cidx(g, L)] / (0.5 * h)
+    return gr, ok
+
+
+@ti.func
+def cell_outputs(g: ti.template(), inp: ti.template(), st: ti.template(), cl: ti.template(), on):
+    """Cell-centred gas velocity and pressure gradient, divergence and its scale (reductions);
+    nothing unless ``on``."""
+    n = g.dims
+    if on:
+        st.gsc[SC_DMAX] = 0.0
+        st.gsc[SC_SMAX] = 0.0
+    for i, j, k in ti.ndrange(n[0] * on, n[1], n[2]):
+        I = ti.Vector([i, j, k])
+        active = g.open_vol[I] > 0.0
+        net = 0.0
+        if active:
+            net, gross = cell_balance(g, inp, st, st.vel, I)
+            ti.atomic_max(st.gsc[SC_DMAX], ti.abs(net))
+            ti.atomic_max(st.gsc[SC_SMAX], gross)
+        cl.div_cell[I] = net
+        for a in ti.static(range(3)):
+            J = I
+            J[a] += 1
+            uc = 0.0
+            gp = 0.0
+            if active:
+                uc = 0.5 * (st.vel[fidx(g, a, I)] + st.vel[fidx(g, a, J)])
+                g0, ok0 = face_grad(g, cl, a, I)
+                g1, ok1 = face_grad(g, cl, a, J)
+                cnt = 0.0
+                if ok0:
+                    gp += g0
+                    cnt += 1.0
+                if ok1:
+                    gp += g1
+                    cnt += 1.0
+                if cnt > 0.0:
+                    gp /= cnt
+            cl.u_cell[I][a] = uc
+            cl.gradp_cell[I][a] = gp
+
+
+@ti.kernel
+def k_correct(g: Grid, inp: Inputs, mg: Multigrid, ks: Krylov, st: State, cl: Cells, dt: float, again: ti.i32):
+    """u = u* - kappa grad phi, p += phi; periodic copies; cell outputs; (max|div|, scale, max|u|)
+    into the scalars. The predictor increment is recorded in the first round only. Runs once the
+    pressure solve has finished, once per round (the host launches it without waiting)."""
+    n = g.dims
+    on = 0
+    if mg.ctrl[mgm.S_DONE] > 0.0 and st.gsc[SC_CORR] == 0.0:
+        on = 1
+    nf = g.nfaces * on
+    for f in range(nf):
+        a, I = fdecode(g, f)
+        if not again:
+            dp = 0.0
+            if solved(g, f, a, I):
+                dp = st.vel[f] - st.vel_adv[f]
+            st.dpred[f] = dp
+        gr, ok = _face_grad_inc(g, ks, a, I)
+        if ok:
+            kap, _ = kappa(g, st, a, I, dt)
+            st.vel[f] -= kap * gr
+    for i, j, k in ti.ndrange(n[0] * on, n[1], n[2]):
+        I = ti.Vector([i, j, k])
+        if g.open_vol[I] > 0.0:
+            cl.pres[I] += ks.sol[cidx(g, I)]
+    for f in range(nf):
+        a, I = fdecode(g, f)
+        if g.wrap[a] == 1 and I[a] == n[a]:
+            J = I
+            J[a] = 0
+            st.vel[f] = st.vel[fidx(g, a, J)]
+    if on:
+        st.gsc[SC_UMAX] = 0.0
+    rho = g.par[P_RHO]
+    for f in range(nf):
+        ti.atomic_max(st.gsc[SC_UMAX], ti.abs(st.vel[f]))
+        a, I = fdecode(g, f)
+        acc = 0.0
+        if solved(g, f, a, I):
+            # net non-advective acceleration of this step, weighted by the inertial share of the
+            # face (-> 0 where drag dominates, so a jump of a drag-balanced pressure gradient is
+            # not carried along trajectories); used by the next step's second-order advection
+            e = st.eps_f[f]
+            be = st.beta_f[f]
+            wt = rho * e / (rho * e + be * dt)
+            acc = g.par[P_TRACE] * wt * (st.vel[f] - st.vel_adv[f]) / dt
+        st.accel[f] = acc
+    cell_outputs(g, inp, st, cl, on)
+    if on:
+        st.gsc[SC_SREF] = ti.max(st.gsc[SC_SREF], st.gsc[SC_SMAX])
+        st.gsc[SC_CORR] = 1.0
+
+
+@ti.kernel
+def k_record(st: State, mg: Multigrid) -> ti.types.vector(12, ti.f64):  # f64: fixed at import, maybe before ti.init
+    """The step record, read once per step: max|u_old|, max|u_new|, viscous sweeps, max|div|, the
+    corrected field's flux scale, the reference scale, 1 once corrected, then the pressure solve's
+    (iterations, max|r|, converged, scale, initial max|r|)."""
+    r = solve_record(mg)
+    return ti.Vector([st.gsc[SC_UOLD], st.gsc[SC_UMAX], st.gsc[SC_NSW], st.gsc[SC_DMAX], st.gsc[SC_SMAX],
+                      st.gsc[SC_SREF], st.gsc[SC_CORR], r[0], r[1], r[2], r[3], r[4]])
+
+
+@ti.kernel
+def k_outputs(g: Grid, inp: Inputs, st: State, cl: Cells) -> ti.types.vector(2, ti.f64):
+    cell_outputs(g, inp, st, cl, 1)
+    return ti.Vector([st.gsc[SC_DMAX], st.gsc[SC_SMAX]])

@@ -1,0 +1,59 @@
+"""The gas package's structure (issue 18): modules of at most 400 lines, kernels over named bundles
+(argpacks) rather than one flat arena, and kernels that compile once for any grid size."""
+import pathlib
+
+import numpy as np
+import pytest
+import taichi as ti
+from taichi.lang.argpack import ArgPackType
+
+from app.sim import gas
+from app.sim.gas import advection, boundary, layout, multigrid, pcg, predictor, projection
+
+pytestmark = pytest.mark.unit
+
+GAS = pathlib.Path(gas.__file__).parent
+MODULES = (advection, boundary, layout, multigrid, pcg, predictor, projection)
+# host <-> array transfers and small reductions: plain ndarrays are their whole point
+TRANSFER = {"k_write", "k_read", "k_copy", "_k_set_faces", "_k_get_faces", "_k_cells_in", "_k_cells_out"}
+
+
+def test_no_gas_module_over_400_lines():
+    sizes = {p.name: len(p.read_text().splitlines()) for p in GAS.glob("*.py")}
+    assert len(sizes) >= 10, sizes  # grid, layout, boundary, advection, predictor, projection, solver ...
+    assert max(sizes.values()) <= 400, sizes
+
+
+def _kernels():
+    for m in MODULES:
+        for name, k in vars(m).items():
+            if getattr(k, "_is_wrapped_kernel", False) and k.__module__ == m.__name__:
+                yield m.__name__ + "." + name, name, k
+
+
+def test_solver_kernels_take_bundles_not_an_arena():
+    """Every kernel of the step takes argpacks (named arrays) and scalars, no bare array."""
+    seen = 0
+    for full, name, k in _kernels():
+        if name in TRANSFER:
+            continue
+        seen += 1
+        for arg in k._primal.arguments:
+            ann = arg.annotation
+            assert not isinstance(ann, ti.types.ndarray_type.NdarrayType), (full, arg.name)
+            assert isinstance(ann, ArgPackType) or ann in (ti.i32, float, ti.f32, ti.f64), (full, arg.name, ann)
+        assert any(isinstance(a.annotation, ArgPackType) for a in k._primal.arguments), full
+    assert seen >= 15
+
+
+def test_step_kernels_compile_once_for_two_grids():
+    """Solvers of two grid sizes (and boundary kinds) run the same compiled step kernels."""
+    for shape, bcs in (((6, 6, 8), {"bottom": gas.velocity_inlet((0, 0, 0.2)), "top": gas.pressure_outlet()}),
+                       ((8, 4, 10), {})):
+        s = gas.FlowSolver(gas.FlowConfig(shape=shape, h=0.01, bcs=bcs))
+        s.set_eps(np.full(shape, 0.8))
+        info = s.step(1e-3)
+        assert info.converged, info
+    for k in (advection.k_advect, boundary.k_bc_prep, predictor.k_visc, predictor.k_face_coef, projection.k_build,
+              projection.k_correct, projection.k_record, multigrid.k_down, multigrid.k_up, pcg.k_pcg_iter):
+        assert len(k._primal.compiled_kernels) == 1, k._primal.func.__name__
