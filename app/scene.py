@@ -22,7 +22,8 @@ from .config.derived import Derived, derive
 from .config.schema import Config
 from .io import store
 from .schedule import InletSchedule
-from .sim import coupling, drag, flow, geometry
+from .sim import coupling, drag, geometry
+from .sim.gas import BC, FlowConfig, FlowSolver
 from .sim.dem import DemSolver
 from .sim.fields import HISTORY_SLOTS, ROLL_CONSTANT, ROLL_EPSD, DemModel, slots_bound
 from .sim.simulation import Simulation
@@ -175,8 +176,8 @@ def flow_config(cfg: Config, walls: list):
     """The gas solver's set-up from [gas], [boundary], [domain] and the vessel walls."""
     g, d = cfg.gas, cfg.domain
     shape = tuple(int(round((d.hi[a] - d.lo[a]) / g.cell_size)) for a in range(3))
-    bcs = {face: flow.BC(b.kind, tuple(b.velocity), b.pressure) for face, b in cfg.boundary}
-    return flow.FlowConfig(shape=shape, h=g.cell_size, origin=tuple(d.lo), rho=g.density, mu=g.viscosity,
+    bcs = {face: BC(b.kind, tuple(b.velocity), b.pressure) for face, b in cfg.boundary}
+    return FlowConfig(shape=shape, h=g.cell_size, origin=tuple(d.lo), rho=g.density, mu=g.viscosity,
                            gravity=tuple(d.gravity), bcs=bcs, walls=tuple(walls), pressure_form=g.pressure_form,
                            convection=g.convection, tol=g.tolerance, max_iter=g.max_iterations,
                            aperture_samples=g.aperture_samples, max_viscous_sweeps=g.max_viscous_sweeps,
@@ -277,7 +278,7 @@ def build_simulation(scene: Scene, frozen: bool = False, notify=None, timing: bo
     gas = inlets = coupler = None
     if scene.flow is not None:
         try:
-            gas = flow.FlowSolver(scene.flow)
+            gas = FlowSolver(scene.flow)
         except ValueError as err:
             raise ConfigError(str(err), scene.file, "gas", hint="check [gas] and [boundary]") from None
         try:

@@ -89,7 +89,7 @@ def main() -> None:
 
 
 def gas_reads(arch: str, repeats: int, calls: int = 200) -> list[dict]:
-    from app.sim import flow, runtime  # Taichi only for --gas: the writers' timing is host-only
+    from app.sim import gas as flow, runtime  # Taichi only for --gas: the writers' timing is host-only
     from app.sim.geometry import CylinderWall
 
     runtime.init(arch, "float32")

@@ -106,7 +106,7 @@ def test_device_reductions_match_numpy_and_count_non_finite_cells():
     """The per-step diagnostics and the pressure drop are reduced on the device: they must equal the numpy
     figures from the copied fields (a cut-cell cylinder, so the open-area weights vary), and a NaN or
     infinity planted in one cell is counted once."""
-    from app.sim import flow
+    from app.sim import gas as flow
     from app.sim.geometry import CylinderWall
 
     cfg = flow.FlowConfig(shape=(12, 12, 10), h=0.005, rho=1.2, mu=1.8e-5, gravity=(0, 0, -9.81), tol=1e-8,

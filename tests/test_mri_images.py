@@ -46,7 +46,7 @@ from app.probes import Probes
 from app.probes_mri import MriImage
 from app.sim.coupling import Coupler
 from app.sim.dem import DemSolver
-from app.sim.flow import FlowSolver
+from app.sim.gas import FlowSolver
 from app.config import load_text
 from app.scene import Scene
 from dem_helpers import merged, toml_text

@@ -79,7 +79,7 @@ def rebuilt(run: pathlib.Path, cfg) -> None:
     from app.sim import runtime
     from app.sim.coupling import Coupler
     from app.sim.dem import DemSolver
-    from app.sim.flow import FlowSolver
+    from app.sim.gas import FlowSolver
 
     runtime.init(arch="cpu", precision="float64", threads=1)
     with h5py.File(run / "run.h5", "r") as f:

@@ -89,7 +89,19 @@ class FlowSolver(SolverOutputs):
         self._div_cell = ti.ndarray(float, shape=cfg.shape)
         self._div_cell.fill(0.0)
         self.cl = layout.Cells(pres=fl.p, u_cell=fl.u_gas, gradp_cell=fl.grad_p, div_cell=self._div_cell)
-        # ---- constant data
+        self._load_constants(cfg, cut, kinds, has_walls)
+        # ---- bookkeeping
+        self._ncoupled = sum(1 for a in range(3) if not (per[a] and cfg.shape[a] == 1))
+        self.time = 0.0
+        self.steps = 0
+        self.last: StepInfo | None = None
+        self._s_pred = 0.0
+        self._div = (0.0, 0.0)
+        self._p_init_pending = True
+        self._face_coefficients()
+
+    def _load_constants(self, cfg: FlowConfig, cut, kinds: list, has_walls: bool) -> None:
+        """The fixed data of the bundles: parameters, apertures and clearances, boundary velocities."""
         par = np.zeros(NPAR)
         par[P_RHO], par[P_MU], par[P_H] = cfg.rho, cfg.mu, cfg.h
         par[P_G:P_G + 3] = cfg.gravity
@@ -107,15 +119,6 @@ class FlowSolver(SolverOutputs):
         self.mg.set_dirichlet(np.zeros(6))  # the solve is for the increment
         self._bc_speeds = [float(np.linalg.norm(cfg.bc(f).velocity)) if kinds[i] in (INLET, MOVING) else 0.0
                            for i, f in enumerate(FACES)]
-        # ---- bookkeeping
-        self._ncoupled = sum(1 for a in range(3) if not (per[a] and cfg.shape[a] == 1))
-        self.time = 0.0
-        self.steps = 0
-        self.last: StepInfo | None = None
-        self._s_pred = 0.0
-        self._div = (0.0, 0.0)
-        self._p_init_pending = True
-        self._face_coefficients()
 
     def _face_coefficients(self) -> None:
         """Face gas fraction and drag coefficient from the current inputs."""
