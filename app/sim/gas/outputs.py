@@ -36,7 +36,7 @@ class SolverOutputs:
     def add_face_flux(self, dt: float) -> None:
         """Add dt x every face's gas volume flux [m^3] (aperture x face gas fraction x velocity x h^2, with the
         face gas fraction the step used) to a sum kept on the device; nothing is read back (face_flux_sum is)."""
-        if getattr(self, "_flux_sum", None) is None:
+        if self._flux_sum is None:
             self._flux_sum = ti.ndarray(ti.f64, shape=(self._nf,))
             self._flux_sum.fill(0.0)
         _k_add_face_flux(self._aperture, self._st["eps_f"], self._st["vel"], float(dt) * self.h ** 2, self._flux_sum)
@@ -44,7 +44,7 @@ class SolverOutputs:
     def face_flux_sum(self) -> tuple:
         """The sums of add_face_flux since the last call [m^3], one array per axis (face_shape(axis)), then clears
         them (zeros when nothing was added)."""
-        if getattr(self, "_flux_sum", None) is None:
+        if self._flux_sum is None:
             return tuple(np.zeros(s) for s in self._fshapes)
         flat = self._flux_sum.to_numpy()
         self._flux_sum.fill(0.0)

@@ -96,18 +96,25 @@ def _true_residual(mg: ti.template(), ks: ti.template(), nc):
         mg.bs[c] = r
 
 
+@ti.func
+def _active_sum(mg: ti.template(), values: ti.template(), nc):
+    """Sum of values over the active cells (diag > 0) among the first nc cells into S_SUM, their count into
+    S_CNT (nc = 0: both zero): the mean a singular system's solution and right-hand side lose."""
+    mg.ctrl[S_SUM] = 0.0
+    mg.ctrl[S_CNT] = 0.0
+    for c in range(nc):
+        if mg.diag[c] > 0.0:
+            mg.ctrl[S_SUM] += values[c]
+            mg.ctrl[S_CNT] += 1.0
+
+
 @ti.kernel
 def k_pcg_begin(mg: Multigrid, ks: Krylov, singular: ti.i32, tol: float, scale_mode: ti.i32, scale: float):
     """Project b (singular case), measure max|b|, r = b - A x; the stopping threshold tol * scale with
     scale = max|b| (scale_mode 0), the argument (1) or mg.ctrl[S_SCALE] as a caller's kernel left it (2);
     the solve is active unless r already meets it."""
     nc = mg.ncell0
-    mg.ctrl[S_SUM] = 0.0
-    mg.ctrl[S_CNT] = 0.0
-    for c in range(nc):
-        if singular and mg.diag[c] > 0.0:
-            mg.ctrl[S_SUM] += ks.rhs[c]
-            mg.ctrl[S_CNT] += 1.0
+    _active_sum(mg, ks.rhs, nc * singular)
     mg.ctrl[S_BNORM] = 0.0
     for c in range(nc):
         if mg.diag[c] > 0.0:
@@ -136,12 +143,7 @@ def k_pcg_from(mg: Multigrid, ks: Krylov, singular: ti.i32):
     """z = V-cycle output (zero mean if singular); new search direction (flexible CG; a restart
     when S_FIRST is set). Nothing once the solve has stopped."""
     nc = mg.ncell0 * on(mg)
-    mg.ctrl[S_SUM] = 0.0
-    mg.ctrl[S_CNT] = 0.0
-    for c in range(nc):
-        if singular and mg.diag[c] > 0.0:
-            mg.ctrl[S_SUM] += mg.xs[c]
-            mg.ctrl[S_CNT] += 1.0
+    _active_sum(mg, mg.xs, nc * singular)
     mg.ctrl[S_RZN] = 0.0
     mg.ctrl[S_RZO] = 0.0
     for c in range(nc):
@@ -224,12 +226,7 @@ def k_pcg_finish(mg: Multigrid, ks: Krylov, singular: ti.i32):
     if mg.ctrl[S_ACTIVE] == 0.0 and mg.ctrl[S_DONE] == 0.0:
         fin = 1
     nc = mg.ncell0 * fin * singular
-    mg.ctrl[S_SUM] = 0.0
-    mg.ctrl[S_CNT] = 0.0
-    for c in range(nc):
-        if mg.diag[c] > 0.0:
-            mg.ctrl[S_SUM] += ks.sol[c]
-            mg.ctrl[S_CNT] += 1.0
+    _active_sum(mg, ks.sol, nc)
     for c in range(nc):
         m = 0.0
         if mg.ctrl[S_CNT] > 0.0:

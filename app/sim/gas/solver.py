@@ -53,6 +53,7 @@ class FlowSolver(SolverOutputs):
         nf = sum(fsz)
         nc = nx * ny * nz
         self._nf, self._nc = nf, nc
+        self._flux_sum = None  # the face-flux sum of add_face_flux (the rCFD probe), allocated on first use
         has_walls = len(cfg.walls) > 0
         # ---- boundary-value blocks, component-major [comp][t1][t2] per face
         self._bcv_dims, bcv_off, off = [], [], 0
