@@ -285,7 +285,7 @@ def _path_warnings(balance: float, R_jumps: list, moved: list) -> list:
     if R_jumps and float(np.median(R_jumps)) > 0.2:
         out.append(f"the median R at jumps is {np.median(R_jumps):.3g} (> 0.2): the database has few good recurrences")
     if moved and max(moved) > 0.01:
-        out.append(f"a stitch moved {100 * max(moved):.2g}% of the grain volume (> 1%)")
+        out.append(f"a jump moved {100 * max(moved):.2g}% of the grain volume to other (jump grid) cells (> 1%)")
     return out
 
 

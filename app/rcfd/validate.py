@@ -131,9 +131,10 @@ def replay_checks(db, eng) -> tuple[dict, dict]:
     """The replays of the database in recorded order from t0 against the real grains' tracer: (checks, curves).
     - grains: the grain tracer with the real t0 tag per grain. It uses no operator along the recorded order, so it
       must equal the real tracer to the float32 of the stored per-cell volumes: a check of the recording's books.
-    - jumps: the same with the cell averaging of a jump every mean sequence length (a jump from a state to
-      itself): the transport error the paths make, without the error of their frame order. The design note's
-      0.03 applies here.
+    - jumps: the same with a jump from a state to itself every mean sequence length (the stitch averages the tag
+      over each jump cell there, the match re-pairs the grains within each jump cell at random: the grains'
+      places are known only to a jump cell): the transport error the paths make, without the error of their
+      frame order. The design note's 0.03 applies here.
     - cells: the cell shifts (SolidsTracer) frame by frame, for comparison (no pass/fail: its error is the
       well-mixed cell's, measured in validation/rcfd/README.md)."""
     rp = pathmod.replay(db.n_frames, eng.successor)
@@ -163,7 +164,7 @@ def replay_checks(db, eng) -> tuple[dict, dict]:
         checks["replay_grains"].update(tests="the recording's books (grain tracer, recorded order: no operator)",
                                        tolerance=1e-6, every_frames=0)
         checks["replay_grains"]["pass"] = checks["replay_grains"]["max_abs_difference"] <= 1e-6
-        checks["replay_jumps"].update(tests="rCFD transport (recorded order, a jump's cell averaging every mean "
+        checks["replay_jumps"].update(tests="rCFD transport (recorded order, a jump to the same state every mean "
                                       "sequence length)", tolerance=0.03, every_frames=eng.params.l_mean)
         checks["replay_jumps"]["pass"] = checks["replay_jumps"]["max_abs_difference"] <= 0.03
     return checks, curves
