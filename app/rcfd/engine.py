@@ -2,9 +2,11 @@
 grain volumes, the jump targets and stitches, and the transport of a tracer along a path.
 
 Solids: with each grain's cell recorded (boundary/cells), the tracer rides on the recorded grains along each
-sequence and is averaged over a cell only at jumps (transport.GrainTracer, ``solids="grains"``); the cell
-shifts (``solids="cells"``, transport.SolidsTracer) average over a cell every frame. validation/rcfd/README.md
-measures both against the real grains.
+sequence (transport.GrainTracer, ``solids="grains"``); at a jump the grains of the two states are matched one to
+one by position (matching.GrainMatcher, ``jump="match"``, the default) or the cell volumes are stitched and the tag
+averaged over each cell (``jump="stitch"``); the indices along a sequence come from the grains that change cell
+(sequence.SequenceIndex). The cell shifts (``solids="cells"``, transport.SolidsTracer) average over a cell every
+frame. validation/rcfd/README.md measures them all against the real grains.
 """
 from __future__ import annotations
 

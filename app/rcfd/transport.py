@@ -230,7 +230,8 @@ class GrainTracer:
     takes its cell's concentration. That is the one place where a cell is assumed well mixed, so the tracer is
     kept to round-off and stays in [0, 1] as with the cell shifts (SolidsTracer). The jump's cells may be finer
     than the index's (Engine stitches on half cells where boundary/octant is recorded): the error of a jump
-    grows with the cell it averages over (validation/rcfd/README.md)."""
+    grows with the cell it averages over (validation/rcfd/README.md). ``permute`` is the other jump: grains matched
+    one to one (app.rcfd.matching), no averaging at all."""
 
     def __init__(self, volume: np.ndarray, tau: np.ndarray, n_cells: int):
         self.vol = np.asarray(volume, np.float64)

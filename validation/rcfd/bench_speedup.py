@@ -11,6 +11,9 @@ RUN_DIR: validate's database run A (its rcfd.h5 and final checkpoint). Each roun
    and cached beforehand, as `fbed rcfd run` does (app.rcfd.engine.Engine), and takes c_r, the median path's
    transport wall per simulated second (indices after every frame included).
 The machine's load drifts between and within rounds; the paired ratio c_full / c_r of each round is what counts.
+In CPU time as well (fairer on a shared machine, where a process waits for a core): the full run's from the CPU
+time of the segment's process less that of a 20 ms segment (start-up and compilation), the transport's from this
+process's CPU time over the paths.
 Prints one JSON line with each round's figures and the medians.
 """
 from __future__ import annotations
@@ -20,6 +23,7 @@ import dataclasses
 import json
 import pathlib
 import shutil
+import resource
 import subprocess
 import sys
 import tempfile
@@ -27,6 +31,7 @@ import time
 
 import numpy as np
 
+SHORT = 0.02  # [s] simulated by the short segment whose CPU time (start-up, compilation) is taken off
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
@@ -35,17 +40,20 @@ from app.rcfd.database import load  # noqa: E402
 from app.rcfd.engine import Engine  # noqa: E402
 
 
-def full_segment(run_dir: pathlib.Path, segment: float) -> float:
+def full_segment(run_dir: pathlib.Path, segment: float) -> tuple[float, float]:
+    """(wall per simulated second from run.h5's series, CPU seconds of the whole process) of a resumed segment."""
     tmp = pathlib.Path(tempfile.mkdtemp()) / "A"
     shutil.copytree(run_dir, tmp)
     t1 = json.loads((run_dir / "summary.json").read_text())["time"]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     r = subprocess.run([sys.executable, "-m", "app", "run", "--resume", str(tmp), "--set",
                         f"run.duration={t1 + segment!r}", "--arch", "cpu"], cwd=ROOT, capture_output=True, text=True)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if r.returncode != 0:
         raise SystemExit(r.stderr[-2000:])
     c = commands.full_cost_per_second(tmp, t1 + 0.02, t1 + segment)
     shutil.rmtree(tmp.parent)
-    return c
+    return c, (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
 
 
 def main() -> None:
@@ -67,18 +75,28 @@ def main() -> None:
     for p in ps:  # operators built and cached, as after `fbed rcfd run`'s preparation
         e.transport(p, c0, s)
     rounds = []
-    for _ in range(a.rounds):  # c_r just before and just after the full segment, c_full between
-        t = time.perf_counter()
+    def paths_cost():  # (median path's transport wall, CPU time per path) per simulated second
+        c = time.process_time()
         walls = [e.transport(p, c0, s)["wall"] for p in ps]
-        c_full = full_segment(rd, a.segment)
-        walls += [e.transport(p, c0, s)["wall"] for p in ps]
-        rounds.append({"c_full": c_full, "c_r": float(np.median(walls)), "seconds": time.perf_counter() - t})
-        rounds[-1]["marginal"] = c_full / rounds[-1]["c_r"]
+        return float(np.median(walls)), (time.process_time() - c) / len(ps)
+
+    for _ in range(a.rounds):  # c_r just before and just after the full segments, c_full between
+        r0 = paths_cost()
+        c_full, cpu_long = full_segment(rd, a.segment)
+        _, cpu_short = full_segment(rd, SHORT)
+        r1 = paths_cost()
+        c_r, c_r_cpu = 0.5 * (r0[0] + r1[0]), 0.5 * (r0[1] + r1[1])
+        c_full_cpu = (cpu_long - cpu_short) / (a.segment - SHORT)
+        rounds.append({"c_full": c_full, "c_r": c_r, "marginal": c_full / c_r, "c_full_cpu": c_full_cpu,
+                       "c_r_cpu": c_r_cpu, "marginal_cpu": c_full_cpu / c_r_cpu})
     out = {"run": str(rd), "segment": a.segment, "paths": a.paths, "l_mean": a.l_mean, "jump": e.jump,
            "rounds": rounds, "c_full_median": float(np.median([r["c_full"] for r in rounds])),
            "c_r_median": float(np.median([r["c_r"] for r in rounds])),
            "marginal_median": float(np.median([r["marginal"] for r in rounds])),
-           "marginal_range": [float(min(r["marginal"] for r in rounds)), float(max(r["marginal"] for r in rounds))]}
+           "marginal_range": [float(min(r["marginal"] for r in rounds)), float(max(r["marginal"] for r in rounds))],
+           "marginal_cpu_median": float(np.median([r["marginal_cpu"] for r in rounds])),
+           "marginal_cpu_range": [float(min(r["marginal_cpu"] for r in rounds)),
+                                  float(max(r["marginal_cpu"] for r in rounds))]}
     print(json.dumps(out))
 
 
