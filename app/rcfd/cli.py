@@ -55,8 +55,10 @@ def main(args) -> int:
         c = s["cost"]
         print(f"mixing index at {args.horizon:g} s: {s['mixing_final_mean']:.4f} ± {s['mixing_final_std']:.4f} "
               f"({args.paths} paths); t50 {s['t50_mean']:.4g} s, t90 {s['t90_mean']:.4g} s")
-        print(f"stitched at jumps: mean {100 * s['stitched_share_mean']:.3g}%, max {100 * s['stitched_share_max']:.3g}% "
-              f"of the grain volume; tracer drift {s['tracer_drift_max']:.2g}")
+        print(f"moved at jumps ({s['jump']}): mean {100 * s['stitched_share_mean']:.3g}%, max "
+              f"{100 * s['stitched_share_max']:.3g}% of the grain volume; tracer drift {s['tracer_drift_max']:.2g}")
+        L = s["lacey"]
+        print(f"Lacey index at {args.horizon:g} s: {L['final_mean']:.4f}; t50 {L['t50_mean']:.4g} s, t90 {L['t90_mean']:.4g} s")
         print(f"speed-up: marginal {c['marginal_speedup']:.3g}x, total {c['total_speedup_with_database']:.3g}x "
               f"(database counted), {c['total_speedup_without_database']:.3g}x (not counted)")
         if "gas_tracer" in s:

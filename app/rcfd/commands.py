@@ -200,13 +200,19 @@ def initial_concentration(db: Database, state: int, tag: str | None) -> np.ndarr
     return tag_mask(tag, db.cell_centres().reshape(-1, 3)).astype(np.float64)
 
 
-def _write_paths(od: pathlib.Path, db: Database, time: np.ndarray, Ms: np.ndarray, ps: list) -> None:
-    """mixing.csv (each path's index, the ensemble mean and std) and path.csv (the frames of every path)."""
+def _write_curves(path: pathlib.Path, time: np.ndarray, Ms: np.ndarray) -> None:
+    """A csv of each path's index against time, with the ensemble mean and std."""
     mean, std = Ms.mean(0), Ms.std(0, ddof=1) if len(Ms) > 1 else np.zeros(Ms.shape[1])
-    with open(od / "mixing.csv", "w") as f:
+    with open(path, "w") as f:
         f.write("time," + ",".join(f"path{i}" for i in range(len(Ms))) + ",mean,std\n")
         for j in range(Ms.shape[1]):
             f.write(f"{time[j]:.6g}," + ",".join(f"{v:.6f}" for v in Ms[:, j]) + f",{mean[j]:.6f},{std[j]:.6f}\n")
+
+
+def _write_paths(od: pathlib.Path, db: Database, time: np.ndarray, Ms: np.ndarray, Ls: np.ndarray, ps: list) -> None:
+    """mixing.csv (the cell index), lacey.csv (Lacey's index) and path.csv (the frames of every path)."""
+    _write_curves(od / "mixing.csv", time, Ms)
+    _write_curves(od / "lacey.csv", time, Ls)
     with open(od / "path.csv", "w") as f:
         f.write("path,position,frame,state_start,time_in_database,jump\n")
         for i, p in enumerate(ps):
@@ -253,6 +259,25 @@ def _gas_paths(eng: Engine, ps: list, od: pathlib.Path, time: np.ndarray, horizo
                     "gas tracer (fbed's gas solver carries none)"}
 
 
+def lacey_summary(time: np.ndarray, Ls: np.ndarray) -> dict:
+    """Lacey's index along the paths: its time mean, final value and t50, t90 (ensemble means)."""
+    t50 = [crossing_time(time, L, 0.5) for L in Ls]
+    t90 = [crossing_time(time, L, 0.9) for L in Ls]
+    nan_mean = (lambda v: float(np.nanmean(v)) if np.isfinite(v).any() else float("nan"))
+    return {"time_mean": float(np.nanmean(Ls)), "final_mean": float(np.nanmean(Ls[:, -1])), "t50": t50, "t90": t90,
+            "t50_mean": nan_mean(t50), "t90_mean": nan_mean(t90),
+            "note": "Lacey 1954 (app.rcfd.transport.lacey_index): 0 segregated, 1 random whatever the grains per cell"}
+
+
+def jump_summary(results: list) -> dict:
+    """What the jumps did to the tracer: the change of the cell index across each jump and the share of the tagged
+    volume that changed cell there (grain tracer only)."""
+    dM = [x for r in results for x in r.get("jump_dM", [])]
+    tm = [x for r in results for x in r.get("tag_moved", [])]
+    return {"jump_dM_mean": float(np.mean(dM)) if dM else float("nan"),
+            "jump_tag_moved_share_mean": float(np.mean(tm)) if tm else float("nan")}
+
+
 def _path_warnings(balance: float, R_jumps: list, moved: list) -> list:
     out = []
     if balance > 2.0:
@@ -260,7 +285,7 @@ def _path_warnings(balance: float, R_jumps: list, moved: list) -> list:
     if R_jumps and float(np.median(R_jumps)) > 0.2:
         out.append(f"the median R at jumps is {np.median(R_jumps):.3g} (> 0.2): the database has few good recurrences")
     if moved and max(moved) > 0.01:
-        out.append(f"a stitch moved {100 * max(moved):.2g}% of the grain volume (> 1%)")
+        out.append(f"a jump moved {100 * max(moved):.2g}% of the grain volume to other (jump grid) cells (> 1%)")
     return out
 
 
@@ -304,8 +329,9 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
     results = [eng.transport(p, c0, start_state) for p in ps]
     time = np.arange(n_frames + 1) * dt
     Ms = np.stack([r["M"] for r in results])
+    Ls = np.stack([r["lacey"] for r in results])
     mean, std = Ms.mean(0), Ms.std(0, ddof=1) if n_paths > 1 else np.zeros(n_frames + 1)
-    _write_paths(od, db, time, Ms, ps)
+    _write_paths(od, db, time, Ms, Ls, ps)
     t50 = [crossing_time(time, r["M"], 0.5) for r in results]
     t90 = [crossing_time(time, r["M"], 0.9) for r in results]
     moved = [m for r in results for m in r["moved"]]
@@ -331,6 +357,7 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
         "mixing_time_mean": float(mean.mean()),
         "mixing_time_mean_std": float(Ms.mean(1).std(ddof=1)) if n_paths > 1 else 0.0,
         "t50": t50, "t90": t90, "t50_mean": nan_mean(t50), "t90_mean": nan_mean(t90),
+        "lacey": lacey_summary(time, Ls), "jump": getattr(eng, "jump", "stitch"), **jump_summary(results),
         **path_bed_statistics(db, ps), "cost": cost_summary(eng, rd, results, horizon, t_path), "warnings": warnings}
     if gas:
         summary["gas_tracer"] = _gas_paths(eng, ps, od, time, horizon)

@@ -2,9 +2,11 @@
 grain volumes, the jump targets and stitches, and the transport of a tracer along a path.
 
 Solids: with each grain's cell recorded (boundary/cells), the tracer rides on the recorded grains along each
-sequence and is averaged over a cell only at jumps (transport.GrainTracer, ``solids="grains"``); the cell
-shifts (``solids="cells"``, transport.SolidsTracer) average over a cell every frame. validation/rcfd/README.md
-measures both against the real grains.
+sequence (transport.GrainTracer, ``solids="grains"``); at a jump the grains of the two states are matched one to
+one by position (matching.GrainMatcher, ``jump="match"``, the default) or the cell volumes are stitched and the tag
+averaged over each cell (``jump="stitch"``); the indices along a sequence come from the grains that change cell
+(sequence.SequenceIndex). The cell shifts (``solids="cells"``, transport.SolidsTracer) average over a cell every
+frame. validation/rcfd/README.md measures them all against the real grains.
 """
 from __future__ import annotations
 
@@ -18,7 +20,9 @@ import numpy as np
 from . import paths as pathmod
 from . import recurrence as rec
 from .database import Database
-from .transport import GasTracer, GrainTracer, SolidsTracer, Stitcher
+from .matching import GrainMatcher, grid_centres
+from .sequence import SequenceIndex
+from .transport import GasTracer, GrainTracer, SolidsTracer, Stitcher, lacey_index
 
 BED_EPS = 0.99  # cells whose time-mean void fraction is below this are the bed's (they enter R)
 
@@ -82,7 +86,10 @@ class Engine:
     """Everything a set of paths shares: the operators, R, the jump targets, the stitches."""
 
     def __init__(self, db: Database, st: dict | None = None, params: pathmod.PathParams | None = None,
-                 solids: str = "auto", jump_grid: str = "auto"):
+                 solids: str = "auto", jump_grid: str = "auto", jump: str = "auto"):
+        """``jump``: how the grain tracer crosses a jump, 'match' (grains matched one to one by position,
+        app.rcfd.matching; the default) or 'stitch' (cell volumes stitched, then each grain takes its cell's mean
+        tag); ``jump_grid``: 'cells' locates the grains on the cells even where octants give the half cells."""
         t = wallclock.perf_counter()
         self.db = db
         if solids == "auto":
@@ -93,6 +100,11 @@ class Engine:
         if solids not in ("grains", "cells"):
             raise ValueError(f"--solids must be 'grains' or 'cells', got {solids!r}")
         self.solids = solids
+        if jump == "auto":
+            jump = "match" if solids == "grains" else "stitch"
+        if jump not in ("match", "stitch") or (jump == "match" and solids != "grains"):
+            raise ValueError(f"jump must be 'match' (grain tracer only) or 'stitch', got {jump!r}")
+        self.jump = jump
         self.st = st or statistics(db)
         self.ops = [db.shift(k) for k in range(db.n_frames)]
         self.P = [op[0] for op in self.ops]
@@ -110,10 +122,18 @@ class Engine:
         self.stitcher = Stitcher(db.shape, cells, db.h)
         # the grain tracer's jumps on half cells where the octants are recorded (a jump averages over its cells)
         self.half = self.solids == "grains" and db.octant is not None and jump_grid != "cells"
+        grains = int(db.attrs.get("grains", 0)) or 1
+        self.grain_volume_mean = float(np.mean(db.grain_volume)) if db.grain_volume is not None else \
+            float(self.a[0].sum()) / grains  # [m^3]: the cell tracer's grains per cell for Lacey's index
+        self.seq = SequenceIndex(db.cells, db.grain_volume, db.n_cells, self.a) if self.solids == "grains" else None
         if self.half:
+            self.fine = db.fine_cells(slice(None))
+        if self.jump == "match":
+            grid, shape, h = (self.fine, db.fine_shape, 0.5 * db.h) if self.half else (db.cells, db.shape, db.h)
+            self.matcher = GrainMatcher(grid, grid_centres(shape, db.origin, h), db.grain_volume)
+        elif self.half:
             fs = db.fine_shape
             nf = int(np.prod(fs))
-            self.fine = db.fine_cells(slice(None))
             idx = (self.fine + nf * np.arange(db.n_states)[:, None]).ravel()
             self.a_fine = np.bincount(idx, weights=np.tile(db.grain_volume, db.n_states),
                                       minlength=nf * db.n_states).reshape(db.n_states, nf)
@@ -170,8 +190,9 @@ class Engine:
         if self.solids == "grains":
             return self._transport_grains(path, c0, tau0, jumps, first)
         tr = SolidsTracer(c0 * self.a[first], self.a[first])
-        M = np.empty(len(path.frames) + 1)
-        M[0] = tr.mixing_index()
+        M, Lc = np.empty(len(path.frames) + 1), np.empty(len(path.frames) + 1)
+        v = self.grain_volume_mean
+        M[0], Lc[0] = tr.mixing_index(), lacey_index(tr.m, tr.m + tr.u, (tr.m + tr.u) / v)
         moved, t_stitch = [], 0.0
         t = wallclock.perf_counter()
         for i, k in enumerate(path.frames):
@@ -181,12 +202,12 @@ class Engine:
                 tr.apply(S)
                 moved.append(info["moved_share"])
             tr.apply(self.P[k])
-            M[i + 1] = tr.mixing_index()
+            M[i + 1], Lc[i + 1] = tr.mixing_index(), lacey_index(tr.m, tr.m + tr.u, (tr.m + tr.u) / v)
         wall = wallclock.perf_counter() - t - t_stitch
         self.stitch_seconds += t_stitch
         c = tr.concentration
-        return {"M": M, "moved": moved, "drift": tr.drift(), "c_min": float(c.min()), "c_max": float(c.max()),
-                "m_min": float(min(tr.m.min(), tr.u.min())), "wall": wall}
+        return {"M": M, "lacey": Lc, "moved": moved, "drift": tr.drift(), "c_min": float(c.min()),
+                "c_max": float(c.max()), "m_min": float(min(tr.m.min(), tr.u.min())), "wall": wall}
 
     def _stitch(self, s_from: int, s_to: int, half: bool = False):
         """(S, info, seconds spent building it: 0 when cached), on the cells or on the half cells."""
@@ -196,33 +217,58 @@ class Engine:
         S, info = st.operator(a[s_from], a[s_to], key=(s_from, s_to))
         return S, info, (wallclock.perf_counter() - t) if fresh else 0.0
 
-    def _transport_grains(self, path: pathmod.Path, c0, tau0, jumps: dict, first: int) -> dict:
-        """The grain tracer along ``path``: one vectorised index per sequence, a cell average at each jump."""
-        db = self.db
-        tr = GrainTracer(db.grain_volume, c0[db.cells[first]] if tau0 is None else tau0, db.n_cells)
-        M = np.empty(len(path.frames) + 1)
-        M[0] = tr.mixing_index(db.cells[first])
-        cuts = sorted(jumps) + [len(path.frames)]
-        moved, t_stitch = [], 0.0
+    def _grain_jump(self, tr: GrainTracer, s_from: int, s_to: int) -> tuple[dict, float]:
+        """Carry the grain tracer across a jump (matched or stitched): (info, seconds spent building the operator:
+        0 when cached)."""
         t = wallclock.perf_counter()
-        start = 0
+        if self.jump == "match":
+            fresh = (s_from, s_to) not in self.matcher.cache
+            perm, info = self.matcher.operator(s_from, s_to)
+            dt_s = (wallclock.perf_counter() - t) if fresh else 0.0
+            tr.permute(perm)
+        else:
+            S, info, dt_s = self._stitch(s_from, s_to, self.half)
+            grid = self.fine if self.half else self.db.cells
+            tr.jump(grid[s_from], grid[s_to], S)
+        return info, dt_s
+
+    def _transport_grains(self, path: pathmod.Path, c0, tau0, jumps: dict, first: int) -> dict:
+        """The grain tracer along ``path``: the tagged volume per cell of each sequence from its movers
+        (sequence.SequenceIndex), a match or stitch at each jump, then the indices of every row in one call; per
+        jump, its change of the cell index and the share of the tagged volume that changed (index) cell."""
+        db, seq = self.db, self.seq
+        tr = GrainTracer(db.grain_volume, c0[db.cells[first]] if tau0 is None else tau0, db.n_cells)
+        rows, states, after = [seq.tagged(tr.vol * tr.tau, first)[None]], [np.array([first])], []
+        cuts = sorted(jumps) + [len(path.frames)]
+        infos, t_stitch = [], 0.0
+        t = wallclock.perf_counter()
+        start, s_prev = 0, first
         for end in cuts:
             if start in jumps:
-                s_from, s_to = jumps[start]
-                S, info, dt_s = self._stitch(s_from, s_to, self.half)
+                s_from, s_prev = jumps[start]
+                info, dt_s = self._grain_jump(tr, s_from, s_prev)
                 t_stitch += dt_s
-                grid = self.fine if self.half else db.cells
-                tr.jump(grid[s_from], grid[s_to], S)
-                moved.append(info["moved_share"])
+                infos.append(info)
+                after.append((len(states), seq.tagged(tr.vol * tr.tau, s_prev), s_prev))
             if end > start:
-                states = db.b1[path.frames[start:end]]
-                M[start + 1:end + 1] = tr.mixing_indices(db.cells[states], self.a[states])
+                st = db.b1[path.frames[start:end]]
+                rows.append(seq.volumes(tr.vol * tr.tau, s_prev, st))
+                states.append(st)
+                s_prev = int(st[-1])
             start = end
+        n = len(path.frames) + 1
+        m = np.concatenate(rows + [a[1][None] for a in after])
+        M, Lc = seq.indices(m, np.concatenate(states + [np.array([a[2]]) for a in after]))
         wall = wallclock.perf_counter() - t - t_stitch
         self.stitch_seconds += t_stitch
-        m, u = tr.volumes(db.cells[db.b1[path.frames[-1]]])
-        c = np.divide(m, m + u, out=np.zeros_like(m), where=m + u > 0)
-        return {"M": M, "moved": moved, "drift": tr.drift(), "c_min": float(c.min()), "c_max": float(c.max()),
+        last = np.cumsum([r.shape[0] for r in rows]) - 1  # the row of each sequence's last state
+        for i, (k, m_after, _) in zip(range(len(after)), after):
+            before = last[k - 1]
+            infos[i] = {**infos[i], "dM": float(M[n + i] - M[before]),
+                        "tag_moved_share": 0.5 * float(np.abs(m_after - m[before]).sum()) / max(m[before].sum(), 1e-300)}
+        mm, u = tr.volumes(db.cells[s_prev])
+        c = np.divide(mm, mm + u, out=np.zeros_like(mm), where=mm + u > 0)
+        return {"M": M[:n], "lacey": Lc[:n], "moved": [i["moved_share"] for i in infos],
+                "jump_dM": [i["dM"] for i in infos], "tag_moved": [i["tag_moved_share"] for i in infos],
+                "drift": tr.drift(), "c_min": float(c.min()), "c_max": float(c.max()),
                 "m_min": float(min(tr.tau.min(), 1.0 - tr.tau.max())), "wall": wall}
-
-

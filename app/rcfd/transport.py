@@ -38,6 +38,41 @@ def mixing_index(m: np.ndarray, u: np.ndarray) -> float:
     return 1.0 - float(np.abs(m - cbar * b).sum()) / (2.0 * cbar * (1.0 - cbar) * tot)
 
 
+def lacey_index(m: np.ndarray, b: np.ndarray, n: np.ndarray) -> np.ndarray | float:
+    """Lacey's mixing index (Lacey 1954, J. Appl. Chem. 4:257), per row of (..., samples) arrays: tagged volume m,
+    grain volume b and number of grains n per sample (cell). M_L = (s0^2 - s^2) / (s0^2 - sR^2) with
+    s^2 = sum n (c - p)^2 / N the grain-weighted sample variance of c = m / b about p = sum m / sum b (samples of
+    unequal size weighted by their grains), s0^2 = p (1 - p) the fully segregated one (every sample pure) and
+    sR^2 = p (1 - p) (K - 1) / (N - 1) its exact expectation when the tags are shuffled at random over the N grains
+    in K occupied samples (each sample's c hypergeometric: var p (1 - p) (N - n) / (n (N - 1))). So M_L = 0
+    segregated, E[M_L] = 1 random, whatever the grains per sample; ``lacey_random_std`` gives its scatter."""
+    m, b, n = (np.asarray(x, np.float64) for x in (m, b, n))
+    occ = n > 0
+    N, K = n.sum(-1), occ.sum(-1)
+    p = m.sum(-1) / np.maximum(b.sum(-1), 1e-300)
+    c = np.divide(m, b, out=np.zeros_like(m), where=occ & (b > 0))
+    s2 = (n * (c - p[..., None]) ** 2).sum(-1) / np.maximum(N, 1e-300)
+    s0 = p * (1.0 - p)
+    sr = s0 * (K - 1) / np.maximum(N - 1, 1e-300)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where((p > 0) & (p < 1) & (K > 1), (s0 - s2) / (s0 - sr), np.nan)
+    return float(out) if out.ndim == 0 else out
+
+
+def lacey_random_std(n: np.ndarray, p: float) -> float:
+    """The standard deviation of lacey_index for tags laid at random (binomial per sample, the hypergeometric's
+    correction dropped: relative O(n / N)) on samples of n grains: var s^2 = sum (mu4 - mu2^2) / n^2 / N^2 with
+    mu2 = n p q, mu4 = n p q (1 + 3 (n - 2) p q) the central moments of Bin(n, p)."""
+    n = np.asarray(n, np.float64)
+    n = n[n > 0]
+    q = 1.0 - p
+    mu2 = n * p * q
+    mu4 = mu2 * (1.0 + 3.0 * (n - 2.0) * p * q)
+    N, K = n.sum(), n.size
+    var_s2 = np.sum((mu4 - mu2 ** 2) / n ** 2) / N ** 2
+    return float(np.sqrt(var_s2) / (p * q * (1.0 - (K - 1) / (N - 1))))
+
+
 def mixing_index_real(tagged: np.ndarray, solid: np.ndarray) -> float:
     """The same index from the real grains: tagged volume and total grain volume per cell."""
     t = np.asarray(tagged, np.float64)
@@ -195,7 +230,8 @@ class GrainTracer:
     takes its cell's concentration. That is the one place where a cell is assumed well mixed, so the tracer is
     kept to round-off and stays in [0, 1] as with the cell shifts (SolidsTracer). The jump's cells may be finer
     than the index's (Engine stitches on half cells where boundary/octant is recorded): the error of a jump
-    grows with the cell it averages over (validation/rcfd/README.md)."""
+    grows with the cell it averages over (validation/rcfd/README.md). ``permute`` is the other jump: grains matched
+    one to one (app.rcfd.matching), no averaging at all."""
 
     def __init__(self, volume: np.ndarray, tau: np.ndarray, n_cells: int):
         self.vol = np.asarray(volume, np.float64)
@@ -218,6 +254,11 @@ class GrainTracer:
         b = m + u
         c = np.divide(m, b, out=np.zeros_like(b), where=b > 0).clip(0.0, 1.0)
         self.tau = c[cells_to]
+
+    def permute(self, perm: np.ndarray) -> None:
+        """A matching jump (app.rcfd.matching): grain g of the new state takes the tag of grain perm[g] of the old
+        one (matched grains have equal volumes, so the tagged volume is kept to round-off)."""
+        self.tau = self.tau[perm]
 
     def mixing_index(self, cells: np.ndarray) -> float:
         return mixing_index(*self.volumes(cells))

@@ -26,7 +26,7 @@ import numpy as np
 
 from . import commands, paths as pathmod, recurrence as rec
 from .database import load
-from .transport import mixing_index_real
+from .transport import lacey_index, lacey_random_std, mixing_index_real
 
 PERTURBATION = 1e-6  # of the grain diameter
 
@@ -50,14 +50,28 @@ def perturb_checkpoint(src: pathlib.Path, dst: pathlib.Path, seed: int, amplitud
     store.write_checkpoint(dst, grains, gas, float(meta["time"]), int(meta["step"]), str(meta["config"]))
 
 
+def grain_volume(db) -> float:
+    """The mean grain volume [m^3] (Lacey's grains per cell = solid volume / it: exact for one size)."""
+    if db.grain_volume is not None:
+        return float(np.mean(db.grain_volume))
+    return float(db.solid[0].astype(np.float64).sum()) / max(1, int(db.attrs.get("grains", 0)))
+
+
+def real_lacey(db, states) -> np.ndarray:
+    """Lacey's index of the real grains' tag (recorded tagged and solid volume per cell) at ``states``."""
+    b = db.solid[states].astype(np.float64)
+    return lacey_index(db.tagged[states].astype(np.float64), b, b / grain_volume(db))
+
+
 def full_curves(d: pathlib.Path, t1: float) -> dict:
     db = load(d)
     M = np.array([mixing_index_real(db.tagged[b], db.solid[b]) for b in range(db.n_states)])
+    L = real_lacey(db, np.arange(db.n_states))
     t = db.time - t1
     rb, prof = commands.radial_profiles(db)
     sp = rec.spectrum(db.bed_height, db.frame_interval)
     wall = commands.full_cost_per_second(d, float(db.time[0]), float(db.time[-1]))
-    return {"t": t, "M": M, "bed_mean": float(db.bed_height.mean()), "bed_std": float(db.bed_height.std()),
+    return {"t": t, "M": M, "L": L, "bed_mean": float(db.bed_height.mean()), "bed_std": float(db.bed_height.std()),
             "bed_freq": sp["peak_frequency"], "df": sp["df"], "radial": prof.mean(0), "wall_per_s": wall,
             "heights": db.bed_height}
 
@@ -117,17 +131,19 @@ def replay_checks(db, eng) -> tuple[dict, dict]:
     """The replays of the database in recorded order from t0 against the real grains' tracer: (checks, curves).
     - grains: the grain tracer with the real t0 tag per grain. It uses no operator along the recorded order, so it
       must equal the real tracer to the float32 of the stored per-cell volumes: a check of the recording's books.
-    - jumps: the same with the cell averaging of a jump every mean sequence length (a jump from a state to
-      itself): the transport error the paths make, without the error of their frame order. The design note's
-      0.03 applies here.
+    - jumps: the same with a jump from a state to itself every mean sequence length (the stitch averages the tag
+      over each jump cell there, the match re-pairs the grains within each jump cell at random: the grains'
+      places are known only to a jump cell): the transport error the paths make, without the error of their
+      frame order. The design note's 0.03 applies here.
     - cells: the cell shifts (SolidsTracer) frame by frame, for comparison (no pass/fail: its error is the
       well-mixed cell's, measured in validation/rcfd/README.md)."""
     rp = pathmod.replay(db.n_frames, eng.successor)
     s0 = int(db.b0[rp.frames[0]])
     states = np.concatenate([[s0], db.b1[rp.frames]])
     real = np.array([mixing_index_real(db.tagged[b], db.solid[b]) for b in states])
+    real_L = real_lacey(db, states)
     t = db.time[states] - db.time[states[0]]
-    curves, checks = {"t": t, "real": real}, {}
+    curves, checks = {"t": t, "real": real, "real_lacey": real_L}, {}
     cells = commands.Engine(db, eng.st, eng.params, solids="cells") if eng.solids == "grains" else eng
     cases = [("cells", cells, rp, None)]
     if eng.solids == "grains":
@@ -136,29 +152,33 @@ def replay_checks(db, eng) -> tuple[dict, dict]:
     for name, e, path, tau0 in cases:
         r = e.transport(path, commands.initial_concentration(db, s0, None), s0, tau0=tau0)
         err = float(np.max(np.abs(r["M"] - real)))
-        curves[name] = r["M"]
+        curves[name], curves[f"{name}_lacey"] = r["M"], r["lacey"]
         t90 = (commands.crossing_time(t, r["M"], 0.9), commands.crossing_time(t, real, 0.9))
         checks[f"replay_{name}"] = {"max_abs_difference": err, "rcfd_final": float(r["M"][-1]),
-                                    "full": float(real[-1]), "t90_rcfd": t90[0], "t90_real": t90[1]}
+                                    "full": float(real[-1]), "t90_rcfd": t90[0], "t90_real": t90[1],
+                                    "lacey_max_abs_difference": float(np.nanmax(np.abs(r["lacey"] - real_L))),
+                                    "lacey_rcfd_final": float(r["lacey"][-1]), "lacey_full": float(real_L[-1])}
     checks["replay_cells"].update(tests="the cell shifts every frame (for comparison; not a pass/fail check)",
                                   tolerance="reported")
     if "replay_grains" in checks:
         checks["replay_grains"].update(tests="the recording's books (grain tracer, recorded order: no operator)",
                                        tolerance=1e-6, every_frames=0)
         checks["replay_grains"]["pass"] = checks["replay_grains"]["max_abs_difference"] <= 1e-6
-        checks["replay_jumps"].update(tests="rCFD transport (recorded order, a jump's cell averaging every mean "
+        checks["replay_jumps"].update(tests="rCFD transport (recorded order, a jump to the same state every mean "
                                       "sequence length)", tolerance=0.03, every_frames=eng.params.l_mean)
         checks["replay_jumps"]["pass"] = checks["replay_jumps"]["max_abs_difference"] <= 0.03
     return checks, curves
 
 
-def mixing_checks(conts: list, t_r: np.ndarray, M_paths: np.ndarray) -> tuple[dict, tuple]:
-    """The rCFD ensemble's mixing curve against the continuations' (mean index over the horizon, t50, t90)."""
+def mixing_checks(conts: list, t_r: np.ndarray, M_paths: np.ndarray, key: str = "M",
+                  name: str = "mixing_index") -> tuple[dict, tuple]:
+    """The rCFD ensemble's mixing curve against the continuations' (mean index over the horizon, t50, t90), on
+    the cell index (key 'M') or Lacey's (key 'L', checks named *_lacey)."""
     n = int(np.sum(t_r <= min(c["t"][-1] for c in conts) + 1e-9))  # the full curves on rCFD's time grid
     tf = t_r[:n]
-    Mf = np.stack([np.interp(tf, c["t"], c["M"]) for c in conts])
+    Mf = np.stack([np.interp(tf, c["t"], c[key]) for c in conts])
     # the full runs' time mean from every boundary within the horizon (rCFD's own grid may be coarser)
-    full_mean = np.array([c["M"][c["t"] <= t_r[n - 1] + 1e-9].mean() for c in conts])
+    full_mean = np.array([c[key][c["t"] <= t_r[n - 1] + 1e-9].mean() for c in conts])
     rc_mean = M_paths[:, :n].mean(1)
     sig = float(full_mean.std(ddof=1)) if len(conts) > 1 else 0.0
     tol = max(2 * sig, 0.05)
@@ -173,12 +193,13 @@ def mixing_checks(conts: list, t_r: np.ndarray, M_paths: np.ndarray) -> tuple[di
         return {"tests": "rCFD extrapolation", "rcfd": float(r_m), "full": float(f_m), "full_std": float(s),
                 "rcfd_reached": int(np.isfinite(r).sum()), "tolerance": float(t), "pass": _within(r_m, f_m, t)}
 
-    checks = {"mean_mixing_index": {"tests": "rCFD extrapolation (paths and transport against full runs)",
+    sfx = "" if key == "M" else "_lacey"
+    checks = {f"mean_{name}": {"tests": "rCFD extrapolation (paths and transport against full runs)",
                                     "rcfd": float(rc_mean.mean()),
                                     "rcfd_std": float(rc_mean.std(ddof=1)) if len(rc_mean) > 1 else 0.0,
                                     "full": float(full_mean.mean()), "full_std": sig, "tolerance": tol,
                                     "pass": _within(rc_mean.mean(), full_mean.mean(), tol)},
-              "t50": rel_check(0.5), "t90": rel_check(0.9)}
+              f"t50{sfx}": rel_check(0.5), f"t90{sfx}": rel_check(0.9)}
     return checks, (tf, Mf)
 
 
@@ -220,9 +241,10 @@ def cost_checks(conts: list, summ: dict) -> dict:
 
 def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_paths: int, seed: int,
              n_cont: int, overrides: list, arch: str, log=print, lag: int = 1, l_mean: int | None = None,
-             jump_grid: str = "auto") -> int:
+             jump_grid: str = "auto", jump: str = "auto") -> int:
     """The protocol above; ``l_mean`` [frames] overrides the paths' mean sequence length (default N/10);
-    ``jump_grid`` 'cells' stitches the grain tracer's jumps on the cells instead of half cells."""
+    ``jump_grid`` 'cells' locates the grain tracer's jumps on the cells instead of half cells; ``jump`` 'stitch'
+    stitches cell volumes at the jumps instead of matching grains (Engine)."""
     od = pathlib.Path(out) if out else pathlib.Path("runs") / f"rcfd-validate-{pathlib.Path(preset).stem}"
     od.mkdir(parents=True, exist_ok=True)
     rc, conts = full_runs(od, preset, overrides, t0, t1, t2, n_cont, arch, log)
@@ -232,10 +254,10 @@ def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_pa
     log("fbed: rcfd validate: analysis, replay and rCFD paths")
     ana = commands.analyze(str(A), str(od / "analysis"))
     db = load(A, lag)
-    eng = commands.Engine(db, jump_grid=jump_grid)
+    eng = commands.Engine(db, jump_grid=jump_grid, jump=jump)
     if l_mean:
         eng = commands.Engine(db, eng.st, dataclasses.replace(eng.params, l_mean=max(int(l_mean), eng.params.l_min + 1)),
-                              jump_grid=jump_grid)
+                              jump_grid=jump_grid, jump=jump)
     checks, rep = replay_checks(db, eng)
     horizon = t2 - t1
     summ = commands.run_paths(str(A), horizon, n_paths, seed, None, out=str(od / "rcfd_paths"), engine=eng, log=log)
@@ -243,6 +265,9 @@ def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_pa
     t_r, M_paths = Ms[:, 0], Ms[:, 1:1 + n_paths].T
     mix, (tf, Mf) = mixing_checks(conts, t_r, M_paths)
     checks.update(mix)
+    L_paths = np.loadtxt(od / "rcfd_paths" / "lacey.csv", delimiter=",", skiprows=1)[:, 1:1 + n_paths].T
+    mix_L, (_, Lf) = mixing_checks(conts, t_r, L_paths, "L", "lacey_index")
+    checks.update(mix_L)
     checks.update(bed_checks(conts, summ, horizon, db.frame_interval / lag))
     checks.update(cost_checks(conts, summ))
     c_full = checks["marginal_speedup"]["full_wall_per_simulated_second"]
@@ -253,9 +278,14 @@ def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_pa
               "checks": checks, "total_speedup_with_database": total,
               "total_speedup_without_database": summ["cost"]["total_speedup_without_database"],
               "replay_curve": {k: np.asarray(v).tolist() for k, v in rep.items()},
-              "full_curves": {"t": tf.tolist(), "M": Mf.tolist()}, "rcfd_mean_curve": M_paths.mean(0).tolist()}
+              "full_curves": {"t": tf.tolist(), "M": Mf.tolist(), "L": Lf.tolist()},
+              "rcfd_mean_curve": M_paths.mean(0).tolist(), "rcfd_mean_lacey": L_paths.mean(0).tolist(),
+              "jump": eng.jump, "jump_dM_mean": summ.get("jump_dM_mean"),
+              "jump_tag_moved_share_mean": summ.get("jump_tag_moved_share_mean"),
+              "lacey_random_scatter": lacey_random_std(db.solid[-1].astype(np.float64) / grain_volume(db),
+                                                       float(db.tag_now[-1].sum() / db.solid[-1].sum()))}
     commands._json(od / "validation.json", result)
-    _plot(od, rep, t_r, M_paths, tf, Mf)
+    _plot(od, rep, t_r, (M_paths, L_paths), tf, (Mf, Lf))
     _report(od / "REPORT.md", result)
     for name, c in checks.items():
         verdict = "reported" if "pass" not in c else "pass" if c["pass"] else "FAIL"
@@ -280,29 +310,31 @@ def _integral_time(x: np.ndarray, dt: float) -> float:
     return float(ac[:end].sum() * dt)
 
 
-def _plot(od, rep, t_r, M_paths, tf, Mf):
+def _plot(od, rep, t_r, paths, tf, full):
+    """The replay (cell index), and the extrapolation on the cell index and on Lacey's."""
     plt = commands._plt()
-    fig, axs = plt.subplots(1, 2, figsize=(12, 4.5))
+    fig, axs = plt.subplots(1, 3, figsize=(17, 4.5))
     axs[0].plot(rep["t"], rep["real"], "k-", lw=2, label="real grains")
     style = {"cells": ("r:", "cell shifts every frame"), "grains": ("g--", "grain tracer (no jumps)"),
-             "jumps": ("b-", "grain tracer, cell-averaged every mean sequence")}
+             "jumps": ("b-", "grain tracer, a jump to the same state every mean sequence")}
     for k, (ls, label) in style.items():
         if k in rep:
             axs[0].plot(rep["t"], rep[k], ls, label=label)
-    axs[0].set_title("replay of the database in recorded order")
+    axs[0].set_title("replay of the database in recorded order (cell index)")
     axs[0].set_xlabel("time from t0 [s]")
     axs[0].set_ylabel("mixing index")
     axs[0].legend(fontsize=8)
-    mean, std = M_paths.mean(0), M_paths.std(0, ddof=1) if len(M_paths) > 1 else 0 * M_paths[0]
-    for M in M_paths:
-        axs[1].plot(t_r, M, color="0.75", lw=0.5)
-    axs[1].plot(t_r, mean, "b-", lw=2, label=f"rCFD, {len(M_paths)} paths")
-    axs[1].fill_between(t_r, mean - 2 * std, mean + 2 * std, color="b", alpha=0.2, label="±2σ")
-    for i, M in enumerate(Mf):
-        axs[1].plot(tf, M, "k--", lw=1.2, label="full CFD-DEM (perturbed continuations)" if i == 0 else None)
-    axs[1].set_title("extrapolation from t1")
-    axs[1].set_xlabel("time from t1 [s]")
-    axs[1].legend(fontsize=8)
+    for ax, M_paths, Mf, what in ((axs[1], paths[0], full[0], "cell index"), (axs[2], paths[1], full[1], "Lacey")):
+        mean, std = M_paths.mean(0), M_paths.std(0, ddof=1) if len(M_paths) > 1 else 0 * M_paths[0]
+        for M in M_paths:
+            ax.plot(t_r, M, color="0.75", lw=0.5)
+        ax.plot(t_r, mean, "b-", lw=2, label=f"rCFD, {len(M_paths)} paths")
+        ax.fill_between(t_r, mean - 2 * std, mean + 2 * std, color="b", alpha=0.2, label="±2σ")
+        for i, M in enumerate(Mf):
+            ax.plot(tf, M, "k--", lw=1.2, label="full CFD-DEM (perturbed continuations)" if i == 0 else None)
+        ax.set_title(f"extrapolation from t1: {what}")
+        ax.set_xlabel("time from t1 [s]")
+        ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(od / "mixing_validation.png", dpi=110)
     plt.close(fig)
