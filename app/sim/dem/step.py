@@ -227,8 +227,21 @@ def integrate(model: ti.template(), sizes: ti.template(), state: ti.template(), 
 
 @ti.kernel
 def dem_substep(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
-            nlist: ti.template(), walls: ti.template()):
-    """One DEM step in one launch: [rebuild] -> pair and wall forces -> integration."""
+                nlist: ti.template(), walls: ti.template()):
+    """One DEM step in one launch: [rebuild] -> pair and wall forces -> integration. On one CPU thread
+    (``model.serial``) the whole step is one serial task (the parts' loops nested in one loop of one
+    pass, run in the same order: the same results, without a task's start-up per loop)."""
+    if ti.static(model.serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            substep_parts(model, sizes, state, history, nlist, walls)
+    else:
+        substep_parts(model, sizes, state, history, nlist, walls)
+
+
+@ti.func
+def substep_parts(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+                  nlist: ti.template(), walls: ti.template()):
     rebuild_if_flagged(model, sizes, state, history, nlist)
     pair_forces(model, sizes, state, history, nlist, walls)
     integrate(model, sizes, state, nlist)
