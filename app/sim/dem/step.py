@@ -239,6 +239,18 @@ def dem_substep(model: ti.template(), sizes: ti.template(), state: ti.template()
         substep_parts(model, sizes, state, history, nlist, walls)
 
 
+@ti.kernel
+def dem_substeps(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+                 nlist: ti.template(), walls: ti.template(), substeps: ti.i32):
+    """``substeps`` DEM steps in one launch, on one CPU thread only (``model.serial``): one serial task,
+    the steps in order, each as ``dem_substep`` (the same results bit for bit, no launch per step)."""
+    ti.static_assert(model.serial, "dem_substeps runs on one CPU thread only")
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        for _s in range(substeps):
+            substep_parts(model, sizes, state, history, nlist, walls)
+
+
 @ti.func
 def substep_parts(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                   nlist: ti.template(), walls: ti.template()):
