@@ -7,7 +7,10 @@ One substep (``substep``, a single kernel whose top-level loops run in order):
 -> symplectic Euler integration (v += a dt; x += v dt; omega += T/I dt, the gas drag
    taken implicitly), which also zeroes the accumulators, removes grains that left the
    domain and raises the rebuild flag.
-The host only launches: nothing is read back inside ``advance``'s loop; the counters
+On one CPU thread (``model.serial``) a substep is one serial task, and ``advance`` runs all its
+substeps in one launch (``dem_substeps``): a task's start-up (~13 us on the CPU) and a launch's host
+cost are paid once per ``advance``, not per loop and substep; the steps run in the same order, to the
+same bits. The host only launches: nothing is read back inside ``advance``'s loop; the counters
 (overflow, removals, builds) are read once at its end, and decide whether the next ``advance``
 first re-orders the grains by cell (``neighbors.sort_by_cell``, every ``model.sort_interval``
 builds). Outside the DEM, grains are seen in id order only (``read``, ``state_arrays``). Diagnostics are computed only
