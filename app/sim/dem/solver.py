@@ -8,7 +8,7 @@ import taichi as ti
 
 from ..fields import NO_SPRING, ROLL_EPSD, ContactHistory, DemModel, GrainModel, GrainState, NeighborList, WallData
 from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW, sort_by_cell
-from .step import dem_substep, measure
+from .step import dem_substep, dem_substeps, measure
 
 
 class NeighborOverflow(RuntimeError):
@@ -264,11 +264,15 @@ class DemSolver:
         """Queue ``substeps`` substeps, then read the counters once: NeighborOverflow if a rebuild ran out
         of slots (the substeps after it missed pairs: the run must stop). Grains are first re-ordered by
         cell when a sort is due (``model.sort_interval`` builds since the last one, decided at the last
-        read of the counters; no read here)."""
+        read of the counters; no read here). On one CPU thread the substeps are one launch."""
         if self._sort_due:
             self.sort()
-        for _ in range(substeps):
-            self.substep()
+        if self.m.serial and substeps > 0:  # one CPU thread: all of them in one launch
+            dem_substeps(self.m, self.fixed, self.state, self.history, self.nlist, self.walls, substeps)
+            self.substeps_done += substeps
+        else:
+            for _ in range(substeps):
+                self.substep()
         self.check()
 
     def check(self) -> None:

@@ -7,7 +7,10 @@ One substep (``substep``, a single kernel whose top-level loops run in order):
 -> symplectic Euler integration (v += a dt; x += v dt; omega += T/I dt, the gas drag
    taken implicitly), which also zeroes the accumulators, removes grains that left the
    domain and raises the rebuild flag.
-The host only launches: nothing is read back inside ``advance``'s loop; the counters
+On one CPU thread (``model.serial``) a substep is one serial task, and ``advance`` runs all its
+substeps in one launch (``dem_substeps``): a task's start-up (~13 us on the CPU) and a launch's host
+cost are paid once per ``advance``, not per loop and substep; the steps run in the same order, to the
+same bits. The host only launches: nothing is read back inside ``advance``'s loop; the counters
 (overflow, removals, builds) are read once at its end, and decide whether the next ``advance``
 first re-orders the grains by cell (``neighbors.sort_by_cell``, every ``model.sort_interval``
 builds). Outside the DEM, grains are seen in id order only (``read``, ``state_arrays``). Diagnostics are computed only
@@ -227,8 +230,33 @@ def integrate(model: ti.template(), sizes: ti.template(), state: ti.template(), 
 
 @ti.kernel
 def dem_substep(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
-            nlist: ti.template(), walls: ti.template()):
-    """One DEM step in one launch: [rebuild] -> pair and wall forces -> integration."""
+                nlist: ti.template(), walls: ti.template()):
+    """One DEM step in one launch: [rebuild] -> pair and wall forces -> integration. On one CPU thread
+    (``model.serial``) the whole step is one serial task (the parts' loops nested in one loop of one
+    pass, run in the same order: the same results, without a task's start-up per loop)."""
+    if ti.static(model.serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            substep_parts(model, sizes, state, history, nlist, walls)
+    else:
+        substep_parts(model, sizes, state, history, nlist, walls)
+
+
+@ti.kernel
+def dem_substeps(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+                 nlist: ti.template(), walls: ti.template(), substeps: ti.i32):
+    """``substeps`` DEM steps in one launch, on one CPU thread only (``model.serial``): one serial task,
+    the steps in order, each as ``dem_substep`` (the same results bit for bit, no launch per step)."""
+    ti.static_assert(model.serial, "dem_substeps runs on one CPU thread only")
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        for _s in range(substeps):
+            substep_parts(model, sizes, state, history, nlist, walls)
+
+
+@ti.func
+def substep_parts(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+                  nlist: ti.template(), walls: ti.template()):
     rebuild_if_flagged(model, sizes, state, history, nlist)
     pair_forces(model, sizes, state, history, nlist, walls)
     integrate(model, sizes, state, nlist)
