@@ -19,6 +19,7 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 from ..config import load
+from ..config.derived import grain_mass, grain_volume
 from ..config.loader import build
 from ..scene import Scene, build_simulation
 from ..sim import gas
@@ -58,7 +59,7 @@ def _settling_force(v: float, d: float, rho_p: float) -> float:
     """Net downward force [N] on a grain falling at v [m/s]: weight less buoyancy less Schiller-Naumann drag
     (C_D = 24/Re (1 + 0.15 Re^0.687), so F_drag = 3 pi mu d v (1 + 0.15 Re^0.687))."""
     re = RHO_G * d * v / MU
-    return (rho_p - RHO_G) * math.pi * d ** 3 / 6 * G - 3 * math.pi * MU * d * v * (1 + 0.15 * re ** 0.687)
+    return (rho_p - RHO_G) * grain_volume(d / 2) * G - 3 * math.pi * MU * d * v * (1 + 0.15 * re ** 0.687)
 
 
 def schiller_naumann_terminal(d: float, rho_p: float) -> float:
@@ -69,7 +70,7 @@ def schiller_naumann_terminal(d: float, rho_p: float) -> float:
 def schiller_naumann_speed(d: float, rho_p: float, t: float) -> float:
     """Falling speed [m/s] at time t [s] of a grain released at rest: m dv/dt = the net force above,
     integrated to 1e-10 (what the coupled run must reproduce: it has no added mass or history force)."""
-    mass = rho_p * math.pi * d ** 3 / 6
+    mass = grain_mass(d / 2, rho_p)
     sol = solve_ivp(lambda _, v: [_settling_force(max(v[0], 0.0), d, rho_p) / mass], (0.0, t), [0.0],
                     method="LSODA", rtol=1e-10, atol=1e-12)
     return float(sol.y[0, -1])

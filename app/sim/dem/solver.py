@@ -1,11 +1,11 @@
 """``DemSolver``: holds one scene's DEM bundles and runs the substep kernel of ``step.py``; grains in and out
 by grain id (``set_grains``, ``read``, ``state_arrays``), whatever their memory order. No I/O, no printing."""
 import dataclasses
-import math
 
 import numpy as np
 import taichi as ti
 
+from ...config.derived import grain_mass
 from ..fields import NO_SPRING, ROLL_EPSD, ContactHistory, DemModel, GrainModel, GrainState, NeighborList, WallData
 from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW, sort_by_cell
 from .step import dem_substep, measure
@@ -96,7 +96,7 @@ class DemSolver:
         if self.m.polydisperse:
             r = np.asarray(radius, float)
             self.fixed.radius.from_numpy(mem(self._f(r)))
-            self.fixed.mass.from_numpy(mem(self._f(self.m.density * 4.0 / 3.0 * math.pi * r ** 3)))
+            self.fixed.mass.from_numpy(mem(self._f(grain_mass(r, self.m.density))))
         if self.m.sorts:
             ids = np.arange(n, dtype=np.int32) if order is None else np.asarray(order, np.int32)
             self.fixed.grain_id.from_numpy(ids)
