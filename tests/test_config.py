@@ -138,3 +138,17 @@ def test_grain_volume_and_mass_one_formula_for_numpy_and_kernels():
     d = derive(cfg_of(particles={"diameter": 1e-3, "density": 2526.0}))
     assert d.mass(2 * r) == pytest.approx(2526.0 * grain_volume(r), rel=1e-15)
     assert d.mass_min == pytest.approx(float(grain_mass(0.5e-3, 2526.0)), rel=1e-15)
+
+
+def test_a_scene_without_grains_has_no_floor_unless_one_is_given():
+    """The floor plane holds grains up: a gas-only cylinder has the cylinder alone (a floor on the bottom face
+    would be a second wall there and would close a periodic z axis); given vessel.floor, or grains, it has one."""
+    from app.scene import Scene
+
+    gas_only = ('[run]\nduration = 0.1\nstep = 0.01\n[domain]\nlo = [0.0, 0.0, 0.0]\nhi = [0.1, 0.1, 0.1]\n'
+                '[vessel]\nshape = "cylinder"\ncenter = [0.05, 0.05]\nradius = 0.04\n{floor}[gas]\ncell_size = 0.01\n')
+    names = lambda text: [w.name for w in Scene(load_text(text, "t.toml")).walls]  # noqa: E731
+    assert names(gas_only.format(floor="")) == ["cylinder"]
+    assert names(gas_only.format(floor="floor = 0.02\n")) == ["cylinder", "floor"]
+    grains = gas_only.format(floor="") + "[particles]\ndiameter = 0.002\ndensity = 2500.0\ncount = 10\n"
+    assert names(grains) == ["cylinder", "floor"]

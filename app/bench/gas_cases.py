@@ -22,10 +22,7 @@ from ..config import load
 from ..config.derived import grain_mass, grain_volume
 from ..config.loader import build
 from ..scene import Scene, build_simulation
-from ..sim import gas
 from ..sim import runtime
-from ..sim.gas import FlowSolver
-from ..sim.geometry import CylinderWall
 from .cases import Case, Unavailable
 
 MU, RHO_G, G = 1.8e-5, 1.2, 9.81  # air [Pa s], [kg/m^3]; gravity [m/s^2]
@@ -177,18 +174,23 @@ def pipe_flow(cells_across: int, tolerance: float, axis_offset: float = 0.0) -> 
     to the exact centreline value."""
     h = 1.0 / cells_across
     c = (cells_across / 2 + 1.5 + axis_offset) * h
-    wall_ = CylinderWall(center=(c, c), radius=0.5)
-    per = gas.periodic()
-    cfg = gas.FlowConfig(shape=(cells_across + 3, cells_across + 3, 1), h=h, rho=1.0, mu=PIPE_MU,
-                          gravity=(0, 0, 0), bcs={"z-": per, "z+": per}, walls=(wall_,), tol=tolerance)
-    s = FlowSolver(cfg)
+    side = (cells_across + 3) * h
+    sections = {
+        "run": {"duration": PIPE_SECONDS, "step": PIPE_DT, "precision": runtime.current()[1]},
+        "domain": {"lo": [0.0, 0.0, 0.0], "hi": [side, side, h], "gravity": [0.0, 0.0, 0.0]},
+        "vessel": {"shape": "cylinder", "center": [c, c], "radius": 0.5},  # no grains: no floor (scene.build_walls)
+        "gas": {"cell_size": h, "density": 1.0, "viscosity": PIPE_MU, "tolerance": tolerance, "max_split": 1},
+        "boundary": {"z-": "periodic", "z+": "periodic"},  # the sides are the cut-cell cylinder
+    }
+    sim = build_simulation(Scene(build(sections, "<accuracy>"), "<accuracy>"))
+    s = sim.flow
     xyz = s.grid.face_centres(2)
     r2 = (xyz[..., 0] - c) ** 2 + (xyz[..., 1] - c) ** 2
     u_exact = np.maximum(PIPE_FORCE / (4 * PIPE_MU) * (0.25 - r2), 0.0)
     s.set_face_velocity(np.zeros(s.grid.face_shape(0)), np.zeros(s.grid.face_shape(1)), u_exact)
     s.set_explicit_source((0.0, 0.0, PIPE_FORCE))
     n = round(PIPE_SECONDS / PIPE_DT)
-    wall = _timed_steps(lambda: s.step(PIPE_DT), n)
+    wall = _timed_steps(sim.step, n)
     r2, u_exact = r2[:, :, 0], u_exact[:, :, 0]
     inside = (s.cut.apertures[2][:, :, 0] > 0) & (r2 < 0.25)
     w = s.face_velocity(2)[:, :, 0]
