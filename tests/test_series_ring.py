@@ -97,3 +97,15 @@ def test_a_resume_from_the_middle_of_a_block_loses_no_row(tmp_path):
         assert len(a["series/time"]) == 13  # steps 0..12
         for n in names:
             assert np.array_equal(a["series"][n][...], b["series"][n][...], equal_nan=True), n
+
+
+def test_a_bad_row_still_on_the_device_when_the_run_ends_stops_it():
+    """Rows not yet read when the last step is done are read before the run ends, so the guard still stops it
+    (3 steps, a block of 50: the speed limit of 1e-9 m/s is passed by the first step's falling grains)."""
+    from app.sim.simulation import Unstable
+
+    scene = Scene(load(FLUIDIZE, SMALL + ["run.duration=0.003"]), str(FLUIDIZE))
+    sim = build_simulation(scene)
+    Guard(max_overlap=0.5, max_speed=1e-9).attach(sim, 1e-3)
+    with pytest.raises(Unstable, match=r"a grain moves at .* at t = 0.001 s"):
+        sim.run()

@@ -303,6 +303,7 @@ class Simulation:
                     break
                 if action == "step" and self.step_count < self.total_steps:
                     self.advance()
+            self.flush_diagnostics()  # the rows still on the device reach the guard while it can stop the run
         except Unstable:
             self._finish("unstable")
             raise
