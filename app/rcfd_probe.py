@@ -23,6 +23,7 @@ import time
 import h5py
 import numpy as np
 
+from .config.derived import grain_volume
 from .rcfd.database import tag_mask
 
 
@@ -243,7 +244,7 @@ class RcfdRecorder:
             f.attrs["grains"] = int(self.counted.size)
             if self.grain_cells:
                 n = int(self.counted.size)
-                f.create_dataset("grains_volume", data=4.0 / 3.0 * np.pi * r[self.counted] ** 3)
+                f.create_dataset("grains_volume", data=grain_volume(r[self.counted]))
                 f.create_dataset("boundary/cells", shape=(0, n), maxshape=(None, n), dtype="i4",
                                  chunks=(max(1, min(64, (1 << 20) // (4 * n))), n), compression="gzip")
                 f.create_dataset("boundary/octant", shape=(0, n), maxshape=(None, n), dtype="u1",
@@ -255,7 +256,7 @@ class RcfdRecorder:
             gone = ~alive[ids]
             cells[gone] = self.last_cells[gone]
             octant[gone] = self.last_octant[gone]
-        vol = 4.0 / 3.0 * np.pi * r[ids] ** 3
+        vol = grain_volume(r[ids])
         tagged = np.isin(ids, self.tagged_ids)
         now = tag_mask(self.tag, xi)
         b = f["boundary/time"].shape[0]

@@ -87,8 +87,8 @@ def _attach(sim, scene, name, out_dir, runfile, config_text, renderer, viewer, r
     checkpoints = Checkpoints(out_dir, runfile, config_text)
     final = FinalOutputs(guard, [w for w, _ in writers], series, sim.every(o.series_interval), checkpoints,
                          o.save_bed)
-    sim.add(guard, cfg.guard.interval, at_start=True)
-    sim.add(guard.guarded(series), o.series_interval, at_start=True, finish=final.finish)
+    guard.attach(sim, cfg.guard.interval)  # every diagnostics row passes the guard before the series gets it
+    series.attach(sim, o.series_interval, finish=final.finish)
     for writer, interval in writers:  # interval 0: at the start and the end only
         sim.add(guard.guarded(writer), interval, at_start=True)
     attach_probes(sim, cfg, runfile, out_dir, guard, sim.time if resume else None, log)

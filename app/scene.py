@@ -33,7 +33,10 @@ CELLS_PER_GRAIN = 4  # cap on the cell list's size (4 bytes per cell)
 
 
 def build_walls(cfg: Config) -> list:
-    """The vessel's walls (geometry dataclasses), from [vessel] and [domain]."""
+    """The vessel's walls (geometry dataclasses), from [vessel] and [domain]. The floor plane holds the grains
+    up: a scene without grains gets one only where vessel.floor is given (its gas is bounded below by the
+    domain's bottom face and its [boundary] condition; a floor there would be a second, no-slip, wall on
+    that face and would close a periodic z axis)."""
     v, d = cfg.vessel, cfg.domain
     floor = d.lo[2] if v.floor is None else v.floor
     walls: list = []
@@ -53,7 +56,8 @@ def build_walls(cfg: Config) -> list:
             raise ConfigError(f"cannot read the sampled SDF: {err}", str(path), "vessel.sdf_file",
                               hint="an .npz with arrays 'values' (nx,ny,nz, m), 'origin' (3, m), 'spacing' (m)") from None
         return walls  # a sampled vessel carries its own floor
-    walls.append(geometry.PlaneWall((0.0, 0.0, floor), (0.0, 0.0, 1.0), name="floor"))
+    if cfg.particles is not None or v.floor is not None:
+        walls.append(geometry.PlaneWall((0.0, 0.0, floor), (0.0, 0.0, 1.0), name="floor"))
     if v.lid is not None:
         walls.append(geometry.PlaneWall((0.0, 0.0, v.lid), (0.0, 0.0, -1.0), name="lid"))
     return walls

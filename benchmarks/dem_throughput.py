@@ -133,11 +133,11 @@ class FbedRun:
     """One size's fbed solver, compiled once; every block starts again from the same state."""
 
     def __init__(self, n, start, cyl_radius, precision, threads, arch, skin):
-        from app.sim.dem import DemSolver
+        from app.scene import build_simulation
 
         self.n, self.start, self.arch = n, start, arch
         self.scene = fbed_scene(n, start["position"], cyl_radius, precision, threads, arch, skin)
-        self.dem = DemSolver(self.scene.model)
+        self.dem = build_simulation(self.scene).dem
         self.bytes = _bytes_per_grain(self.scene.model, precision)
         self.with_omega = "omega" in inspect.signature(self.dem.set_grains).parameters
 

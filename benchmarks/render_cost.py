@@ -22,8 +22,8 @@ from dem_throughput import bed, fbed_scene  # benchmarks/, this script's folder
 
 from app.bench.common import append_results
 from app.gui.render import Renderer, ViewSettings
+from app.scene import build_simulation
 from app.sim import runtime
-from app.sim.dem import DemSolver
 
 
 def main(argv=None):
@@ -42,7 +42,7 @@ def main(argv=None):
     for n in a.sizes:
         pos, radius = bed(n)
         scene = fbed_scene(n, pos, radius, "float32", 0, arch)
-        dem = DemSolver(scene.model)
+        dem = build_simulation(scene).dem
         dem.set_grains(pos, radius=scene.initial["radius"])
         dem.advance(20)
         runtime.sync()

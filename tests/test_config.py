@@ -111,3 +111,44 @@ def test_override_is_validated_like_the_file():
     with pytest.raises(ConfigError) as err:
         load_text(text, "t.toml", ["run.duration=-1"])
     assert "run.duration" in str(err.value)
+
+
+def test_grain_volume_and_mass_one_formula_for_numpy_and_kernels():
+    """A grain's volume is 4/3 pi r^3 (a 1 mm radius: 4.18879e-9 m^3 by hand); the coupling kernels' ti.func twin
+    agrees with numpy in float64 to rounding (three products, each within half an ulp, which Taichi's fast math
+    may reorder: 1e-15 is about four ulps), and Derived.mass by diameter agrees."""
+    import taichi as ti
+
+    from app.config.derived import grain_mass, grain_volume
+    from app.sim.coupling import grain_volume_func
+
+    assert grain_volume(1e-3) == pytest.approx(4.0 / 3.0 * math.pi * 1e-9, rel=1e-15)
+    assert grain_mass(1e-3, 2526.0) == pytest.approx(2526.0 * 4.18879020478639e-9, rel=1e-14)
+    r = np.linspace(1e-4, 3e-3, 16)
+    rf, out = ti.field(float, 16), ti.field(float, 16)
+    rf.from_numpy(r)
+
+    @ti.kernel
+    def run():
+        for i in rf:
+            out[i] = grain_volume_func(rf[i])
+
+    run()
+    assert np.allclose(out.to_numpy(), grain_volume(r), rtol=1e-15, atol=0)
+    d = derive(cfg_of(particles={"diameter": 1e-3, "density": 2526.0}))
+    assert d.mass(2 * r) == pytest.approx(2526.0 * grain_volume(r), rel=1e-15)
+    assert d.mass_min == pytest.approx(float(grain_mass(0.5e-3, 2526.0)), rel=1e-15)
+
+
+def test_a_scene_without_grains_has_no_floor_unless_one_is_given():
+    """The floor plane holds grains up: a gas-only cylinder has the cylinder alone (a floor on the bottom face
+    would be a second wall there and would close a periodic z axis); given vessel.floor, or grains, it has one."""
+    from app.scene import Scene
+
+    gas_only = ('[run]\nduration = 0.1\nstep = 0.01\n[domain]\nlo = [0.0, 0.0, 0.0]\nhi = [0.1, 0.1, 0.1]\n'
+                '[vessel]\nshape = "cylinder"\ncenter = [0.05, 0.05]\nradius = 0.04\n{floor}[gas]\ncell_size = 0.01\n')
+    names = lambda text: [w.name for w in Scene(load_text(text, "t.toml")).walls]  # noqa: E731
+    assert names(gas_only.format(floor="")) == ["cylinder"]
+    assert names(gas_only.format(floor="floor = 0.02\n")) == ["cylinder", "floor"]
+    grains = gas_only.format(floor="") + "[particles]\ndiameter = 0.002\ndensity = 2500.0\ncount = 10\n"
+    assert names(grains) == ["cylinder", "floor"]

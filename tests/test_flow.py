@@ -185,7 +185,7 @@ def test_lid_driven_cavity_re100_matches_ghia(reference_dir):
     import pathlib
 
     from app.config import load
-    from app.scene import Scene
+    from app.scene import Scene, build_simulation
 
     ref = json.loads((reference_dir / "ghia1982_re100.json").read_text())
     preset = pathlib.Path(__file__).resolve().parents[1] / "presets" / "validation" / "cavity.toml"
@@ -193,7 +193,7 @@ def test_lid_driven_cavity_re100_matches_ghia(reference_dir):
     assert cfg.particles is None  # single phase: no grains allocated
     scene = Scene(cfg, str(preset))
     assert scene.model is None and scene.flow.mu == pytest.approx(0.01)
-    s = gas.FlowSolver(scene.flow)
+    s = build_simulation(scene).flow
     _advance(s, round(cfg.run.duration / cfg.run.step), cfg.run.step)
     from app.bench.gas_cases import cavity_centrelines
 

@@ -35,7 +35,6 @@ than 30% in either image (a predicted 19% on the grid plus the lattice count at 
 emulsion counts as a bubble. A sharp image's bubble hardly moves with the solid-fraction scale (a 15% error in
 the MRI's normalisation moves it by about 1%), so the scale is checked on its own: the emulsion under the void
 reads the bed's 0.60 in both images."""
-import dataclasses
 import math
 
 import numpy as np
@@ -44,11 +43,8 @@ import pytest
 from app.analysis import mri
 from app.probes import Probes
 from app.probes_mri import MriImage
-from app.sim.coupling import Coupler
-from app.sim.dem import DemSolver
-from app.sim.gas import FlowSolver
 from app.config import load_text
-from app.scene import Scene
+from app.scene import Scene, build_simulation
 from dem_helpers import merged, toml_text
 
 pytestmark = pytest.mark.verification
@@ -86,12 +82,11 @@ def slab_images(p, r):
                                 "top": "pressure_outlet"},
                       probes={"slab_width": 0.01, "mri_pixel": [0.002, 0.004]})
     del sections["particles"]["diameter"]  # polydisperse, so the DEM keeps each grain's radius
-    scene = Scene(load_text(toml_text(sections), "test.toml"))
-    dem = DemSolver(dataclasses.replace(scene.model, n=len(p)))
-    dem.set_grains(p, None, r)
-    assert np.array_equal(dem.radii(), r)
-    flow = FlowSolver(scene.flow)
-    Coupler(scene.coupling, dem, flow).deposit(1e-3)
+    scene = Scene(load_text(toml_text(sections), "test.toml"), "test.toml", initial={"position": p, "radius": r})
+    sim = build_simulation(scene)
+    assert np.array_equal(sim.dem.radii(), r)
+    flow = sim.flow
+    sim.coupler.deposit(1e-3)
     probes = Probes(scene.cfg, flow, flow.fields.active.to_numpy())
     assert list(probes.y_cells) == [1, 2, 3, 4]  # four 3 mm layers: a 12 mm slab
     return 1.0 - MriImage(scene.cfg).void(p, r), 1.0 - probes.slab()

@@ -18,6 +18,7 @@ from scipy.optimize import brentq
 
 from ..analysis import bubbles
 from ..analysis.verma import MAX_AREA_FRACTION
+from ..config.derived import grain_mass
 from ..config.schema import ContactConfig
 from ..io import store
 from ..sim import drag
@@ -78,7 +79,7 @@ def fixed_bed_umf(series: dict, u_final: float, u_pred: float, weight: float, fl
 
 def _momentum(group) -> float:
     r, v = group["radius"][...].astype(float), group["velocity"][...].astype(float)
-    return float(np.sum(DENSITY * 4.0 / 3.0 * np.pi * r ** 3 * v[:, 2]))
+    return float(np.sum(grain_mass(r, DENSITY) * v[:, 2]))
 
 
 def floor_force(group, youngs_modulus: float) -> float:
@@ -135,7 +136,7 @@ def window_stats(run_dir: pathlib.Path, t0: float, t1: float, youngs_modulus: fl
         mask = f["planes"]["mask"][...].astype(bool)
     # mean(dp) A + floor = W + (change of the grains' vertical momentum) / T: the momentum term is the
     # slug's rise and fall, the floor's the grains raining out of the slug onto it (walls are frictionless)
-    area = float(np.sum(DENSITY * 4.0 / 3.0 * np.pi * radius ** 3)) * GRAVITY * (1 - GAS_DENSITY / DENSITY) / weight
+    area = float(np.sum(grain_mass(radius, DENSITY))) * GRAVITY * (1 - GAS_DENSITY / DENSITY) / weight
     inertia = change / (area * (t1 - t0)) / weight
     floor_share = floor / area / weight
     return {"bed_height_mean": float(np.mean(height)), "bed_height_std": float(np.std(height)),

@@ -11,6 +11,7 @@ import numpy as np
 from scipy.special import beta
 
 from ..config import load_text
+from ..config.derived import grain_mass
 from ..scene import Scene, build_simulation
 from .cases import Case
 
@@ -90,7 +91,7 @@ def hertz_duration_exact(cfg, radius: float, speed: float) -> float:
     [m/s], with the exact coefficient (4/5) (15/16)^(2/5) B(2/5, 1/2) = 2.86827 (app.config.derived
     rounds it to 2.868 to pick the step; the reference must not carry that rounding)."""
     c = cfg.contact
-    m_eff = cfg.particles.density * 4.0 / 3.0 * np.pi * radius ** 3 / 2
+    m_eff = grain_mass(radius, cfg.particles.density) / 2
     e_star = c.youngs_modulus / (2 * (1 - c.poisson_ratio ** 2))
     coeff = 0.8 * (15.0 / 16.0) ** 0.4 * beta(0.4, 0.5)
     return coeff * (m_eff ** 2 / ((radius / 2) * e_star ** 2 * speed)) ** 0.2

@@ -19,12 +19,10 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 from ..config import load
+from ..config.derived import grain_mass, grain_volume
 from ..config.loader import build
 from ..scene import Scene, build_simulation
-from ..sim import gas
 from ..sim import runtime
-from ..sim.gas import FlowSolver
-from ..sim.geometry import CylinderWall
 from .cases import Case, Unavailable
 
 MU, RHO_G, G = 1.8e-5, 1.2, 9.81  # air [Pa s], [kg/m^3]; gravity [m/s^2]
@@ -58,7 +56,7 @@ def _settling_force(v: float, d: float, rho_p: float) -> float:
     """Net downward force [N] on a grain falling at v [m/s]: weight less buoyancy less Schiller-Naumann drag
     (C_D = 24/Re (1 + 0.15 Re^0.687), so F_drag = 3 pi mu d v (1 + 0.15 Re^0.687))."""
     re = RHO_G * d * v / MU
-    return (rho_p - RHO_G) * math.pi * d ** 3 / 6 * G - 3 * math.pi * MU * d * v * (1 + 0.15 * re ** 0.687)
+    return (rho_p - RHO_G) * grain_volume(d / 2) * G - 3 * math.pi * MU * d * v * (1 + 0.15 * re ** 0.687)
 
 
 def schiller_naumann_terminal(d: float, rho_p: float) -> float:
@@ -69,7 +67,7 @@ def schiller_naumann_terminal(d: float, rho_p: float) -> float:
 def schiller_naumann_speed(d: float, rho_p: float, t: float) -> float:
     """Falling speed [m/s] at time t [s] of a grain released at rest: m dv/dt = the net force above,
     integrated to 1e-10 (what the coupled run must reproduce: it has no added mass or history force)."""
-    mass = rho_p * math.pi * d ** 3 / 6
+    mass = grain_mass(d / 2, rho_p)
     sol = solve_ivp(lambda _, v: [_settling_force(max(v[0], 0.0), d, rho_p) / mass], (0.0, t), [0.0],
                     method="LSODA", rtol=1e-10, atol=1e-12)
     return float(sol.y[0, -1])
@@ -176,18 +174,23 @@ def pipe_flow(cells_across: int, tolerance: float, axis_offset: float = 0.0) -> 
     to the exact centreline value."""
     h = 1.0 / cells_across
     c = (cells_across / 2 + 1.5 + axis_offset) * h
-    wall_ = CylinderWall(center=(c, c), radius=0.5)
-    per = gas.periodic()
-    cfg = gas.FlowConfig(shape=(cells_across + 3, cells_across + 3, 1), h=h, rho=1.0, mu=PIPE_MU,
-                          gravity=(0, 0, 0), bcs={"z-": per, "z+": per}, walls=(wall_,), tol=tolerance)
-    s = FlowSolver(cfg)
+    side = (cells_across + 3) * h
+    sections = {
+        "run": {"duration": PIPE_SECONDS, "step": PIPE_DT, "precision": runtime.current()[1]},
+        "domain": {"lo": [0.0, 0.0, 0.0], "hi": [side, side, h], "gravity": [0.0, 0.0, 0.0]},
+        "vessel": {"shape": "cylinder", "center": [c, c], "radius": 0.5},  # no grains: no floor (scene.build_walls)
+        "gas": {"cell_size": h, "density": 1.0, "viscosity": PIPE_MU, "tolerance": tolerance, "max_split": 1},
+        "boundary": {"z-": "periodic", "z+": "periodic"},  # the sides are the cut-cell cylinder
+    }
+    sim = build_simulation(Scene(build(sections, "<accuracy>"), "<accuracy>"))
+    s = sim.flow
     xyz = s.grid.face_centres(2)
     r2 = (xyz[..., 0] - c) ** 2 + (xyz[..., 1] - c) ** 2
     u_exact = np.maximum(PIPE_FORCE / (4 * PIPE_MU) * (0.25 - r2), 0.0)
     s.set_face_velocity(np.zeros(s.grid.face_shape(0)), np.zeros(s.grid.face_shape(1)), u_exact)
     s.set_explicit_source((0.0, 0.0, PIPE_FORCE))
     n = round(PIPE_SECONDS / PIPE_DT)
-    wall = _timed_steps(lambda: s.step(PIPE_DT), n)
+    wall = _timed_steps(sim.step, n)
     r2, u_exact = r2[:, :, 0], u_exact[:, :, 0]
     inside = (s.cut.apertures[2][:, :, 0] > 0) & (r2 < 0.25)
     w = s.face_velocity(2)[:, :, 0]

@@ -34,7 +34,10 @@ class BedMeasures:
         """Pressure at the bottom face of the domain minus the top face [Pa], gas weight removed: the
         open-area means of the first two (last two) cell layers, extrapolated half a cell to the face,
         so the grains in the lowest half cell count too."""
-        p0, p1, p_second_last, p_last = self.flow.end_layer_pressures()  # reduced on the device
+        return self.pressure_drop_of(*self.flow.end_layer_pressures())  # reduced on the device
+
+    def pressure_drop_of(self, p0: float, p1: float, p_second_last: float, p_last: float) -> float:
+        """``pressure_drop`` from the end layers' mean pressures [Pa] (as a diagnostics row holds them)."""
         pb = 1.5 * p0 - 0.5 * p1
         pt = 1.5 * p_last - 0.5 * p_second_last
         return pb - pt - self.hydro

@@ -33,6 +33,14 @@ class Guard:
         self.dt = dt
         self.dt_limit = dt_limit
         self.last_good_step = 0
+        self._checked = -1  # the step of the last row that passed
+
+    def attach(self, sim: Simulation, interval: float) -> None:
+        """In a run: every diagnostics row read back passes the guard before any other sink (the series) gets
+        it, and on its own schedule the guard only records the step's row (``Simulation.record_diagnostics``:
+        the ring is read within ``sim.diag_rows`` steps, and at once before any guarded write)."""
+        sim.diagnostics_sinks.insert(0, lambda d: self.check(d, sim))
+        sim.add(lambda s: s.record_diagnostics(), interval, at_start=True)
 
     @classmethod
     def of(cls, cfg, derived, masses=None) -> "Guard":
@@ -79,11 +87,18 @@ class Guard:
                 "overlaps (at a smaller step)")
 
     def __call__(self, sim: Simulation) -> None:
-        d = sim.diagnostics()
-        t = sim.time
+        """Check the current step (its row and those recorded before it are read now)."""
+        self.check(sim.diagnostics(), sim)
+
+    def check(self, d: dict, sim: Simulation) -> None:
+        """Check one diagnostics row (``d``: its figures, with its step and time); a row that passed is not
+        checked again."""
+        if d["step"] <= self._checked:
+            return
+        t = d["time"]
         self._gas_check(sim, d, t)
         if "non_finite" not in d:  # no grains in this scene
-            self.last_good_step = sim.step_count
+            self.last_good_step = self._checked = d["step"]
             return
         if d["non_finite"] or not math.isfinite(d["kinetic_energy"]):
             raise Unstable(f"non-finite grain positions or velocities at t = {t:.6g} s: {self._advice()}")
@@ -94,7 +109,7 @@ class Guard:
             raise Unstable(f"a grain moves at {d['max_speed']:.3g} m/s at t = {t:.6g} s (guard.max_speed = "
                            f"{self.max_speed:g} m/s; raise it if such speeds are real): {self._advice()}")
         self._energy_check(d["kinetic_energy"], t)
-        self.last_good_step = sim.step_count
+        self.last_good_step = self._checked = d["step"]
 
     def _energy_check(self, energy: float, t: float) -> None:
         """Stop when the kinetic energy grew more than max_energy_growth times since the reference check (one

@@ -4,7 +4,9 @@
 ``Checkpoints`` (checkpoint.h5 and the ParaView indexes) on simulated time, ``WallCheckpoints`` on
 the wall clock, and ``FinalOutputs`` (the last of each, bed.h5, run.h5 closed) when the run ends.
 Every writer is attached behind the guard (``Guard.guarded``): nothing non-finite reaches a file.
-Device data is copied to the host once per write, as whole arrays.
+Device data is copied to the host once per write, as whole arrays; the series' rows are recorded on the
+device every series step and read back in blocks (``Simulation.record_diagnostics``), each through the
+guard before it is written.
 """
 from __future__ import annotations
 
@@ -30,18 +32,38 @@ def open_run_file(path: pathlib.Path, name: str, sim, scene, resume: bool = Fals
 
 
 class Series:
-    """One row of run.h5's /series: the step's diagnostics (and, coupled, the pressure drop across the bed)."""
+    """Rows of run.h5's /series: each series step's diagnostics (and, coupled, the pressure drop across the bed).
+
+    A series step records its row on the device and reads nothing (``Simulation.record_diagnostics``); the
+    rows come back in blocks to ``row`` (a diagnostics sink, after the guard) and are appended in step order.
+    A row already read when its step fires (a writer or the guard asked for it) is appended at once."""
 
     def __init__(self, runfile, bed=None):
         self.runfile, self.bed = runfile, bed
+        self._wanted: set[int] = set()  # steps whose rows are recorded and not yet written
+
+    def attach(self, sim, interval: float, finish=None) -> None:
+        sim.diagnostics_sinks.append(self.row)
+        sim.add(self, interval, at_start=True, finish=finish)
 
     def __call__(self, sim) -> None:
-        d = sim.diagnostics()
-        if self.bed is not None:
-            d["pressure_drop"] = self.bed.pressure_drop()
-        row = {"time": sim.time}
+        if sim.diagnostics_read(sim.step_count):
+            self._append(sim.diagnostics())
+        else:
+            self._wanted.add(sim.step_count)
+            sim.record_diagnostics()
+
+    def row(self, d: dict) -> None:
+        if d["step"] in self._wanted:
+            self._wanted.discard(d["step"])
+            self._append(d)
+
+    def _append(self, d: dict) -> None:
+        if self.bed is not None and "end_layer_pressures" in d:
+            d["pressure_drop"] = self.bed.pressure_drop_of(*d["end_layer_pressures"])
+        row = {"time": d["time"]}
         row.update({k: d[k] for k in DEM_SERIES + GAS_SERIES if k in d})
-        row["wall_time"] = sim.wall_elapsed
+        row["wall_time"] = d["wall_time"]
         self.runfile.append(row)
 
 
@@ -104,6 +126,7 @@ class Checkpoints:
         return (sim.dem.state_arrays() if sim.dem is not None else None, gas)
 
     def __call__(self, sim) -> None:
+        sim.flush_diagnostics()  # the rows recorded on the device, through the guard into the series
         self.runfile.flush()  # every row up to the checkpoint is on disk: a resumed run continues the series
         grains, gas = self.state(sim)
         store.write_checkpoint(self.out_dir / "checkpoint.h5", grains, gas, sim.time, sim.step_count,
@@ -161,8 +184,14 @@ class FinalOutputs:
                 if reason == "finished" and self.save_bed and sim.dem is not None:
                     store.write_checkpoint(ck.out_dir / "bed.h5", sim.dem.state_arrays(), None, sim.time,
                                            sim.step_count, ck.config_text)
+            else:  # the rows recorded before the error or the guard's stop: the good ones reach the series
+                try:
+                    sim.flush_diagnostics()
+                except Unstable:
+                    pass
         except store.DiskFull as err:  # the last good checkpoint stays; nothing half-written is left
             self.disk_full.append(err)
+        sim.diagnostics_sinks.clear()  # a later read (the summary's) neither checks nor appends to the closed file
         try:
             ck.runfile.close()
         except store.DiskFull as err:

@@ -25,6 +25,21 @@ from scipy.optimize import brentq
 from .errors import ConfigError
 from .schema import Config
 
+FOUR_THIRDS_PI = 4.0 / 3.0 * math.pi
+
+
+def grain_volume(radius):
+    """Volume [m^3] of a grain (a sphere) of ``radius`` [m]: 4/3 pi r^3. One formula for a number, a numpy
+    array and a Taichi kernel (``app.sim.coupling.grain_volume_func`` is this function as a ti.func):
+    products only, so the three agree to rounding."""
+    return FOUR_THIRDS_PI * radius * radius * radius
+
+
+def grain_mass(radius, density):
+    """Mass [kg] of a grain of ``radius`` [m] and ``density`` [kg/m^3]: density times ``grain_volume``."""
+    return density * grain_volume(radius)
+
+
 HERTZ_DURATION_COEFF = 2.868  # t_c = 2.868 (m*^2 / (R* E*^2 v))^(1/5), undamped Hertz impact
 
 
@@ -123,12 +138,12 @@ class Derived:
 
     @staticmethod
     def volume(d):
-        """Volume [m^3] of grains of diameter d [m] (a number or an array)."""
-        return math.pi * np.asarray(d) ** 3 / 6.0
+        """Volume [m^3] of grains of diameter d [m] (a number or an array): ``grain_volume`` of d / 2."""
+        return grain_volume(np.asarray(d, float) / 2.0)
 
     def mass(self, d):
-        """Mass [kg] of grains of diameter d [m] (a number or an array)."""
-        return self.density * self.volume(d)
+        """Mass [kg] of grains of diameter d [m] (a number or an array): ``grain_mass`` of d / 2."""
+        return grain_mass(np.asarray(d, float) / 2.0, self.density)
 
 
 def size_distribution(cfg: Config) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -155,7 +170,7 @@ def derive(cfg: Config, file: str = "<preset>") -> Derived:
     c, p = cfg.contact, cfg.particles
     diam, frac = size_distribution(cfg)
     rmin, rmax = min(diam) / 2, max(diam) / 2
-    mmin = p.density * math.pi * min(diam) ** 3 / 6
+    mmin = float(grain_mass(rmin, p.density))
     e_w = c.wall_youngs_modulus if c.wall_youngs_modulus is not None else c.youngs_modulus
     nu_w = c.wall_poisson_ratio if c.wall_poisson_ratio is not None else c.poisson_ratio
     es, gs = effective_moduli(c.youngs_modulus, c.poisson_ratio, c.youngs_modulus, c.poisson_ratio)

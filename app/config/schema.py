@@ -53,7 +53,8 @@ class VesselConfig:
                       choices=("cylinder", "box", "sampled", "none"))
     radius: float = spec(0.0, unit="m", doc="cylinder radius", lo=0.0)
     center: tuple[float, float] = spec((0.0, 0.0), unit="m", doc="cylinder axis position (x, y)", length=2)
-    floor: Optional[float] = spec(None, unit="m", doc="height of the floor plane (default: the domain's lower z)")
+    floor: Optional[float] = spec(None, unit="m", doc="height of the floor plane (default: the domain's lower z; "
+                                   "a scene without grains has a floor only where this is given)")
     lid: Optional[float] = spec(None, unit="m", doc="height of a lid plane (default: no lid, open top)")
     sdf_file: str = spec("", doc="for shape = 'sampled': .npz with 'values' (clearance at nodes, m, positive "
                          "inside the vessel), 'origin' (m, 3) and 'spacing' (m); relative to the preset")

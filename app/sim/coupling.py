@@ -31,6 +31,7 @@ import dataclasses
 import numpy as np
 import taichi as ti
 
+from ..config.derived import grain_volume
 from . import drag
 from .dem import grain_radius
 from .gas.layout import CellGeometry, Inputs, Outputs
@@ -48,6 +49,8 @@ class CouplingModel:
     gravity: tuple          # [m/s^2]
     smoothing_passes: int   # conservative diffusion passes of the solid volume (0: none)
 
+
+grain_volume_func = ti.func(grain_volume)  # a grain's volume inside a kernel: the config's one formula
 
 SMOOTH_ALPHA = 1.0 / 7.0  # explicit diffusion weight per pass (stable below 1/6 in 3-D)
 
@@ -124,7 +127,7 @@ def deposit(m: ti.template(), g: ti.template(), s: ti.template(), gf: ti.templat
     for i in range(m.n):
         if s.alive[i]:
             r = grain_radius(m, g, i)
-            vol = 4.0 / 3.0 * 3.141592653589793 * r * r * r
+            vol = grain_volume_func(r)
             cells, w = _weights(gf, geo, s.x[i])
             for k in ti.static(range(8)):
                 c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
@@ -193,7 +196,7 @@ def exchange(cm: ti.template(), m: ti.template(), g: ti.template(), s: ti.templa
     for i in range(m.n):
         if s.alive[i]:
             r = grain_radius(m, g, i)
-            vol = 4.0 / 3.0 * 3.141592653589793 * r * r * r
+            vol = grain_volume_func(r)
             cells, w = _weights(gf, geo, s.x[i])
             eps = 0.0
             ug = ti.Vector([0.0, 0.0, 0.0])

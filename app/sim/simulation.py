@@ -9,6 +9,12 @@ holds (when it has grains). A scene without one of them allocates nothing for it
 Schedules count steps, not floating-point seconds, so a run resumed from a checkpoint
 fires its callbacks on exactly the same steps as an uninterrupted run.
 
+Diagnostics rows: ``record_diagnostics`` writes the step's DEM, gas and coupler figures into a row of a
+device ring (``app.sim.diagnostics``) and reads nothing; ``flush_diagnostics`` copies the recorded rows in one
+read and hands each, in step order, to the ``diagnostics_sinks`` (in a run: the guard, then the series). The
+block is read every ``diag_rows`` steps, or at once when someone needs the current figures (``diagnostics()``:
+the guard before a write, progress, the summary); so the series costs the host no wait per step.
+
 Adaptive fluid step: when the gas's CFL number (max|u| dt / h) passes ``max_gas_cfl``, the next
 steps split into ``gas_split`` pieces, each a whole number of DEM substeps with its own
 deposit -> drag -> gas step -> DEM substeps; the clock and the schedules still count whole
@@ -21,6 +27,9 @@ import dataclasses
 import math
 import time as wallclock
 from typing import Callable
+
+
+DIAG_ROWS = 50  # steps of diagnostics held on the device between reads (Simulation.diag_rows)
 
 
 class Unstable(RuntimeError):
@@ -58,7 +67,11 @@ class Simulation:
         self.hooks: list[Hook] = []
         self.stop_requested: str | None = None
         self.wall_elapsed = 0.0  # wall seconds spent stepping, this process
-        self._diag_cache: tuple[int, dict] | None = None
+        self._diag_cache: tuple[int, dict] | None = None  # (step, figures) of the last row read
+        self.diag_rows = DIAG_ROWS  # steps recorded on the device between reads of the diagnostics ring
+        self._diag_ring = None  # app.sim.diagnostics.DiagnosticsRing, made at the first record
+        self._pending: list[tuple[int, dict]] = []  # (step, host figures) of the rows recorded, not yet read
+        self.diagnostics_sinks: list[Callable[[dict], None]] = []  # each read row, in step order (guard, series)
         # whether the at-start callbacks fire (None: when starting at step 0; a run started from a
         # prepared state at a later step is fresh too, a resumed one is not)
         self.fresh: bool | None = None
@@ -105,27 +118,56 @@ class Simulation:
         self.hooks.append(h)
         return h
 
+    def record_diagnostics(self) -> None:
+        """Record this step's diagnostics on the device (once per step) and read nothing. The block is read
+        (``flush_diagnostics``) when ``diag_rows`` rows are pending or the oldest is ``diag_rows`` - 1 steps old,
+        so every sink (the guard among them) sees each row within ``diag_rows`` steps."""
+        step = self.step_count
+        if (self._pending and self._pending[-1][0] == step) or self.diagnostics_read(step):
+            return
+        if self._diag_ring is None:
+            from .diagnostics import DiagnosticsRing
+
+            self._diag_ring = DiagnosticsRing(self.dem, self.flow, self.coupler, self.diag_rows)
+        self._diag_ring.record(len(self._pending))
+        self._pending.append((step, self._host_figures()))
+        if len(self._pending) >= self.diag_rows or step - self._pending[0][0] >= self.diag_rows - 1:
+            self.flush_diagnostics()
+
+    def diagnostics_read(self, step: int) -> bool:
+        """Whether the row of ``step`` has been read back (``diagnostics()`` then costs nothing)."""
+        return self._diag_cache is not None and self._diag_cache[0] == step
+
+    def flush_diagnostics(self) -> None:
+        """Read the recorded rows in one block (one host read) and hand each, in step order, to every sink."""
+        if not self._pending:
+            return
+        pending, self._pending = self._pending, []
+        for (step, host), d in zip(pending, self._diag_ring.read(len(pending))):
+            d.update(host)
+            self._diag_cache = (step, d)
+            for sink in self.diagnostics_sinks:
+                sink(d)
+
     def diagnostics(self) -> dict:
-        """Diagnostics of the current step (computed once per step, shared by callbacks)."""
-        if self._diag_cache is None or self._diag_cache[0] != self.step_count:
-            d = self.dem.diagnostics() if self.dem is not None else {}
-            if self.flow is not None:
-                d.update(self._gas_diagnostics())
-            d["time"] = self.time
-            self._diag_cache = (self.step_count, d)
+        """Diagnostics of the current step (recorded and read once per step, shared by callbacks); the rows
+        recorded before it are read with it and reach the sinks first."""
+        if not self.diagnostics_read(self.step_count):
+            self.record_diagnostics()
+            self.flush_diagnostics()
         return self._diag_cache[1]
 
-    def _gas_diagnostics(self) -> dict:
-        speed, bad = self.flow.gas_extremes()
-        info = self.flow_info
-        return {"gas_max_speed": speed,
-                "gas_non_finite": bad,
-                "gas_cfl": info.cfl if info else 0.0,
-                "pressure_iterations": info.pressure_iterations if info else 0,
-                "pressure_residual": info.pressure_residual if info else 0.0,
-                "pressure_converged": bool(info.converged) if info else True,
-                "divergence_residual": info.divergence if info else 0.0,
-                **({"clipped_cells": self.coupler.clipped_cells} if self.coupler is not None else {})}
+    def _host_figures(self) -> dict:
+        """What a row holds that the host already has: step, time, wall time, the last gas step's figures."""
+        d = {"step": self.step_count, "time": self.time, "wall_time": self.wall_elapsed}
+        if self.flow is not None:
+            info = self.flow_info
+            d.update(gas_cfl=info.cfl if info else 0.0,
+                     pressure_iterations=info.pressure_iterations if info else 0,
+                     pressure_residual=info.pressure_residual if info else 0.0,
+                     pressure_converged=bool(info.converged) if info else True,
+                     divergence_residual=info.divergence if info else 0.0)
+        return d
 
     def gas_fastest_cell(self) -> str:
         """Where the gas is fastest (cell, position, open volume and gas fraction), for a guard's message and
@@ -261,6 +303,7 @@ class Simulation:
                     break
                 if action == "step" and self.step_count < self.total_steps:
                     self.advance()
+            self.flush_diagnostics()  # the rows still on the device reach the guard while it can stop the run
         except Unstable:
             self._finish("unstable")
             raise

@@ -75,11 +75,8 @@ def settled_noise(run: pathlib.Path, static: float, t_settled: float) -> None:
 def rebuilt(run: pathlib.Path, cfg) -> None:
     from app.probes import Probes
     from app.probes_mri import MriImage
-    from app.scene import Scene
+    from app.scene import Scene, build_simulation
     from app.sim import runtime
-    from app.sim.coupling import Coupler
-    from app.sim.dem import DemSolver
-    from app.sim.gas import FlowSolver
 
     runtime.init(arch="cpu", precision="float64", threads=1)
     with h5py.File(run / "run.h5", "r") as f:
@@ -106,11 +103,9 @@ def rebuilt(run: pathlib.Path, cfg) -> None:
         row(f"MRI, {1e3 * pix[0]:g} x {1e3 * pix[1]:g} mm pixels", 1.0 - img.void(p, r), img.dx, img.dz, img.mask)
     for width in (0.0, cfg.coupling.smoothing_width, 2.0 * cfg.coupling.smoothing_width):
         c = replaced(cfg, coupling=dict(smoothing_width=width))
-        scene = Scene(c)
-        dem = DemSolver(dataclasses.replace(scene.model, n=len(p)))
-        dem.set_grains(p, None, r)
-        flow = FlowSolver(scene.flow)
-        Coupler(scene.coupling, dem, flow).deposit(1e-3)
+        sim = build_simulation(Scene(c, initial={"position": p, "radius": r}))
+        flow = sim.flow
+        sim.coupler.deposit(1e-3)
         pr = Probes(c, flow, flow.fields.active.to_numpy())
         mask = pr.active[:, pr.y_cells, :].any(1)
         row(f"grid slab, smoothing {1e3 * width:g} mm", np.where(mask, 1.0 - pr.slab(), 0.0), pr.h, pr.h, mask)

@@ -22,6 +22,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2]))
+from app.config.derived import grain_volume  # noqa: E402
 from app.sim import drag  # noqa: E402
 
 LAWS = ("koch_hill", "di_felice", "gidaspow", "beetstra")
@@ -32,7 +33,7 @@ def band_voidage(x, r, r_lo, r_hi, z_lo, z_hi, axis=(0.0, 0.0)):
     """Gas fraction of the annulus r_lo <= radius < r_hi between heights z_lo and z_hi (grain volume by centre)."""
     rad = np.hypot(x[:, 0] - axis[0], x[:, 1] - axis[1])
     sel = (rad >= r_lo) & (rad < r_hi) & (x[:, 2] >= z_lo) & (x[:, 2] < z_hi)
-    vol = np.sum(4.0 / 3.0 * np.pi * r[sel] ** 3)
+    vol = np.sum(grain_volume(r[sel]))
     return 1.0 - vol / (np.pi * (r_hi ** 2 - r_lo ** 2) * (z_hi - z_lo))
 
 

@@ -1,14 +1,14 @@
 """``DemSolver``: holds one scene's DEM bundles and runs the substep kernel of ``step.py``; grains in and out
 by grain id (``set_grains``, ``read``, ``state_arrays``), whatever their memory order. No I/O, no printing."""
 import dataclasses
-import math
 
 import numpy as np
 import taichi as ti
 
+from ...config.derived import grain_mass
 from ..fields import NO_SPRING, ROLL_EPSD, ContactHistory, DemModel, GrainModel, GrainState, NeighborList, WallData
 from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW, sort_by_cell
-from .step import dem_substep, dem_substeps, measure
+from .step import DIAG_COLUMNS, dem_substep, dem_substeps, measure
 
 
 class NeighborOverflow(RuntimeError):
@@ -33,6 +33,7 @@ class DemSolver:
         self.walls = WallData(model)
         self._diag = ti.field(float, 7)
         self._hist = ti.field(ti.i32, 1024)
+        self._diag_row = None  # diagnostics()' one-row ring
         self.substeps_done = 0
         self._ids = None  # host copy of fixed.grain_id (dropped at every sort)
         self._builds_seen = self._builds_at_sort = 0
@@ -96,7 +97,7 @@ class DemSolver:
         if self.m.polydisperse:
             r = np.asarray(radius, float)
             self.fixed.radius.from_numpy(mem(self._f(r)))
-            self.fixed.mass.from_numpy(mem(self._f(self.m.density * 4.0 / 3.0 * math.pi * r ** 3)))
+            self.fixed.mass.from_numpy(mem(self._f(grain_mass(r, self.m.density))))
         if self.m.sorts:
             ids = np.arange(n, dtype=np.int32) if order is None else np.asarray(order, np.int32)
             self.fixed.grain_id.from_numpy(ids)
@@ -289,22 +290,29 @@ class DemSolver:
             raise NeighborOverflow(f"a grain has at least {over} neighbours within the skin but the list holds "
                                    f"{self.m.slots}: raise dem.max_neighbors (now {self.m.slots}) or lower dem.skin")
 
-    def diagnostics(self) -> dict:
-        """Kinetic energy [J], max overlap / diameter, max speed [m/s], grains alive and removed,
-        non-finite values, touching grain pairs, and the bed height (95th percentile of grain heights) [m]."""
-        alive = measure(self.m, self.fixed, self.state, self.nlist, self.walls, self._diag, self._hist)
-        d = self._diag.to_numpy()
-        hist = self._hist.to_numpy()
+    def record_diagnostics(self, ring, row: int, col: int = 0) -> None:
+        """This step's diagnostics (``step.DIAG_COLUMNS``) into ``ring[row, col:]``, a float64 ti.ndarray, on the
+        device: nothing is read back (``diagnostics_of`` turns a copied row into figures)."""
+        measure(self.m, self.fixed, self.state, self.nlist, self.walls, self._diag, self._hist, ring, row, col)
+
+    def diagnostics_of(self, values: np.ndarray) -> dict:
+        """Kinetic energy [J], max overlap / diameter, max speed [m/s], grains alive and removed, non-finite
+        values, touching grain pairs, and the bed height (95th percentile of grain heights) [m], from one
+        recorded row (``values``: its DIAG_COLUMNS, host numpy)."""
+        d = self._f(values[:4])  # the kernels' float type: the energies sum as they were reduced
+        alive, bad, contacts, removed, b, below, in_bin = (int(v) for v in values[4:11])
         z95 = float("nan")
         if alive > 0:
-            cum = np.cumsum(hist)
-            target = 0.95 * alive
-            b = int(np.searchsorted(cum, target))
-            below = cum[b - 1] if b > 0 else 0
-            frac = (target - below) / max(hist[b], 1)
-            width = (self.m.hi[2] - self.m.lo[2]) / hist.size
+            frac = (0.95 * alive - below) / max(in_bin, 1)
+            width = (self.m.hi[2] - self.m.lo[2]) / self._hist.shape[0]
             z95 = self.m.lo[2] + (b + frac) * width
         return {"kinetic_energy": float(d[0] + d[1]), "kinetic_energy_rotational": float(d[1]),
-                "max_overlap": float(max(d[2], 0.0)), "max_speed": float(d[3]), "grains_alive": int(alive),
-                "grains_removed": int(self._read_counters()[REMOVED]), "non_finite": int(d[5]),
-                "contacts": int(d[6]), "bed_height": z95}
+                "max_overlap": float(max(d[2], 0.0)), "max_speed": float(d[3]), "grains_alive": alive,
+                "grains_removed": removed, "non_finite": bad, "contacts": contacts, "bed_height": z95}
+
+    def diagnostics(self) -> dict:
+        """This step's ``diagnostics_of``, recorded and read at once (one host read)."""
+        if self._diag_row is None:
+            self._diag_row = ti.ndarray(ti.f64, shape=(1, len(DIAG_COLUMNS)))
+        self.record_diagnostics(self._diag_row, 0)
+        return self.diagnostics_of(self._diag_row.to_numpy()[0])

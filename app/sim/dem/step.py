@@ -264,11 +264,23 @@ def substep_parts(model: ti.template(), sizes: ti.template(), state: ti.template
 
 # ---------------------------------------------------------------------------- diagnostics
 
+#: what ``measure`` writes into a row of the diagnostics ring, in this order (``DemSolver.diagnostics_of`` reads it):
+#: the translational and rotational kinetic energy [J], the largest overlap over a diameter, the largest speed
+#: [m/s], then counts: grains alive, grains with a non-finite position or velocity, touching pairs, grains
+#: removed, and the bin of the grain-height histogram holding the 95th percentile, the grains below that bin
+#: and in it (the host interpolates the bed height from these, as from the histogram itself)
+DIAG_COLUMNS = ("kinetic_energy_translational", "kinetic_energy_rotational", "max_overlap", "max_speed",
+                "grains_alive", "non_finite", "contacts", "grains_removed", "height_bin", "height_below",
+                "height_in_bin")
+
+
 @ti.kernel
 def measure(model: ti.template(), sizes: ti.template(), state: ti.template(), nlist: ti.template(),
-            walls: ti.template(), out: ti.template(), hist: ti.template()) -> ti.i32:
+            walls: ti.template(), out: ti.template(), hist: ti.template(), ring: ti.types.ndarray(), row: ti.i32,
+            col: ti.i32):
     """Fill ``out`` with [KE_trans, KE_rot, max overlap/diameter, max speed, alive, bad values, touching
-    pairs]; ``hist`` with a height histogram of alive grains. Returns the alive count."""
+    pairs] and ``hist`` with a height histogram of alive grains, then write the step's record (DIAG_COLUMNS)
+    into ``ring[row, col:]`` (float64): nothing is returned, so the host waits for nothing."""
     for k in range(7):
         out[k] = 0.0
     for b in range(hist.shape[0]):
@@ -308,4 +320,21 @@ def measure(model: ti.template(), sizes: ti.template(), state: ti.template(), nl
                 clearance, nrm = wall_clearance_normal(model.walls[w], walls.sampled[w], x)
                 ti.atomic_max(out[2], (ri - clearance) / (2.0 * ri))
     out[4] = alive
-    return alive
+    ti.loop_config(serialize=True)
+    for _ in range(1):  # one thread: the record, and the first bin where the cumulative count reaches 95%
+        for k in ti.static(range(4)):
+            ring[row, col + k] = ti.cast(out[k], ti.f64)
+        ring[row, col + 4] = ti.cast(alive, ti.f64)
+        ring[row, col + 5] = ti.cast(out[5], ti.f64)
+        ring[row, col + 6] = ti.cast(out[6], ti.f64)
+        ring[row, col + 7] = ti.cast(nlist.counters[REMOVED], ti.f64)
+        target = 0.95 * ti.cast(alive, ti.f64)
+        cum = 0
+        found = 0
+        for b in range(nb):
+            if found == 0 and ti.cast(cum + hist[b], ti.f64) >= target:
+                found = 1
+                ring[row, col + 8] = ti.cast(b, ti.f64)
+                ring[row, col + 9] = ti.cast(cum, ti.f64)
+                ring[row, col + 10] = ti.cast(hist[b], ti.f64)
+            cum += hist[b]

@@ -20,6 +20,18 @@ def _k_add_face_flux(aperture: ti.types.ndarray(), eps_f: ti.types.ndarray(), ve
         acc[f] += w * aperture[f] * eps_f[f] * vel[f]
 
 
+#: what ``record_diagnostics`` writes into a row of the diagnostics ring, in this order: the largest |u|^2 over the
+#: cells [m^2/s^2], the cells with a non-finite velocity or pressure, then the sums of ``end_layer_pressures``
+GAS_DIAG_COLUMNS = ("max_speed_squared", "non_finite", "p_first", "p_second", "p_second_last", "p_last",
+                    "open_first", "open_last")
+
+
+@ti.kernel
+def _k_ring_row(src: ti.types.ndarray(), n: ti.i32, ring: ti.types.ndarray(), row: ti.i32, col: ti.i32):
+    for k in range(n):
+        ring[row, col + k] = ti.cast(src[k], ti.f64)
+
+
 class SolverOutputs:
     """Readers and checkpoints of a :class:`~app.sim.gas.solver.FlowSolver` (a mixin: it uses its bundles)."""
 
@@ -72,7 +84,10 @@ class SolverOutputs:
         """(largest gas speed at cell centres [m/s], number of cells with a non-finite velocity or pressure),
         reduced on the device."""
         _k_gas_extremes(self.fields.u_gas, self.fields.p, self._reduced)
-        r = self._reduced.to_numpy()
+        return self._extremes_of(self._reduced.to_numpy())
+
+    @staticmethod
+    def _extremes_of(r) -> tuple[float, int]:
         return float(np.sqrt(max(r[0], 0.0))), int(r[1])
 
     def end_layer_pressures(self) -> tuple[float, float, float, float]:
@@ -81,9 +96,31 @@ class SolverOutputs:
         if self.shape[2] < 2:
             raise ValueError("flow: end-layer pressures need at least two cell layers")
         _k_end_layer_pressures(self.fields.p, self.fields.vol_frac, self._reduced)
-        r = self._reduced.to_numpy()
+        return self._end_layers_of(self._reduced.to_numpy())
+
+    @staticmethod
+    def _end_layers_of(r) -> tuple[float, float, float, float]:
         wb, wt = max(r[4], 1e-300), max(r[5], 1e-300)
         return float(r[0] / wb), float(r[1] / wb), float(r[2] / wt), float(r[3] / wt)
+
+    def record_diagnostics(self, ring, row: int, col: int = 0) -> None:
+        """The step's extremes and end-layer pressure sums (GAS_DIAG_COLUMNS) into ``ring[row, col:]``, a float64
+        ti.ndarray, on the device: nothing is read back (``diagnostics_of`` turns a copied row into figures)."""
+        _k_gas_extremes(self.fields.u_gas, self.fields.p, self._reduced)
+        _k_ring_row(self._reduced, 2, ring, row, col)
+        if self.shape[2] >= 2:
+            _k_end_layer_pressures(self.fields.p, self.fields.vol_frac, self._reduced)
+            _k_ring_row(self._reduced, 6, ring, row, col + 2)
+
+    def diagnostics_of(self, values: np.ndarray) -> dict:
+        """``gas_max_speed`` [m/s], ``gas_non_finite`` and (two layers or more) ``end_layer_pressures`` [Pa] from
+        one recorded row (``values``: its GAS_DIAG_COLUMNS), as ``gas_extremes`` and ``end_layer_pressures``."""
+        r = np.asarray(values, np.float64 if self._reduced.dtype == ti.f64 else np.float32)  # the kernels' float
+        speed, bad = self._extremes_of(r[:2])
+        out = {"gas_max_speed": speed, "gas_non_finite": bad}
+        if self.shape[2] >= 2:
+            out["end_layer_pressures"] = self._end_layers_of(r[2:8])
+        return out
 
     @property
     def cfl(self) -> float:
