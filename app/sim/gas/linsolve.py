@@ -13,7 +13,7 @@ import numpy as np
 import taichi as ti
 
 from . import multigrid as mgm
-from . import pcg
+from . import pcg, vcycle
 from .pcg import SolveInfo, plan_levels
 
 __all__ = ["MGPCG", "SolveInfo", "plan_levels"]
@@ -109,17 +109,24 @@ class MGPCG:
 
     # ---------------------------------------------------------------- solve
     def _vcycle(self) -> None:
+        """One V-cycle: a launch down and one up per level above the coarsest; the coarsest solve rides
+        on the last launch down when it is the one-thread CG after a red-black level."""
         mg = self.mg
         L = self.nlevels - 1
+        sg = int(self._singular)
+        fused = L > 0 and not self.coarse_parallel and not self.level_jacobi[L - 1]
         for l in range(L):
-            (mgm.k_down_j if self.level_jacobi[l] else mgm.k_down)(mg, l)
+            if self.level_jacobi[l]:
+                vcycle.k_down_j(mg, l)
+            else:
+                vcycle.k_down(mg, l, int(fused and l == L - 1), sg)
         if self.coarse_parallel:
             for k in range(mgm.COARSE_SMOOTH_SWEEPS):
-                mgm.k_coarse_smooth(mg, L, int(k == 0))
-        else:
-            mgm.k_coarse(mg, L, int(self._singular))
+                vcycle.k_coarse_smooth(mg, L, int(k == 0))
+        elif not fused:
+            vcycle.k_coarse(mg, L, sg)
         for l in reversed(range(L)):
-            (mgm.k_up_j if self.level_jacobi[l] else mgm.k_up)(mg, l)
+            (vcycle.k_up_j if self.level_jacobi[l] else vcycle.k_up)(mg, l)
 
     def begin(self, tol: float, max_iter: int, *, singular: bool = False, scale: float | None = None,
               device_scale: bool = False) -> None:
