@@ -134,7 +134,6 @@ def k_bc_prep(g: Grid, inp: Inputs, st: State):
         st.vel_adv[f] = v
         if solved(g, f, a, I):
             v += st.dpred[f]  # initial iterate: last step's predictor increment (exact when steady)
-        st.vel_tmp[f] = v
         st.vel[f] = v
 
 
