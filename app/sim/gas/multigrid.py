@@ -126,27 +126,36 @@ def face(mg: ti.template(), l, a, I):
 
 
 @ti.func
-def stencil(mg: ti.template(), l, v: ti.template(), vo, I, affine: ti.template()):
-    """(diag, sum T x_nb, sum T (x_c - x_nb)) at cell I of level l for the vector v[vo + local]."""
-    n = dims(mg, l)
-    xc = v[vo + local(n, I)]
+def face_offsets(mg: ti.template(), l):
+    """Offsets into ``trans`` of level l's x, y and z faces."""
+    return ti.Vector([mg.lev[l, L_FOX], mg.lev[l, L_FOX + 1], mg.lev[l, L_FOX + 2]])
+
+
+@ti.func
+def stencil(mg: ti.template(), n, fo, v: ti.template(), vo, I, c, affine: ti.template()):
+    """(diag, sum T x_nb, sum T (x_c - x_nb)) at cell I (local index c) of the level of dims n and face
+    offsets fo (:func:`dims`, :func:`face_offsets`, taken once per loop by the caller) for the vector
+    v[vo + local]. The face and neighbour indices are those of :func:`face` and :func:`local` written
+    as offsets from c."""
+    xc = v[vo + c]
+    stride = ti.Vector([n[1] * n[2], n[2], 1])
+    # faces below cell I: x faces (F0 n1 + I1) n2 + I2 = c (+ n1 n2 above), y faces c + I0 n2 (+ n2),
+    # z faces c + I0 n1 + I1 (+ 1)
+    fbase = ti.Vector([fo[0] + c, fo[1] + c + I[0] * n[2], fo[2] + c + I[0] * n[1] + I[1]])
     d = 0.0
     s = 0.0
     ax = 0.0
     for a in ti.static(range(3)):
         for side in ti.static(range(2)):
-            F = I
-            F[a] += side
-            t = mg.trans[face(mg, l, a, F)]
+            t = mg.trans[fbase[a] + side * stride[a]]
             if t != 0.0:
                 J = I
                 J[a] += 2 * side - 1
                 xn = 0.0
-                inside = (J[a] >= 0) and (J[a] < n[a])
-                if (not inside) and mg.periodic[a] == 1:
+                if J[a] >= 0 and J[a] < n[a]:
+                    xn = v[vo + c + (2 * side - 1) * stride[a]]
+                elif mg.periodic[a] == 1:
                     J[a] = (J[a] + n[a]) % n[a]
-                    inside = True
-                if inside:
                     xn = v[vo + local(n, J)]
                 else:
                     if ti.static(affine):

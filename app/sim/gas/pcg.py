@@ -83,11 +83,12 @@ def _true_residual(mg: ti.template(), ks: ti.template(), nc):
     """r = b - A x (affine, with the Dirichlet values) over the first nc cells (nc = 0: nothing);
     max|r| into S_TRUE. It also feeds the next V-cycle (bs)."""
     n = mgm.dims(mg, 0)
+    fo = mgm.face_offsets(mg, 0)
     mg.ctrl[S_TRUE] = 0.0
     for c in range(nc):
         r = 0.0
         if mg.diag[c] > 0.0:
-            _, _, ax = stencil(mg, 0, ks.sol, 0, decode(n, c), True)
+            _, _, ax = stencil(mg, n, fo, ks.sol, 0, decode(n, c), c, True)
             r = ks.rhs[c] - ax
             ti.atomic_max(mg.ctrl[S_TRUE], ti.abs(r))
         else:
@@ -175,12 +176,13 @@ def k_pcg_iter(mg: Multigrid, ks: Krylov, max_iter: ti.i32):
     too, stagnated (stop, the caller may refine) if it did not halve since the last such check,
     else a restart from it. Stops at max_iter. Nothing once the solve has stopped."""
     n = mgm.dims(mg, 0)
+    fo = mgm.face_offsets(mg, 0)
     nc = mg.ncell0 * on(mg)
     mg.ctrl[S_PAP] = 0.0
     for c in range(nc):
         ap = 0.0
         if mg.diag[c] > 0.0:
-            _, _, ax = stencil(mg, 0, ks.dirn, 0, decode(n, c), False)
+            _, _, ax = stencil(mg, n, fo, ks.dirn, 0, decode(n, c), c, False)
             ap = ax
         ks.a_dirn[c] = ap
         mg.ctrl[S_PAP] += ap * ks.dirn[c]

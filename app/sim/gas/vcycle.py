@@ -18,7 +18,7 @@ to one coarse cell), so the level's residual is not stored.
 import taichi as ti
 
 from .multigrid import (JACOBI_WEIGHT, L_CO, L_NCELL, POST_SWEEPS, PRE_SWEEPS, Multigrid, _ncell, _ratio, decode,
-                        dims, local, on, stencil)
+                        dims, face_offsets, local, on, stencil)
 
 
 @ti.func
@@ -39,6 +39,7 @@ def _first_red(mg: ti.template(), l, act):
 def _colour_sweep(mg: ti.template(), l, colour: ti.template(), act):
     """Gauss-Seidel update of the cells of one colour (parity of i+j+k), visiting only those."""
     n = dims(mg, l)
+    fo = face_offsets(mg, l)
     co = mg.lev[l, L_CO]
     h2 = (n[2] + 1) // 2
     for q in range(n[0] * n[1] * h2 * act):
@@ -48,7 +49,7 @@ def _colour_sweep(mg: ti.template(), l, colour: ti.template(), act):
         if I[2] < n[2]:
             c = local(n, I)
             if mg.diag[co + c] > 0.0:
-                d, s, _ = stencil(mg, l, mg.xs, co, I, False)
+                d, s, _ = stencil(mg, n, fo, mg.xs, co, I, c, False)
                 mg.xs[co + c] = (mg.bs[co + c] + s) / d
 
 
@@ -58,6 +59,7 @@ def _restrict_residual(mg: ti.template(), l, act):
     L = l + 1
     r = _ratio(mg, l)
     n = dims(mg, l)
+    fo = face_offsets(mg, l)
     N = dims(mg, L)
     co = mg.lev[l, L_CO]
     cb = mg.lev[L, L_CO]
@@ -70,7 +72,7 @@ def _restrict_residual(mg: ti.template(), l, act):
                 I = K * r + o
                 c = local(n, I)
                 if mg.diag[co + c] > 0.0:
-                    _, _, ax = stencil(mg, l, mg.xs, co, I, False)
+                    _, _, ax = stencil(mg, n, fo, mg.xs, co, I, c, False)
                     s += mg.bs[co + c] - ax
         mg.bs[cb + C] = s
 
@@ -92,12 +94,13 @@ def _prolong(mg: ti.template(), l, act):
 @ti.func
 def _residual(mg: ti.template(), l):
     n = dims(mg, l)
+    fo = face_offsets(mg, l)
     co = mg.lev[l, L_CO]
     for c in range(_ncell(mg, l)):
         r = 0.0
         if mg.diag[co + c] > 0.0:
             I = decode(n, c)
-            _, _, ax = stencil(mg, l, mg.xs, co, I, False)
+            _, _, ax = stencil(mg, n, fo, mg.xs, co, I, c, False)
             r = mg.bs[co + c] - ax
         mg.rs[co + c] = r
 
@@ -162,6 +165,7 @@ def coarse_solve(mg: ti.template(), l, singular, act):
     with act = 0)."""
     for _t in range(on(mg) * act):
         n = dims(mg, l)
+        fo = face_offsets(mg, l)
         nc = mg.lev[l, L_NCELL]
         co = mg.lev[l, L_CO]
         mean = 0.0
@@ -189,7 +193,7 @@ def coarse_solve(mg: ti.template(), l, singular, act):
             for c in range(nc):
                 ap = 0.0
                 if mg.diag[co + c] > 0.0:
-                    _, _, ax = stencil(mg, l, mg.cg_p, 0, decode(n, c), False)
+                    _, _, ax = stencil(mg, n, fo, mg.cg_p, 0, decode(n, c), c, False)
                     ap = ax
                 mg.cg_ap[c] = ap
                 pap += ap * mg.cg_p[c]
