@@ -58,6 +58,8 @@ class MGPCG:
                                 cg_p=_zeros(ncoarse), cg_ap=_zeros(ncoarse), dirichlet=self._dval, ctrl=self._sc,
                                 periodic=ti.Vector([int(p) for p in self.periodic], ti.i32), ncell0=n0,
                                 coarse_iters=self.coarse_iterations)
+        m = self.mg
+        self.vc = mgm.VCycle(lev=m.lev, trans=m.trans, diag=m.diag, xs=m.xs, bs=m.bs, ctrl=m.ctrl, periodic=m.periodic)
         self._x, self._b0 = _zeros(n0), _zeros(n0)
         self.ks = pcg.Krylov(sol=self._x, res=_zeros(n0), prec=_zeros(n0), prec_old=_zeros(n0),
                              dirn=_zeros(n0), a_dirn=_zeros(n0), rhs=self._b0)
@@ -111,22 +113,27 @@ class MGPCG:
     def _vcycle(self) -> None:
         """One V-cycle: a launch down and one up per level above the coarsest; the coarsest solve rides
         on the last launch down when it is the one-thread CG after a red-black level."""
-        mg = self.mg
+        mg, vc = self.mg, self.vc
         L = self.nlevels - 1
         sg = int(self._singular)
         fused = L > 0 and not self.coarse_parallel and not self.level_jacobi[L - 1]
         for l in range(L):
             if self.level_jacobi[l]:
                 vcycle.k_down_j(mg, l)
+            elif fused and l == L - 1:
+                vcycle.k_down_coarse(mg, l, sg)
             else:
-                vcycle.k_down(mg, l, int(fused and l == L - 1), sg)
+                vcycle.k_down(vc, l)
         if self.coarse_parallel:
             for k in range(mgm.COARSE_SMOOTH_SWEEPS):
                 vcycle.k_coarse_smooth(mg, L, int(k == 0))
         elif not fused:
             vcycle.k_coarse(mg, L, sg)
         for l in reversed(range(L)):
-            (vcycle.k_up_j if self.level_jacobi[l] else vcycle.k_up)(mg, l)
+            if self.level_jacobi[l]:
+                vcycle.k_up_j(mg, l)
+            else:
+                vcycle.k_up(vc, l)
 
     def begin(self, tol: float, max_iter: int, *, singular: bool = False, scale: float | None = None,
               device_scale: bool = False) -> None:

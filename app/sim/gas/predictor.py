@@ -7,8 +7,8 @@ Per face, backward Euler with the incremental pressure::
 solved in place by red-black Gauss-Seidel sweeps (the viscous stencil couples a face only to faces of
 the other parity), from the last step's predictor increment as initial iterate; beta and every wall
 term sit on the diagonal. The diagonal and the right-hand side without the fluid neighbours are fixed
-during the sweeps: computed once per step (:func:`_visc_setup`), a sweep only sums the neighbours. Cut-cell walls enter as ghost values u_G = -u_P (1 - t)/t (see
-:mod:`app.sim.gas`).
+during the sweeps: computed once per step (:func:`_visc_setup`), a sweep only sums the neighbours.
+Cut-cell walls enter as ghost values u_G = -u_P (1 - t)/t (see :mod:`app.sim.gas`).
 """
 import taichi as ti
 

@@ -1,8 +1,10 @@
 """The V-cycle of the pressure solver's multigrid (:mod:`.multigrid` holds the hierarchy): one launch down
 and one up per level, the coarsest solve riding on the last launch down.
 
-:func:`k_down` runs a red-black level's pre-smoothing, residual and restriction (and on the last level the
-coarsest level's one-thread CG), :func:`k_up` its prolongation and post-smoothing; every loop over cells
+:func:`k_down` runs a red-black level's pre-smoothing, residual and restriction (:func:`k_down_coarse`, on
+the last level, the coarsest level's one-thread CG as well), :func:`k_up` its prolongation and
+post-smoothing; these two take the :data:`~.multigrid.VCycle` bundle (the members they read, so their
+launches cost less host time than with the whole hierarchy). Every loop over cells
 is a top-level loop of its kernel, so each runs as its own parallel task (a grid-wide barrier between
 tasks). Levels with an odd periodic length use damped Jacobi (:func:`k_down_j`, :func:`k_up_j`).
 Fusing several levels into one kernel (``ti.static`` unrolled, idle levels over zero cells) was tried
@@ -17,8 +19,8 @@ to one coarse cell), so the level's residual is not stored.
 """
 import taichi as ti
 
-from .multigrid import (JACOBI_WEIGHT, L_CO, L_NCELL, POST_SWEEPS, PRE_SWEEPS, Multigrid, _ncell, _ratio, decode,
-                        dims, face_offsets, local, on, stencil)
+from .multigrid import (JACOBI_WEIGHT, L_CO, L_NCELL, POST_SWEEPS, PRE_SWEEPS, Multigrid, VCycle, _ncell, _ratio,
+                        decode, dims, face_offsets, local, on, stencil)
 
 
 @ti.func
@@ -123,25 +125,35 @@ def _zero_x(mg: ti.template(), l):
 
 
 # ============================================================================ kernels
-@ti.kernel
-def k_down(mg: Multigrid, l: ti.i32, coarse: ti.i32, singular: ti.i32):
-    """Pre-smoothing, residual and restriction of red-black level l, then, if ``coarse``, the
-    one-thread CG of level l+1 (the coarsest)."""
+@ti.func
+def _down(mg: ti.template(), l):
     act = on(mg)
     _first_red(mg, l, act)
     for s in ti.static(range(2 * PRE_SWEEPS - 1)):
         _colour_sweep(mg, l, (s + 1) % 2, act)
     _restrict_residual(mg, l, act)
-    coarse_solve(mg, l + 1, singular, coarse)
 
 
 @ti.kernel
-def k_up(mg: Multigrid, l: ti.i32):
+def k_down(vc: VCycle, l: ti.i32):
+    """Pre-smoothing, residual and restriction of red-black level l."""
+    _down(vc, l)
+
+
+@ti.kernel
+def k_down_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32):
+    """:func:`k_down` of the last red-black level l, then the one-thread CG of level l+1 (the coarsest)."""
+    _down(mg, l)
+    coarse_solve(mg, l + 1, singular, 1)
+
+
+@ti.kernel
+def k_up(vc: VCycle, l: ti.i32):
     """Prolongation from level l+1 and post-smoothing of red-black level l."""
-    act = on(mg)
-    _prolong(mg, l, act)
+    act = on(vc)
+    _prolong(vc, l, act)
     for s in ti.static(range(2 * POST_SWEEPS)):
-        _colour_sweep(mg, l, (s + 1) % 2, act)
+        _colour_sweep(vc, l, (s + 1) % 2, act)
 
 
 @ti.kernel
