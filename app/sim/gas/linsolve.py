@@ -110,9 +110,11 @@ class MGPCG:
         self._dval.from_numpy(np.ascontiguousarray(dv, dtype=self._dval.to_numpy().dtype))
 
     # ---------------------------------------------------------------- solve
-    def _vcycle(self) -> None:
-        """One V-cycle: a launch down and one up per level above the coarsest; the coarsest solve rides
-        on the last launch down when it is the one-thread CG after a red-black level."""
+    def _precondition(self) -> None:
+        """z = one V-cycle of the residual, then the outer CG's new direction: a launch down and one up
+        per level above the coarsest; the coarsest solve rides on the last launch down when it is the
+        one-thread CG after a red-black level, the new direction on the last launch up when level 0 is
+        red-black."""
         mg, vc = self.mg, self.vc
         L = self.nlevels - 1
         sg = int(self._singular)
@@ -132,8 +134,12 @@ class MGPCG:
         for l in reversed(range(L)):
             if self.level_jacobi[l]:
                 vcycle.k_up_j(mg, l)
+            elif l == 0:
+                vcycle.k_up_from(mg, self.ks, sg)
             else:
                 vcycle.k_up(vc, l)
+        if L == 0 or self.level_jacobi[0]:
+            pcg.k_pcg_from(mg, self.ks, sg)
 
     def begin(self, tol: float, max_iter: int, *, singular: bool = False, scale: float | None = None,
               device_scale: bool = False) -> None:
@@ -151,8 +157,7 @@ class MGPCG:
             mgm.k_coarsen(mg, l)
         mode = 2 if device_scale else (0 if scale is None else 1)
         pcg.k_pcg_begin(mg, ks, int(self._singular), float(tol), mode, float(scale or 0.0))
-        self._vcycle()
-        pcg.k_pcg_from(mg, ks, int(self._singular))
+        self._precondition()
 
     def launch(self, iterations: int) -> None:
         """Queue up to ``iterations`` more outer iterations (each stops itself on the device once the
@@ -162,8 +167,7 @@ class MGPCG:
         mg, ks = self.mg, self.ks
         for _ in range(n):
             pcg.k_pcg_iter(mg, ks, self._max_iter)
-            self._vcycle()
-            pcg.k_pcg_from(mg, ks, sg)
+            self._precondition()
         self._launched += n
         pcg.k_pcg_finish(mg, ks, sg)
 

@@ -141,8 +141,14 @@ def k_pcg_begin(mg: Multigrid, ks: Krylov, singular: ti.i32, tol: float, scale_m
 
 @ti.kernel
 def k_pcg_from(mg: Multigrid, ks: Krylov, singular: ti.i32):
+    pcg_from(mg, ks, singular)
+
+
+@ti.func
+def pcg_from(mg: ti.template(), ks: ti.template(), singular):
     """z = V-cycle output (zero mean if singular); new search direction (flexible CG; a restart
-    when S_FIRST is set). Nothing once the solve has stopped."""
+    when S_FIRST is set). Nothing once the solve has stopped. Also the tail of
+    :func:`app.sim.gas.vcycle.k_up_from`."""
     nc = mg.ncell0 * on(mg)
     _active_sum(mg, mg.xs, nc * singular)
     mg.ctrl[S_RZN] = 0.0

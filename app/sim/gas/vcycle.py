@@ -19,6 +19,7 @@ to one coarse cell), so the level's residual is not stored.
 """
 import taichi as ti
 
+from .pcg import Krylov, pcg_from
 from .multigrid import (JACOBI_WEIGHT, L_CO, L_NCELL, POST_SWEEPS, PRE_SWEEPS, Multigrid, VCycle, _ncell, _ratio,
                         decode, dims, face_offsets, local, on, stencil)
 
@@ -147,13 +148,25 @@ def k_down_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32):
     coarse_solve(mg, l + 1, singular, 1)
 
 
+@ti.func
+def _up(mg: ti.template(), l):
+    act = on(mg)
+    _prolong(mg, l, act)
+    for s in ti.static(range(2 * POST_SWEEPS)):
+        _colour_sweep(mg, l, (s + 1) % 2, act)
+
+
 @ti.kernel
 def k_up(vc: VCycle, l: ti.i32):
     """Prolongation from level l+1 and post-smoothing of red-black level l."""
-    act = on(vc)
-    _prolong(vc, l, act)
-    for s in ti.static(range(2 * POST_SWEEPS)):
-        _colour_sweep(vc, l, (s + 1) % 2, act)
+    _up(vc, l)
+
+
+@ti.kernel
+def k_up_from(mg: Multigrid, ks: Krylov, singular: ti.i32):
+    """:func:`k_up` of level 0 (red-black), then the outer CG's new direction (:func:`.pcg.pcg_from`)."""
+    _up(mg, 0)
+    pcg_from(mg, ks, singular)
 
 
 @ti.kernel
