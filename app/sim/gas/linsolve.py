@@ -110,20 +110,25 @@ class MGPCG:
         self._dval.from_numpy(np.ascontiguousarray(dv, dtype=self._dval.to_numpy().dtype))
 
     # ---------------------------------------------------------------- solve
-    def _precondition(self) -> None:
-        """z = one V-cycle of the residual, then the outer CG's new direction: a launch down and one up
-        per level above the coarsest; the coarsest solve rides on the last launch down when it is the
-        one-thread CG after a red-black level, the new direction on the last launch up when level 0 is
-        red-black."""
+    def _precondition(self, iterate: bool = False) -> None:
+        """(``iterate``: an outer CG iteration, then) z = one V-cycle of the residual, then the outer CG's
+        new direction: a launch down and one up per level above the coarsest; the iteration rides on the
+        first launch down, the coarsest solve on the last (when it is the one-thread CG after a
+        red-black level), the new direction on the last launch up, where those levels are red-black."""
         mg, vc = self.mg, self.vc
         L = self.nlevels - 1
         sg = int(self._singular)
         fused = L > 0 and not self.coarse_parallel and not self.level_jacobi[L - 1]
+        first = L > 1 and not self.level_jacobi[0]  # level 0 red-black and not the last: k_iter_down
+        if iterate and not first:
+            pcg.k_pcg_iter(mg, self.ks, self._max_iter)
         for l in range(L):
             if self.level_jacobi[l]:
                 vcycle.k_down_j(mg, l)
             elif fused and l == L - 1:
                 vcycle.k_down_coarse(mg, l, sg)
+            elif iterate and l == 0:
+                vcycle.k_iter_down(mg, self.ks, self._max_iter)
             else:
                 vcycle.k_down(vc, l)
         if self.coarse_parallel:
@@ -166,8 +171,7 @@ class MGPCG:
         sg = int(self._singular)
         mg, ks = self.mg, self.ks
         for _ in range(n):
-            pcg.k_pcg_iter(mg, ks, self._max_iter)
-            self._precondition()
+            self._precondition(iterate=True)
         self._launched += n
         pcg.k_pcg_finish(mg, ks, sg)
 

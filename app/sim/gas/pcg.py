@@ -177,10 +177,16 @@ def pcg_from(mg: ti.template(), ks: ti.template(), singular):
 
 @ti.kernel
 def k_pcg_iter(mg: Multigrid, ks: Krylov, max_iter: ti.i32):
+    pcg_iter(mg, ks, max_iter)
+
+
+@ti.func
+def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter):
     """One outer iteration, decided on the device: x += alpha p, r -= alpha A p; when the recursive
     residual meets the threshold, the true residual b - A x is measured: converged if it meets it
     too, stagnated (stop, the caller may refine) if it did not halve since the last such check,
-    else a restart from it. Stops at max_iter. Nothing once the solve has stopped."""
+    else a restart from it. Stops at max_iter. Nothing once the solve has stopped. Also the head of
+    :func:`app.sim.gas.vcycle.k_iter_down`."""
     n = mgm.dims(mg, 0)
     fo = mgm.face_offsets(mg, 0)
     nc = mg.ncell0 * on(mg)

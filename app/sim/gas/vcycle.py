@@ -19,7 +19,7 @@ to one coarse cell), so the level's residual is not stored.
 """
 import taichi as ti
 
-from .pcg import Krylov, pcg_from
+from .pcg import Krylov, pcg_from, pcg_iter
 from .multigrid import (JACOBI_WEIGHT, L_CO, L_NCELL, POST_SWEEPS, PRE_SWEEPS, Multigrid, VCycle, _ncell, _ratio,
                         decode, dims, face_offsets, local, on, stencil)
 
@@ -139,6 +139,14 @@ def _down(mg: ti.template(), l):
 def k_down(vc: VCycle, l: ti.i32):
     """Pre-smoothing, residual and restriction of red-black level l."""
     _down(vc, l)
+
+
+@ti.kernel
+def k_iter_down(mg: Multigrid, ks: Krylov, max_iter: ti.i32):
+    """The outer CG's iteration (:func:`.pcg.pcg_iter`, which leaves its residual in level 0's b),
+    then :func:`k_down` of level 0 (red-black, not the last level)."""
+    pcg_iter(mg, ks, max_iter)
+    _down(mg, 0)
 
 
 @ti.kernel
