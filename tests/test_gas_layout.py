@@ -8,12 +8,12 @@ import taichi as ti
 from taichi.lang.argpack import ArgPackType
 
 from app.sim import gas
-from app.sim.gas import advection, boundary, layout, multigrid, pcg, predictor, projection
+from app.sim.gas import advection, boundary, layout, multigrid, pcg, predictor, projection, vcycle
 
 pytestmark = pytest.mark.unit
 
 GAS = pathlib.Path(gas.__file__).parent
-MODULES = (advection, boundary, layout, multigrid, pcg, predictor, projection)
+MODULES = (advection, boundary, layout, multigrid, pcg, predictor, projection, vcycle)
 # host <-> array transfers and small reductions: plain ndarrays are their whole point
 TRANSFER = {"k_write", "k_read", "k_copy", "_k_set_faces", "_k_get_faces", "_k_cells_in", "_k_cells_out"}
 
@@ -55,5 +55,6 @@ def test_step_kernels_compile_once_for_two_grids():
         info = s.step(1e-3)
         assert info.converged, info
     for k in (advection.k_advect, boundary.k_bc_prep, predictor.k_visc, predictor.k_face_coef, projection.k_build,
-              projection.k_correct, projection.k_record, multigrid.k_down, multigrid.k_up, pcg.k_pcg_iter):
+              projection.k_correct, projection.k_record, vcycle.k_down, vcycle.k_up, vcycle.k_iter_down,
+              vcycle.k_down_coarse, vcycle.k_up_from):
         assert len(k._primal.compiled_kernels) == 1, k._primal.func.__name__

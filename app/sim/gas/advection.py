@@ -77,6 +77,19 @@ def vel_at(g: ti.template(), inp: ti.template(), arr: ti.template(), X):
     return U
 
 
+@ti.func
+def vel_at_face(g: ti.template(), inp: ti.template(), arr: ti.template(), f, a, X):
+    """:func:`vel_at` at the position X of face f (axis a): the trilinear weights of component a there
+    are 1 on the face itself and 0 elsewhere, so that component is read, not interpolated."""
+    U = ti.Vector([0.0, 0.0, 0.0])
+    for b in range(3):
+        v = arr[f]
+        if b != a:
+            v, _, _ = interp(g, inp, arr, b, X)
+        U[b] = v
+    return U
+
+
 @ti.kernel
 def k_advect(g: Grid, inp: Inputs, st: State, dt: float):
     """vel_old = vel; vel_adv = back-traced vel (MacCormack-corrected when asked) + dt/2 (a at the
@@ -102,7 +115,7 @@ def k_advect(g: Grid, inp: Inputs, st: State, dt: float):
         if solved(g, f, a, I):
             if g.scheme > 0:
                 X = face_pos(a, I)
-                U1 = vel_at(g, inp, st.vel_old, X)
+                U1 = vel_at_face(g, inp, st.vel_old, f, a, X)
                 U2 = vel_at(g, inp, st.vel_old, X - 0.5 * cdt * U1)
                 val, lo, hi = interp(g, inp, st.vel_old, a, X - cdt * U2)
                 v = val
@@ -121,7 +134,7 @@ def k_advect(g: Grid, inp: Inputs, st: State, dt: float):
         a, I = fdecode(g, f)
         if solved(g, f, a, I):
             X = face_pos(a, I)
-            U1 = vel_at(g, inp, st.vel_old, X)
+            U1 = vel_at_face(g, inp, st.vel_old, f, a, X)
             U2 = vel_at(g, inp, st.vel_old, X + 0.5 * cdt * U1)
             back, _, _ = interp(g, inp, st.vel_adv, a, X + cdt * U2)
             v = st.vel_adv[f] + 0.5 * (st.vel_old[f] - back)

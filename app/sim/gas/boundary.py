@@ -9,8 +9,8 @@ a cell outside the last cell centre.
 import taichi as ti
 
 from .config import INLET, MOVING, OUTLET, WALL
-from .layout import (P_H, P_POUT, Grid, Inputs, State, eps_at, face_cells, fdecode, fidx, is_boundary, solved,
-                     tangential, wrap)
+from .layout import (P_H, P_POUT, Grid, Inputs, State, cidx, eps_at, face_cells, fdecode, fidx, is_boundary,
+                     solved, tangential, wrap)
 
 
 @ti.func
@@ -96,20 +96,38 @@ def has_grad(g: ti.template(), a, I):
 
 
 @ti.func
-def face_grad(g: ti.template(), cl: ti.template(), a, I):
-    """Gradient of the full pressure (cl.pres, outlet pressures outside) across face (a, I) [Pa/m]."""
+def _cell(g: ti.template(), src: ti.template(), flat: ti.template(), C):
+    v = 0.0
+    if ti.static(flat):
+        v = src[cidx(g, C)]
+    else:
+        v = src[C]
+    return v
+
+
+@ti.func
+def grad_across(g: ti.template(), src: ti.template(), flat: ti.template(), out0, out1, a, I):
+    """Gradient across face (a, I) [1/m times src's unit] of the cell values src ((nx, ny, nz), or a cell
+    vector indexed as :func:`cidx` when ``flat``), out0 / out1 the values beyond the - / + domain face
+    (half a cell away); (0, False) on a face without a pressure gradient (:func:`has_grad`)."""
     h = g.par[P_H]
     gr = 0.0
     ok = has_grad(g, a, I)
     if ok:
         L, R, hL, hR = face_cells(g, a, I)
         if hL and hR:
-            gr = (cl.pres[R] - cl.pres[L]) / h
+            gr = (_cell(g, src, flat, R) - _cell(g, src, flat, L)) / h
         elif hR:
-            gr = (cl.pres[R] - g.par[P_POUT + 2 * a]) / (0.5 * h)
+            gr = (_cell(g, src, flat, R) - out0) / (0.5 * h)
         else:
-            gr = (g.par[P_POUT + 2 * a + 1] - cl.pres[L]) / (0.5 * h)
+            gr = (out1 - _cell(g, src, flat, L)) / (0.5 * h)
     return gr, ok
+
+
+@ti.func
+def face_grad(g: ti.template(), cl: ti.template(), a, I):
+    """Gradient of the full pressure (cl.pres, outlet pressures outside) across face (a, I) [Pa/m]."""
+    return grad_across(g, cl.pres, False, g.par[P_POUT + 2 * a], g.par[P_POUT + 2 * a + 1], a, I)
 
 
 @ti.kernel
@@ -134,7 +152,6 @@ def k_bc_prep(g: Grid, inp: Inputs, st: State):
         st.vel_adv[f] = v
         if solved(g, f, a, I):
             v += st.dpred[f]  # initial iterate: last step's predictor increment (exact when steady)
-        st.vel_tmp[f] = v
         st.vel[f] = v
 
 

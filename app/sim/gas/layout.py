@@ -38,7 +38,8 @@ Outputs = ti.types.argpack(gas_p=ND3, gas_u=ND3, gas_gradp=ND3)
 #: the cut-cell geometry as the coupling reads it: open_frac (the open volume fraction), active_cell (i32)
 CellGeometry = ti.types.argpack(open_frac=ND3, active_cell=ND3)
 #: face state of a step: vel (the velocity), vel_old (at the step's start), vel_adv (advected), vel_tmp,
-#: vel_lo, vel_hi (scratch of the advection; the clamps of MacCormack), accel (last step's weighted
+#: vel_lo, vel_hi (scratch of the advection; the clamps of MacCormack; then vel_tmp and vel_lo hold the
+#: viscous predictor's diagonal and fixed right-hand side), accel (last step's weighted
 #: acceleration), dpred (last predictor increment), eps_f, beta_f (face gas fraction and drag
 #: coefficient), vel_save (the initial velocity while the first step finds a pressure); gsc: the step's
 #: scalars (SC_*), read by the host once per step in the record

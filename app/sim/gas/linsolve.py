@@ -13,7 +13,7 @@ import numpy as np
 import taichi as ti
 
 from . import multigrid as mgm
-from . import pcg
+from . import pcg, vcycle
 from .pcg import SolveInfo, plan_levels
 
 __all__ = ["MGPCG", "SolveInfo", "plan_levels"]
@@ -58,6 +58,8 @@ class MGPCG:
                                 cg_p=_zeros(ncoarse), cg_ap=_zeros(ncoarse), dirichlet=self._dval, ctrl=self._sc,
                                 periodic=ti.Vector([int(p) for p in self.periodic], ti.i32), ncell0=n0,
                                 coarse_iters=self.coarse_iterations)
+        m = self.mg
+        self.vc = mgm.VCycle(lev=m.lev, trans=m.trans, diag=m.diag, xs=m.xs, bs=m.bs, ctrl=m.ctrl, periodic=m.periodic)
         self._x, self._b0 = _zeros(n0), _zeros(n0)
         self.ks = pcg.Krylov(sol=self._x, res=_zeros(n0), prec=_zeros(n0), prec_old=_zeros(n0),
                              dirn=_zeros(n0), a_dirn=_zeros(n0), rhs=self._b0)
@@ -108,18 +110,41 @@ class MGPCG:
         self._dval.from_numpy(np.ascontiguousarray(dv, dtype=self._dval.to_numpy().dtype))
 
     # ---------------------------------------------------------------- solve
-    def _vcycle(self) -> None:
-        mg = self.mg
+    def _precondition(self, iterate: bool = False) -> None:
+        """(``iterate``: an outer CG iteration, then) z = one V-cycle of the residual, then the outer CG's
+        new direction: a launch down and one up per level above the coarsest; the iteration rides on the
+        first launch down, the coarsest solve on the last (when it is the one-thread CG after a
+        red-black level), the new direction on the last launch up, where those levels are red-black."""
+        mg, vc = self.mg, self.vc
         L = self.nlevels - 1
+        sg = int(self._singular)
+        fused = L > 0 and not self.coarse_parallel and not self.level_jacobi[L - 1]
+        first = L > 1 and not self.level_jacobi[0]  # level 0 red-black and not the last: k_iter_down
+        if iterate and not first:
+            pcg.k_pcg_iter(mg, self.ks, self._max_iter)
         for l in range(L):
-            (mgm.k_down_j if self.level_jacobi[l] else mgm.k_down)(mg, l)
+            if self.level_jacobi[l]:
+                vcycle.k_down_j(mg, l)
+            elif fused and l == L - 1:
+                vcycle.k_down_coarse(mg, l, sg)
+            elif iterate and l == 0:
+                vcycle.k_iter_down(mg, self.ks, self._max_iter)
+            else:
+                vcycle.k_down(vc, l)
         if self.coarse_parallel:
             for k in range(mgm.COARSE_SMOOTH_SWEEPS):
-                mgm.k_coarse_smooth(mg, L, int(k == 0))
-        else:
-            mgm.k_coarse(mg, L, int(self._singular))
+                vcycle.k_coarse_smooth(mg, L, int(k == 0))
+        elif not fused:
+            vcycle.k_coarse(mg, L, sg)
         for l in reversed(range(L)):
-            (mgm.k_up_j if self.level_jacobi[l] else mgm.k_up)(mg, l)
+            if self.level_jacobi[l]:
+                vcycle.k_up_j(mg, l)
+            elif l == 0:
+                vcycle.k_up_from(mg, self.ks, sg)
+            else:
+                vcycle.k_up(vc, l)
+        if L == 0 or self.level_jacobi[0]:
+            pcg.k_pcg_from(mg, self.ks, sg)
 
     def begin(self, tol: float, max_iter: int, *, singular: bool = False, scale: float | None = None,
               device_scale: bool = False) -> None:
@@ -137,8 +162,7 @@ class MGPCG:
             mgm.k_coarsen(mg, l)
         mode = 2 if device_scale else (0 if scale is None else 1)
         pcg.k_pcg_begin(mg, ks, int(self._singular), float(tol), mode, float(scale or 0.0))
-        self._vcycle()
-        pcg.k_pcg_from(mg, ks, int(self._singular))
+        self._precondition()
 
     def launch(self, iterations: int) -> None:
         """Queue up to ``iterations`` more outer iterations (each stops itself on the device once the
@@ -147,9 +171,7 @@ class MGPCG:
         sg = int(self._singular)
         mg, ks = self.mg, self.ks
         for _ in range(n):
-            pcg.k_pcg_iter(mg, ks, self._max_iter)
-            self._vcycle()
-            pcg.k_pcg_from(mg, ks, sg)
+            self._precondition(iterate=True)
         self._launched += n
         pcg.k_pcg_finish(mg, ks, sg)
 

@@ -1,8 +1,9 @@
-"""The multigrid hierarchy of the pressure solver and its V-cycle (the preconditioner of :mod:`.pcg`).
+"""The multigrid hierarchy of the pressure solver (the preconditioner of :mod:`.pcg`).
 
 Owns: the level plan (:func:`plan_levels`), the :data:`Multigrid` bundle (every level's
 transmissibilities, diagonal, smoother vectors, the level table and the solve's control
-scalars) and the V-cycle kernels. The method is described in :mod:`app.sim.gas.pcg`.
+scalars), the stencil, the diagonal and the coarsening; the V-cycle's kernels are in
+:mod:`.vcycle`. The method is described in :mod:`app.sim.gas.pcg`.
 
 Level layout: ``lev[l, L_*]`` gives level l's dims, its cell offset ``L_CO`` into the
 per-cell arrays (``diag``, ``xs``, ``bs``, ``rs`` hold every level back to back), the offsets
@@ -38,6 +39,11 @@ ND1 = ti.types.ndarray(ndim=1)
 Multigrid = ti.types.argpack(lev=ti.types.ndarray(ndim=2), trans=ND1, diag=ND1, xs=ND1, bs=ND1, rs=ND1, cg_p=ND1,
                              cg_ap=ND1, dirichlet=ND1, ctrl=ND1, periodic=ti.types.vector(3, ti.i32),
                              ncell0=ti.i32, coarse_iters=ti.i32)
+#: the members of :data:`Multigrid` a red-black level of the V-cycle reads (the same arrays): launched
+#: 2L times a cycle, its launch costs less host time with fewer members (Taichi 1.7.4 sets every
+#: member on every launch; CPU: 6 ndarrays and a vector 129 us, the whole Multigrid 190 us, loaded)
+VCycle = ti.types.argpack(lev=ti.types.ndarray(ndim=2), trans=ND1, diag=ND1, xs=ND1, bs=ND1, ctrl=ND1,
+                          periodic=ti.types.vector(3, ti.i32))
 
 
 def plan_levels(shape, min_coarse_cells=8, max_levels=16):
@@ -125,27 +131,36 @@ def face(mg: ti.template(), l, a, I):
 
 
 @ti.func
-def stencil(mg: ti.template(), l, v: ti.template(), vo, I, affine: ti.template()):
-    """(diag, sum T x_nb, sum T (x_c - x_nb)) at cell I of level l for the vector v[vo + local]."""
-    n = dims(mg, l)
-    xc = v[vo + local(n, I)]
+def face_offsets(mg: ti.template(), l):
+    """Offsets into ``trans`` of level l's x, y and z faces."""
+    return ti.Vector([mg.lev[l, L_FOX], mg.lev[l, L_FOX + 1], mg.lev[l, L_FOX + 2]])
+
+
+@ti.func
+def stencil(mg: ti.template(), n, fo, v: ti.template(), vo, I, c, affine: ti.template()):
+    """(diag, sum T x_nb, sum T (x_c - x_nb)) at cell I (local index c) of the level of dims n and face
+    offsets fo (:func:`dims`, :func:`face_offsets`, taken once per loop by the caller) for the vector
+    v[vo + local]. The face and neighbour indices are those of :func:`face` and :func:`local` written
+    as offsets from c."""
+    xc = v[vo + c]
+    stride = ti.Vector([n[1] * n[2], n[2], 1])
+    # faces below cell I: x faces (F0 n1 + I1) n2 + I2 = c (+ n1 n2 above), y faces c + I0 n2 (+ n2),
+    # z faces c + I0 n1 + I1 (+ 1)
+    fbase = ti.Vector([fo[0] + c, fo[1] + c + I[0] * n[2], fo[2] + c + I[0] * n[1] + I[1]])
     d = 0.0
     s = 0.0
     ax = 0.0
     for a in ti.static(range(3)):
         for side in ti.static(range(2)):
-            F = I
-            F[a] += side
-            t = mg.trans[face(mg, l, a, F)]
+            t = mg.trans[fbase[a] + side * stride[a]]
             if t != 0.0:
                 J = I
                 J[a] += 2 * side - 1
                 xn = 0.0
-                inside = (J[a] >= 0) and (J[a] < n[a])
-                if (not inside) and mg.periodic[a] == 1:
+                if J[a] >= 0 and J[a] < n[a]:
+                    xn = v[vo + c + (2 * side - 1) * stride[a]]
+                elif mg.periodic[a] == 1:
                     J[a] = (J[a] + n[a]) % n[a]
-                    inside = True
-                if inside:
                     xn = v[vo + local(n, J)]
                 else:
                     if ti.static(affine):
@@ -169,79 +184,6 @@ def level_diag(mg: ti.template(), l):
                 F[a] += side
                 d += mg.trans[face(mg, l, a, F)]
         mg.diag[co + c] = d
-
-
-@ti.func
-def _rb_sweep(mg: ti.template(), l, color):
-    n = dims(mg, l)
-    co = mg.lev[l, L_CO]
-    for c in range(_ncell(mg, l)):
-        I = decode(n, c)
-        if (I[0] + I[1] + I[2]) % 2 == color and mg.diag[co + c] > 0.0:
-            d, s, _ = stencil(mg, l, mg.xs, co, I, False)
-            mg.xs[co + c] = (mg.bs[co + c] + s) / d
-
-
-@ti.func
-def _residual(mg: ti.template(), l):
-    n = dims(mg, l)
-    co = mg.lev[l, L_CO]
-    for c in range(_ncell(mg, l)):
-        r = 0.0
-        if mg.diag[co + c] > 0.0:
-            I = decode(n, c)
-            _, _, ax = stencil(mg, l, mg.xs, co, I, False)
-            r = mg.bs[co + c] - ax
-        mg.rs[co + c] = r
-
-
-@ti.func
-def _jacobi_sweep(mg: ti.template(), l):
-    _residual(mg, l)
-    co = mg.lev[l, L_CO]
-    for c in range(_ncell(mg, l)):
-        dg = mg.diag[co + c]
-        if dg > 0.0:
-            mg.xs[co + c] += JACOBI_WEIGHT * mg.rs[co + c] / dg
-
-
-@ti.func
-def _zero_x(mg: ti.template(), l):
-    co = mg.lev[l, L_CO]
-    for c in range(_ncell(mg, l)):
-        mg.xs[co + c] = 0.0
-
-
-@ti.func
-def _restrict(mg: ti.template(), l):
-    L = l + 1
-    r = _ratio(mg, l)
-    n = dims(mg, l)
-    N = dims(mg, L)
-    rb = mg.lev[l, L_CO]
-    cb = mg.lev[L, L_CO]
-    for C in range(_ncell(mg, L)):
-        K = decode(N, C)
-        s = 0.0
-        for d in range(8):
-            o = ti.Vector([d & 1, (d >> 1) & 1, (d >> 2) & 1])
-            if o[0] < r[0] and o[1] < r[1] and o[2] < r[2]:
-                s += mg.rs[rb + local(n, K * r + o)]
-        mg.bs[cb + C] = s
-
-
-@ti.func
-def _prolong(mg: ti.template(), l):
-    L = l + 1
-    r = _ratio(mg, l)
-    n = dims(mg, l)
-    N = dims(mg, L)
-    co = mg.lev[l, L_CO]
-    cb = mg.lev[L, L_CO]
-    for c in range(_ncell(mg, l)):
-        if mg.diag[co + c] > 0.0:
-            K = decode(n, c) // r
-            mg.xs[co + c] += mg.xs[cb + local(N, K)]
 
 
 # ============================================================================ kernels
@@ -277,102 +219,3 @@ def k_coarsen(mg: Multigrid, l: ti.i32):
                 s = 0.0
             mg.trans[face(mg, L, a, K)] = s
     level_diag(mg, L)
-
-
-@ti.kernel
-def k_down(mg: Multigrid, l: ti.i32):
-    _zero_x(mg, l)
-    for _s in ti.static(range(PRE_SWEEPS)):
-        _rb_sweep(mg, l, 0)
-        _rb_sweep(mg, l, 1)
-    _residual(mg, l)
-    _restrict(mg, l)
-
-
-@ti.kernel
-def k_down_j(mg: Multigrid, l: ti.i32):
-    _zero_x(mg, l)
-    for _s in ti.static(range(PRE_SWEEPS)):
-        _jacobi_sweep(mg, l)
-    _residual(mg, l)
-    _restrict(mg, l)
-
-
-@ti.kernel
-def k_up(mg: Multigrid, l: ti.i32):
-    _prolong(mg, l)
-    for _s in ti.static(range(POST_SWEEPS)):
-        _rb_sweep(mg, l, 1)
-        _rb_sweep(mg, l, 0)
-
-
-@ti.kernel
-def k_up_j(mg: Multigrid, l: ti.i32):
-    _prolong(mg, l)
-    for _s in ti.static(range(POST_SWEEPS)):
-        _jacobi_sweep(mg, l)
-
-
-@ti.kernel
-def k_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32):
-    """Jacobi-PCG on the (tiny) coarsest level, by one thread (none once the solve has stopped)."""
-    for _t in range(on(mg)):
-        n = dims(mg, l)
-        nc = mg.lev[l, L_NCELL]
-        co = mg.lev[l, L_CO]
-        mean = 0.0
-        if singular:
-            cnt = 0.0
-            for c in range(nc):
-                if mg.diag[co + c] > 0.0:
-                    mean += mg.bs[co + c]
-                    cnt += 1.0
-            if cnt > 0.0:
-                mean /= cnt
-        rz = 0.0
-        for c in range(nc):
-            r = 0.0
-            z = 0.0
-            if mg.diag[co + c] > 0.0:
-                r = mg.bs[co + c] - mean
-                z = r / mg.diag[co + c]
-            mg.rs[co + c] = r
-            mg.xs[co + c] = 0.0
-            mg.cg_p[c] = z
-            rz += r * z
-        for _it in range(mg.coarse_iters):
-            pap = 0.0
-            for c in range(nc):
-                ap = 0.0
-                if mg.diag[co + c] > 0.0:
-                    _, _, ax = stencil(mg, l, mg.cg_p, 0, decode(n, c), False)
-                    ap = ax
-                mg.cg_ap[c] = ap
-                pap += ap * mg.cg_p[c]
-            if pap > 0.0 and rz > 0.0:
-                alpha = rz / pap
-                rzn = 0.0
-                for c in range(nc):
-                    mg.xs[co + c] += alpha * mg.cg_p[c]
-                    mg.rs[co + c] -= alpha * mg.cg_ap[c]
-                    if mg.diag[co + c] > 0.0:
-                        rzn += mg.rs[co + c] * mg.rs[co + c] / mg.diag[co + c]
-                beta = rzn / rz
-                for c in range(nc):
-                    z = 0.0
-                    if mg.diag[co + c] > 0.0:
-                        z = mg.rs[co + c] / mg.diag[co + c]
-                    mg.cg_p[c] = z + beta * mg.cg_p[c]
-                rz = rzn
-
-
-@ti.kernel
-def k_coarse_smooth(mg: Multigrid, l: ti.i32, first: ti.i32):
-    """Large coarsest level (dimensions that do not halve): symmetric red-black sweeps in parallel
-    instead of the one-thread CG."""
-    if first:
-        _zero_x(mg, l)
-    _rb_sweep(mg, l, 0)
-    _rb_sweep(mg, l, 1)
-    _rb_sweep(mg, l, 1)
-    _rb_sweep(mg, l, 0)

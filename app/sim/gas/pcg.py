@@ -83,11 +83,12 @@ def _true_residual(mg: ti.template(), ks: ti.template(), nc):
     """r = b - A x (affine, with the Dirichlet values) over the first nc cells (nc = 0: nothing);
     max|r| into S_TRUE. It also feeds the next V-cycle (bs)."""
     n = mgm.dims(mg, 0)
+    fo = mgm.face_offsets(mg, 0)
     mg.ctrl[S_TRUE] = 0.0
     for c in range(nc):
         r = 0.0
         if mg.diag[c] > 0.0:
-            _, _, ax = stencil(mg, 0, ks.sol, 0, decode(n, c), True)
+            _, _, ax = stencil(mg, n, fo, ks.sol, 0, decode(n, c), c, True)
             r = ks.rhs[c] - ax
             ti.atomic_max(mg.ctrl[S_TRUE], ti.abs(r))
         else:
@@ -140,8 +141,14 @@ def k_pcg_begin(mg: Multigrid, ks: Krylov, singular: ti.i32, tol: float, scale_m
 
 @ti.kernel
 def k_pcg_from(mg: Multigrid, ks: Krylov, singular: ti.i32):
+    pcg_from(mg, ks, singular)
+
+
+@ti.func
+def pcg_from(mg: ti.template(), ks: ti.template(), singular):
     """z = V-cycle output (zero mean if singular); new search direction (flexible CG; a restart
-    when S_FIRST is set). Nothing once the solve has stopped."""
+    when S_FIRST is set). Nothing once the solve has stopped. Also the tail of
+    :func:`app.sim.gas.vcycle.k_up_from`."""
     nc = mg.ncell0 * on(mg)
     _active_sum(mg, mg.xs, nc * singular)
     mg.ctrl[S_RZN] = 0.0
@@ -170,17 +177,24 @@ def k_pcg_from(mg: Multigrid, ks: Krylov, singular: ti.i32):
 
 @ti.kernel
 def k_pcg_iter(mg: Multigrid, ks: Krylov, max_iter: ti.i32):
+    pcg_iter(mg, ks, max_iter)
+
+
+@ti.func
+def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter):
     """One outer iteration, decided on the device: x += alpha p, r -= alpha A p; when the recursive
     residual meets the threshold, the true residual b - A x is measured: converged if it meets it
     too, stagnated (stop, the caller may refine) if it did not halve since the last such check,
-    else a restart from it. Stops at max_iter. Nothing once the solve has stopped."""
+    else a restart from it. Stops at max_iter. Nothing once the solve has stopped. Also the head of
+    :func:`app.sim.gas.vcycle.k_iter_down`."""
     n = mgm.dims(mg, 0)
+    fo = mgm.face_offsets(mg, 0)
     nc = mg.ncell0 * on(mg)
     mg.ctrl[S_PAP] = 0.0
     for c in range(nc):
         ap = 0.0
         if mg.diag[c] > 0.0:
-            _, _, ax = stencil(mg, 0, ks.dirn, 0, decode(n, c), False)
+            _, _, ax = stencil(mg, n, fo, ks.dirn, 0, decode(n, c), c, False)
             ap = ax
         ks.a_dirn[c] = ap
         mg.ctrl[S_PAP] += ap * ks.dirn[c]

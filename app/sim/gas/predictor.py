@@ -6,8 +6,9 @@ Per face, backward Euler with the incremental pressure::
 
 solved in place by red-black Gauss-Seidel sweeps (the viscous stencil couples a face only to faces of
 the other parity), from the last step's predictor increment as initial iterate; beta and every wall
-term sit on the diagonal. Cut-cell walls enter as ghost values u_G = -u_P (1 - t)/t (see
-:mod:`app.sim.gas`).
+term sit on the diagonal. The diagonal and the right-hand side without the fluid neighbours are fixed
+during the sweeps: computed once per step (:func:`_visc_setup`), a sweep only sums the neighbours.
+Cut-cell walls enter as ghost values u_G = -u_P (1 - t)/t (see :mod:`app.sim.gas`).
 """
 import taichi as ti
 
@@ -15,8 +16,9 @@ from .boundary import face_grad, ghost_coef
 from .layout import (P_G, P_H, P_MU, P_RHO, P_THMIN, SC_DV, SC_NSW, SC_UOLD, SC_VACT, SC_VTHR, Cells, Grid, Inputs,
                      State, eps_at, face_cells, face_eps, face_mean_comp, fdecode, fidx, solved, wrap)
 
-VISCOUS_CHUNK = 2  # red-black sweeps per launch of the viscous predictor (each stops itself on the device;
-# each is a copy of the sweep in the compiled kernel: 4 cost 50% more compile time in all than 2)
+VISCOUS_CHUNK = 4  # red-black sweeps per launch of the viscous predictor (each stops itself on the device;
+# each is a copy of the sweep in the compiled kernel; with the fixed parts computed once per step the
+# solver's whole compile took as long with 4 as with 2: 122 s, 8x8x16, no offline cache, loaded CPU)
 
 
 @ti.func
@@ -48,83 +50,131 @@ def k_face_coef(g: Grid, inp: Inputs, st: State):
 
 
 @ti.func
-def _visc_colour(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.template(), dt, colour, nf):
-    """Gauss-Seidel update, in place on the velocity, of the faces of one colour (parity of
-    i+j+k) among the first nf faces (all, or none once the sweeps have stopped): the viscous
-    stencil couples a face only to faces of the other colour."""
+def _neighbour(g: ti.template(), a, I, b, side):
+    """Face J next to a-face I along axis b (side 0: -, 1: +), wrapped on periodic axes, and whether it
+    lies beyond a non-periodic domain face (ghost)."""
+    n = g.dims
+    J = I
+    J[b] += 2 * side - 1
+    ghost = False
+    if b == a:
+        if g.wrap[a] == 1:
+            J[a] = wrap(J[a], n[a])
+    elif J[b] < 0 or J[b] >= n[b]:
+        if g.wrap[b] == 1:
+            J[b] = wrap(J[b], n[b])
+        else:
+            ghost = True
+    return J, ghost
+
+
+@ti.func
+def _solid(g: ti.template(), q):
+    """Neighbour face q is closed (aperture 0) or inside the vessel wall (clearance < 0), and its clearance."""
+    solid = False
+    clQ = 1.0
+    if g.has_walls == 1:
+        clQ = g.clear[q]
+        solid = g.aperture[q] <= 0.0 or clQ < 0.0
+    return solid, clQ
+
+
+@ti.func
+def _coupled(g: ti.template(), b):
+    return not (g.wrap[b] == 1 and g.dims[b] == 1) and g.par[P_MU] > 0.0
+
+
+@ti.func
+def _visc_const(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.template(), dt, f, a, I):
+    """Diagonal D and the right-hand side R of face f without its fluid neighbours' terms: both fixed
+    during the sweeps (inertia, drag, gravity, sources, the last pressure, walls and ghosts)."""
     n = g.dims
     rho = g.par[P_RHO]
-    mu = g.par[P_MU]
     h = g.par[P_H]
     thmin = g.par[P_THMIN]
+    eP = st.eps_f[f]
+    bP = st.beta_f[f]
+    D = rho * eP / dt + bP
+    R = rho * eP / dt * st.vel_adv[f] + rho * eP * g.par[P_G + a] \
+        + face_mean_comp(g, inp.ext_force, a, a, I) + bP * face_mean_comp(g, inp.solid_vel, a, a, I)
+    gp, okp = face_grad(g, cl, a, I)
+    if okp:
+        em = 1.0
+        if g.form == 1:
+            em = eP
+        R -= em * gp  # incremental projection: the predictor feels the last pressure
+    cw = g.par[P_MU] * eP / (h * h)
+    clP = 1e30
+    if g.has_walls == 1:
+        clP = ti.max(g.clear[f], 0.0)
+    for b in range(3):
+        if _coupled(g, b):
+            for side in range(2):
+                J, ghost = _neighbour(g, a, I, b, side)
+                if ghost:
+                    # a vessel wall closer than the domain face (clearance extrapolated
+                    # linearly across the boundary) takes precedence over the domain ghost
+                    th = 1.0
+                    if g.has_walls == 1 and clP > 0.0:
+                        Jo = I
+                        Jo[b] -= 2 * side - 1
+                        if Jo[b] >= 0 and Jo[b] < n[b]:
+                            clQ = 2.0 * clP - g.clear[fidx(g, a, Jo)]
+                            if clQ < 0.0:
+                                th = clP / (clP - clQ)
+                    if th < 0.5:
+                        D += cw / ti.max(th, thmin)
+                    else:
+                        al, ga = ghost_coef(g, inp, b, side, a, J)
+                        D += cw * (1.0 - al)
+                        R += cw * ga
+                else:
+                    q = fidx(g, a, J)
+                    solid, clQ = _solid(g, q)
+                    if solid:
+                        th = 1.0
+                        if clQ < 0.0:
+                            th = clP / (clP - clQ)
+                        th = ti.min(ti.max(th, thmin), 1.0)
+                        D += cw / th
+                    else:
+                        D += g.par[P_MU] * 0.5 * (eP + st.eps_f[q]) / (h * h)
+    return D, R
+
+
+@ti.func
+def _visc_setup(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.template(), dt, nf):
+    """The fixed parts of the sweeps, once per step: D into vel_tmp, R into vel_lo (advection's scratch)."""
+    for f in range(nf):
+        a, I = fdecode(g, f)
+        if solved(g, f, a, I):
+            D, R = _visc_const(g, inp, cl, st, dt, f, a, I)
+            st.vel_tmp[f] = D
+            st.vel_lo[f] = R
+
+
+@ti.func
+def _visc_colour(g: ti.template(), st: ti.template(), colour, nf):
+    """Gauss-Seidel update, in place on the velocity, of the faces of one colour (parity of
+    i+j+k) among the first nf faces (all, or none once the sweeps have stopped): the viscous
+    stencil couples a face only to faces of the other colour. u = (R + sum of the fluid neighbours'
+    c_q u_q) / D with D and R from :func:`_visc_setup`."""
+    h = g.par[P_H]
     for f in range(nf):
         a, I = fdecode(g, f)
         if (I[0] + I[1] + I[2]) % 2 == colour and solved(g, f, a, I):
             eP = st.eps_f[f]
-            bP = st.beta_f[f]
-            D = rho * eP / dt + bP
-            R = rho * eP / dt * st.vel_adv[f] + rho * eP * g.par[P_G + a] \
-                + face_mean_comp(g, inp.ext_force, a, a, I) + bP * face_mean_comp(g, inp.solid_vel, a, a, I)
-            gp, okp = face_grad(g, cl, a, I)
-            if okp:
-                em = 1.0
-                if g.form == 1:
-                    em = eP
-                R -= em * gp  # incremental projection: the predictor feels the last pressure
-            cw = mu * eP / (h * h)
-            clP = 1e30
-            if g.has_walls == 1:
-                clP = ti.max(g.clear[f], 0.0)
+            s = 0.0
             for b in range(3):
-                if not (g.wrap[b] == 1 and n[b] == 1) and mu > 0.0:
+                if _coupled(g, b):
                     for side in range(2):
-                        J = I
-                        J[b] += 2 * side - 1
-                        ghost = False
-                        if b == a:
-                            if g.wrap[a] == 1:
-                                J[a] = wrap(J[a], n[a])
-                        elif J[b] < 0 or J[b] >= n[b]:
-                            if g.wrap[b] == 1:
-                                J[b] = wrap(J[b], n[b])
-                            else:
-                                ghost = True
-                        if ghost:
-                            # a vessel wall closer than the domain face (clearance extrapolated
-                            # linearly across the boundary) takes precedence over the domain ghost
-                            th = 1.0
-                            if g.has_walls == 1 and clP > 0.0:
-                                Jo = I
-                                Jo[b] -= 2 * side - 1
-                                if Jo[b] >= 0 and Jo[b] < n[b]:
-                                    clQ = 2.0 * clP - g.clear[fidx(g, a, Jo)]
-                                    if clQ < 0.0:
-                                        th = clP / (clP - clQ)
-                            if th < 0.5:
-                                D += cw / ti.max(th, thmin)
-                            else:
-                                al, ga = ghost_coef(g, inp, b, side, a, J)
-                                D += cw * (1.0 - al)
-                                R += cw * ga
-                        else:
+                        J, ghost = _neighbour(g, a, I, b, side)
+                        if not ghost:
                             q = fidx(g, a, J)
-                            solid = False
-                            clQ = 1.0
-                            if g.has_walls == 1:
-                                clQ = g.clear[q]
-                                solid = g.aperture[q] <= 0.0 or clQ < 0.0
-                            if solid:
-                                th = 1.0
-                                if clQ < 0.0:
-                                    th = clP / (clP - clQ)
-                                th = ti.min(ti.max(th, thmin), 1.0)
-                                D += cw / th
-                            else:
-                                eQ = st.eps_f[q]
-                                cq = mu * 0.5 * (eP + eQ) / (h * h)
-                                D += cq
-                                R += cq * st.vel[q]
-            unew = R / D
+                            solid, _ = _solid(g, q)
+                            if not solid:
+                                s += g.par[P_MU] * 0.5 * (eP + st.eps_f[q]) / (h * h) * st.vel[q]
+            unew = (st.vel_lo[f] + s) / st.vel_tmp[f]
             ti.atomic_max(st.gsc[SC_DV], ti.abs(unew - st.vel[f]))
             st.vel[f] = unew
 
@@ -134,16 +184,18 @@ def k_visc(g: Grid, inp: Inputs, cl: Cells, st: State, dt: float, first: ti.i32,
            max_sweeps: ti.i32):
     """VISCOUS_CHUNK red-black Gauss-Seidel sweeps of the implicit predictor, each only while the
     sweeps go on: they stop (on the device) when the largest change of a face velocity is at most
-    factor * max(max|u_old|, bc_speed) or after max_sweeps. ``first`` starts the count."""
+    factor * max(max|u_old|, bc_speed) or after max_sweeps. ``first`` starts the count and computes the
+    sweeps' fixed parts."""
     if first:
         st.gsc[SC_NSW] = 0.0
         st.gsc[SC_VACT] = 1.0
         st.gsc[SC_VTHR] = factor * ti.max(ti.max(st.gsc[SC_UOLD], bc_speed), 1e-30)
+    _visc_setup(g, inp, cl, st, dt, g.nfaces * first)
     for _s in ti.static(range(VISCOUS_CHUNK)):
         nf = g.nfaces * ti.cast(st.gsc[SC_VACT] > 0.0, ti.i32)
         st.gsc[SC_DV] = 0.0
-        _visc_colour(g, inp, cl, st, dt, 0, nf)
-        _visc_colour(g, inp, cl, st, dt, 1, nf)
+        _visc_colour(g, st, 0, nf)
+        _visc_colour(g, st, 1, nf)
         if nf > 0:
             st.gsc[SC_NSW] += 1.0
             if st.gsc[SC_DV] <= st.gsc[SC_VTHR] or st.gsc[SC_NSW] >= ti.cast(max_sweeps, float):

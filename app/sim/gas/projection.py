@@ -10,10 +10,10 @@ there: the solver's bundles are its interface, not private state.
 import taichi as ti
 
 from . import multigrid as mgm
-from .boundary import face_grad, has_grad
+from .boundary import face_grad, grad_across, has_grad
 from .config import OUTLET
 from .layout import (P_H, P_RHO, P_TRACE, SC_CORR, SC_DMAX, SC_NSW, SC_SMAX, SC_SPRED, SC_SREF, SC_UMAX, SC_UOLD,
-                     Cells, Grid, Inputs, State, cidx, face_cells, fdecode, fidx, is_boundary, solved)
+                     Cells, Grid, Inputs, State, cidx, fdecode, fidx, is_boundary, solved)
 from .multigrid import Multigrid
 from .pcg import Krylov, solve_record
 
@@ -110,23 +110,6 @@ def k_build(g: Grid, inp: Inputs, cl: Cells, st: State, mg: Multigrid, ks: Krylo
 
 
 @ti.func
-def _face_grad_inc(g: ti.template(), ks: ti.template(), a, I):
-    """Gradient of the pressure increment (the MG solution, 0 outside outlets) across face (a, I)."""
-    h = g.par[P_H]
-    gr = 0.0
-    ok = has_grad(g, a, I)
-    if ok:
-        L, R, hL, hR = face_cells(g, a, I)
-        if hL and hR:
-            gr = (ks.sol[cidx(g, R)] - ks.sol[cidx(g, L)]) / h
-        elif hR:
-            gr = ks.sol[cidx(g, R)] / (0.5 * h)
-        else:
-            gr = -ks.sol[cidx(g, L)] / (0.5 * h)
-    return gr, ok
-
-
-@ti.func
 def cell_outputs(g: ti.template(), inp: ti.template(), st: ti.template(), cl: ti.template(), on):
     """Cell-centred gas velocity and pressure gradient, divergence and its scale (reductions);
     nothing unless ``on``."""
@@ -182,7 +165,7 @@ def k_correct(g: Grid, inp: Inputs, mg: Multigrid, ks: Krylov, st: State, cl: Ce
             if solved(g, f, a, I):
                 dp = st.vel[f] - st.vel_adv[f]
             st.dpred[f] = dp
-        gr, ok = _face_grad_inc(g, ks, a, I)
+        gr, ok = grad_across(g, ks.sol, True, 0.0, 0.0, a, I)  # the increment: 0 beyond outlets
         if ok:
             kap, _ = kappa(g, st, a, I, dt)
             st.vel[f] -= kap * gr

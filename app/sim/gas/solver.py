@@ -81,8 +81,8 @@ class FlowSolver(SolverOutputs):
                                       "vel_save")}
         if cfg.convection == "maccormack":
             sa["vel_lo"], sa["vel_hi"] = _zeros(nf), _zeros(nf)
-        else:  # never touched without the MacCormack correction
-            sa["vel_lo"] = sa["vel_hi"] = sa["vel_tmp"]
+        else:  # the clamps are never touched without the MacCormack correction; vel_lo is the predictor's
+            sa["vel_lo"], sa["vel_hi"] = _zeros(nf), sa["vel_tmp"]
         sa["gsc"] = _zeros(NSC)
         self._st = sa
         self.st = layout.State(**sa)

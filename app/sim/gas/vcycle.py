@@ -1,0 +1,262 @@
+"""The V-cycle of the pressure solver's multigrid (:mod:`.multigrid` holds the hierarchy): one launch down
+and one up per level, the coarsest solve riding on the last launch down.
+
+:func:`k_down` runs a red-black level's pre-smoothing, residual and restriction (:func:`k_down_coarse`, on
+the last level, the coarsest level's one-thread CG as well), :func:`k_up` its prolongation and
+post-smoothing; these two take the :data:`~.multigrid.VCycle` bundle (the members they read, so their
+launches cost less host time than with the whole hierarchy). Every loop over cells
+is a top-level loop of its kernel, so each runs as its own parallel task (a grid-wide barrier between
+tasks). Levels with an odd periodic length use damped Jacobi (:func:`k_down_j`, :func:`k_up_j`).
+Fusing several levels into one kernel (``ti.static`` unrolled, idle levels over zero cells) was tried
+and dropped: Taichi 1.7.4's compile time grows faster than the kernel (CPU, 16 x 16 x 32: 8 s for the
+whole solver with one level a launch, 21-39 s with two, 198 s with six).
+
+The arithmetic of the red-black path is the textbook one up to reorganisations that give the same
+values: a red sweep from x = 0 is x = b / diag on red cells (their neighbours are black, still 0), so the
+zeroing and the first red sweep are one pass; a colour sweep visits only the cells of its colour (half
+the loop); the residual of a fine cell is computed where the restriction sums it (each fine cell belongs
+to one coarse cell), so the level's residual is not stored.
+"""
+import taichi as ti
+
+from .pcg import Krylov, pcg_from, pcg_iter
+from .multigrid import (JACOBI_WEIGHT, L_CO, L_NCELL, POST_SWEEPS, PRE_SWEEPS, Multigrid, VCycle, _ncell, _ratio,
+                        decode, dims, face_offsets, local, on, stencil)
+
+
+@ti.func
+def _first_red(mg: ti.template(), l, act):
+    """x = 0 on the level, then one red sweep: x = b / diag on active red cells."""
+    n = dims(mg, l)
+    co = mg.lev[l, L_CO]
+    for c in range(mg.lev[l, L_NCELL] * act):
+        I = ti.Vector([c // (n[1] * n[2]), (c // n[2]) % n[1], c % n[2]])
+        x = 0.0
+        dg = mg.diag[co + c]
+        if (I[0] + I[1] + I[2]) % 2 == 0 and dg > 0.0:
+            x = mg.bs[co + c] / dg
+        mg.xs[co + c] = x
+
+
+@ti.func
+def _colour_sweep(mg: ti.template(), l, colour: ti.template(), act):
+    """Gauss-Seidel update of the cells of one colour (parity of i+j+k), visiting only those."""
+    n = dims(mg, l)
+    fo = face_offsets(mg, l)
+    co = mg.lev[l, L_CO]
+    h2 = (n[2] + 1) // 2
+    for q in range(n[0] * n[1] * h2 * act):
+        ij = q // h2
+        I = ti.Vector([ij // n[1], ij % n[1], 0])
+        I[2] = 2 * (q % h2) + (I[0] + I[1] + colour) % 2
+        if I[2] < n[2]:
+            c = local(n, I)
+            if mg.diag[co + c] > 0.0:
+                d, s, _ = stencil(mg, n, fo, mg.xs, co, I, c, False)
+                mg.xs[co + c] = (mg.bs[co + c] + s) / d
+
+
+@ti.func
+def _restrict_residual(mg: ti.template(), l, act):
+    """b of level l+1 = the sum of the residuals b - A x of the fine cells each coarse cell covers."""
+    L = l + 1
+    r = _ratio(mg, l)
+    n = dims(mg, l)
+    fo = face_offsets(mg, l)
+    N = dims(mg, L)
+    co = mg.lev[l, L_CO]
+    cb = mg.lev[L, L_CO]
+    for C in range(mg.lev[L, L_NCELL] * act):
+        K = ti.Vector([C // (N[1] * N[2]), (C // N[2]) % N[1], C % N[2]])
+        s = 0.0
+        for d in range(8):
+            o = ti.Vector([d & 1, (d >> 1) & 1, (d >> 2) & 1])
+            if o[0] < r[0] and o[1] < r[1] and o[2] < r[2]:
+                I = K * r + o
+                c = local(n, I)
+                if mg.diag[co + c] > 0.0:
+                    _, _, ax = stencil(mg, n, fo, mg.xs, co, I, c, False)
+                    s += mg.bs[co + c] - ax
+        mg.bs[cb + C] = s
+
+
+@ti.func
+def _prolong(mg: ti.template(), l, act):
+    L = l + 1
+    r = _ratio(mg, l)
+    n = dims(mg, l)
+    N = dims(mg, L)
+    co = mg.lev[l, L_CO]
+    cb = mg.lev[L, L_CO]
+    for c in range(mg.lev[l, L_NCELL] * act):
+        if mg.diag[co + c] > 0.0:
+            K = ti.Vector([c // (n[1] * n[2]), (c // n[2]) % n[1], c % n[2]]) // r
+            mg.xs[co + c] += mg.xs[cb + local(N, K)]
+
+
+@ti.func
+def _residual(mg: ti.template(), l):
+    n = dims(mg, l)
+    fo = face_offsets(mg, l)
+    co = mg.lev[l, L_CO]
+    for c in range(_ncell(mg, l)):
+        r = 0.0
+        if mg.diag[co + c] > 0.0:
+            I = decode(n, c)
+            _, _, ax = stencil(mg, n, fo, mg.xs, co, I, c, False)
+            r = mg.bs[co + c] - ax
+        mg.rs[co + c] = r
+
+
+@ti.func
+def _jacobi_sweep(mg: ti.template(), l):
+    _residual(mg, l)
+    co = mg.lev[l, L_CO]
+    for c in range(_ncell(mg, l)):
+        dg = mg.diag[co + c]
+        if dg > 0.0:
+            mg.xs[co + c] += JACOBI_WEIGHT * mg.rs[co + c] / dg
+
+
+@ti.func
+def _zero_x(mg: ti.template(), l):
+    co = mg.lev[l, L_CO]
+    for c in range(_ncell(mg, l)):
+        mg.xs[co + c] = 0.0
+
+
+# ============================================================================ kernels
+@ti.func
+def _down(mg: ti.template(), l):
+    act = on(mg)
+    _first_red(mg, l, act)
+    for s in ti.static(range(2 * PRE_SWEEPS - 1)):
+        _colour_sweep(mg, l, (s + 1) % 2, act)
+    _restrict_residual(mg, l, act)
+
+
+@ti.kernel
+def k_down(vc: VCycle, l: ti.i32):
+    """Pre-smoothing, residual and restriction of red-black level l."""
+    _down(vc, l)
+
+
+@ti.kernel
+def k_iter_down(mg: Multigrid, ks: Krylov, max_iter: ti.i32):
+    """The outer CG's iteration (:func:`.pcg.pcg_iter`, which leaves its residual in level 0's b),
+    then :func:`k_down` of level 0 (red-black, not the last level)."""
+    pcg_iter(mg, ks, max_iter)
+    _down(mg, 0)
+
+
+@ti.kernel
+def k_down_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32):
+    """:func:`k_down` of the last red-black level l, then the one-thread CG of level l+1 (the coarsest)."""
+    _down(mg, l)
+    coarse_solve(mg, l + 1, singular, 1)
+
+
+@ti.func
+def _up(mg: ti.template(), l):
+    act = on(mg)
+    _prolong(mg, l, act)
+    for s in ti.static(range(2 * POST_SWEEPS)):
+        _colour_sweep(mg, l, (s + 1) % 2, act)
+
+
+@ti.kernel
+def k_up(vc: VCycle, l: ti.i32):
+    """Prolongation from level l+1 and post-smoothing of red-black level l."""
+    _up(vc, l)
+
+
+@ti.kernel
+def k_up_from(mg: Multigrid, ks: Krylov, singular: ti.i32):
+    """:func:`k_up` of level 0 (red-black), then the outer CG's new direction (:func:`.pcg.pcg_from`)."""
+    _up(mg, 0)
+    pcg_from(mg, ks, singular)
+
+
+@ti.kernel
+def k_down_j(mg: Multigrid, l: ti.i32):
+    _zero_x(mg, l)
+    for _s in ti.static(range(PRE_SWEEPS)):
+        _jacobi_sweep(mg, l)
+    _restrict_residual(mg, l, on(mg))
+
+
+@ti.kernel
+def k_up_j(mg: Multigrid, l: ti.i32):
+    _prolong(mg, l, on(mg))
+    for _s in ti.static(range(POST_SWEEPS)):
+        _jacobi_sweep(mg, l)
+
+
+@ti.func
+def coarse_solve(mg: ti.template(), l, singular, act):
+    """Jacobi-PCG on the (tiny) coarsest level l, by one thread (none once the solve has stopped or
+    with act = 0)."""
+    for _t in range(on(mg) * act):
+        n = dims(mg, l)
+        fo = face_offsets(mg, l)
+        nc = mg.lev[l, L_NCELL]
+        co = mg.lev[l, L_CO]
+        mean = 0.0
+        if singular:
+            cnt = 0.0
+            for c in range(nc):
+                if mg.diag[co + c] > 0.0:
+                    mean += mg.bs[co + c]
+                    cnt += 1.0
+            if cnt > 0.0:
+                mean /= cnt
+        rz = 0.0
+        for c in range(nc):
+            r = 0.0
+            z = 0.0
+            if mg.diag[co + c] > 0.0:
+                r = mg.bs[co + c] - mean
+                z = r / mg.diag[co + c]
+            mg.rs[co + c] = r
+            mg.xs[co + c] = 0.0
+            mg.cg_p[c] = z
+            rz += r * z
+        for _it in range(mg.coarse_iters):
+            pap = 0.0
+            for c in range(nc):
+                ap = 0.0
+                if mg.diag[co + c] > 0.0:
+                    _, _, ax = stencil(mg, n, fo, mg.cg_p, 0, decode(n, c), c, False)
+                    ap = ax
+                mg.cg_ap[c] = ap
+                pap += ap * mg.cg_p[c]
+            if pap > 0.0 and rz > 0.0:
+                alpha = rz / pap
+                rzn = 0.0
+                for c in range(nc):
+                    mg.xs[co + c] += alpha * mg.cg_p[c]
+                    mg.rs[co + c] -= alpha * mg.cg_ap[c]
+                    if mg.diag[co + c] > 0.0:
+                        rzn += mg.rs[co + c] * mg.rs[co + c] / mg.diag[co + c]
+                beta = rzn / rz
+                for c in range(nc):
+                    z = 0.0
+                    if mg.diag[co + c] > 0.0:
+                        z = mg.rs[co + c] / mg.diag[co + c]
+                    mg.cg_p[c] = z + beta * mg.cg_p[c]
+                rz = rzn
+
+
+@ti.kernel
+def k_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32):
+    coarse_solve(mg, l, singular, 1)
+
+
+@ti.kernel
+def k_coarse_smooth(mg: Multigrid, l: ti.i32, first: ti.i32):
+    """Large coarsest level (dimensions that do not halve): symmetric red-black sweeps in parallel
+    instead of the one-thread CG."""
+    if first:
+        _zero_x(mg, l)
+    for s in ti.static((0, 1, 1, 0)):
+        _colour_sweep(mg, l, s, on(mg))
