@@ -127,7 +127,7 @@ class MGPCG:
                 vcycle.k_down_j(mg, l)
             elif fused and l == L - 1:
                 vcycle.k_down_coarse(mg, l, sg)
-            elif iterate and l == 0:
+            elif iterate and first and l == 0:
                 vcycle.k_iter_down(mg, self.ks, self._max_iter)
             else:
                 vcycle.k_down(vc, l)
