@@ -1,6 +1,7 @@
 """CLI tier: bad presets fail clearly; runs stop, checkpoint and resume exactly; presets run.
 
-Runs go through `python -m app` in fresh processes, as a user would run them.
+Runs go through `python -m app` in fresh processes, as a user would run them; the preset smoke runs call the
+same entry point (app.cli.main) in-process.
 """
 import json
 import os
@@ -11,6 +12,8 @@ import sys
 import h5py
 import numpy as np
 import pytest
+
+from app.cli import main as cli_main
 
 pytestmark = pytest.mark.smoke
 
@@ -130,12 +133,14 @@ def test_sigterm_stops_cleanly_with_checkpoint(tmp_path):
 
 
 @pytest.mark.parametrize("preset", PRESETS, ids=[p.stem for p in PRESETS])
-def test_every_preset_runs_briefly(preset, tmp_path):
-    """Smoke tier: each preset starts, steps and writes its outputs (float32, as on a GPU)."""
+def test_every_preset_runs_briefly(preset, tmp_path, capsys):
+    """Smoke tier: each preset starts, steps and writes its outputs (float32, as on a GPU). In-process, through
+    the CLI's own entry point (the other tests here run `python -m app` in fresh processes, as a user would):
+    one Taichi start-up for all presets of a worker instead of one each."""
     # run.start_from is emptied: the smoke run starts from the preset's own fill, not a prepared stage
-    r = fbed("run", preset, "--set", "run.duration=0.002", "--set", "run.step=0.001", "--set", 'run.start_from=""',
-             "--arch", "cpu", "--out", tmp_path / "o")
-    assert r.returncode == 0, r.stderr
+    rc = cli_main(["run", str(preset), "--set", "run.duration=0.002", "--set", "run.step=0.001", "--set",
+                   'run.start_from=""', "--arch", "cpu", "--out", str(tmp_path / "o")])
+    assert rc == 0, capsys.readouterr().err
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert s["status"] == "finished"
     with h5py.File(tmp_path / "o" / "run.h5") as f:
