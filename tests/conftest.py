@@ -12,15 +12,27 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 REFERENCE = pathlib.Path(os.environ.get("FBED_REFERENCE", ROOT.parent / "shared" / "reference"))
 
 
-@pytest.fixture(scope="session", autouse=True)
-def taichi_cpu64():
+def _session_runtime():
     from app.sim import runtime
 
     # under pytest-xdist the cores are shared between the workers (CI: 2 cores, 2 workers, 1 thread each)
     workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
     threads = max(1, (os.cpu_count() or 1) // workers) if workers > 1 else None
     runtime.init(arch="cpu", precision="float64", threads=threads)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def taichi_cpu64():
+    _session_runtime()
     yield
+
+
+@pytest.fixture
+def session_runtime_after():
+    """For a test that starts Taichi its own way (an in-process `fbed run` in float32): the session's float64
+    CPU runtime is restored after it, so the tests that follow in the same worker run as they expect."""
+    yield
+    _session_runtime()
 
 
 @pytest.fixture

@@ -133,7 +133,7 @@ def test_sigterm_stops_cleanly_with_checkpoint(tmp_path):
 
 
 @pytest.mark.parametrize("preset", PRESETS, ids=[p.stem for p in PRESETS])
-def test_every_preset_runs_briefly(preset, tmp_path, capsys):
+def test_every_preset_runs_briefly(preset, tmp_path, capsys, session_runtime_after):
     """Smoke tier: each preset starts, steps and writes its outputs (float32, as on a GPU). In-process, through
     the CLI's own entry point (the other tests here run `python -m app` in fresh processes, as a user would):
     one Taichi start-up for all presets of a worker instead of one each."""
