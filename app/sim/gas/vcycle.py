@@ -30,7 +30,7 @@ def _first_red(mg: ti.template(), l, act):
     n = dims(mg, l)
     co = mg.lev[l, L_CO]
     for c in range(mg.lev[l, L_NCELL] * act):
-        I = ti.Vector([c // (n[1] * n[2]), (c // n[2]) % n[1], c % n[2]])
+        I = decode(n, c)
         x = 0.0
         dg = mg.diag[co + c]
         if (I[0] + I[1] + I[2]) % 2 == 0 and dg > 0.0:
@@ -67,7 +67,7 @@ def _restrict_residual(mg: ti.template(), l, act):
     co = mg.lev[l, L_CO]
     cb = mg.lev[L, L_CO]
     for C in range(mg.lev[L, L_NCELL] * act):
-        K = ti.Vector([C // (N[1] * N[2]), (C // N[2]) % N[1], C % N[2]])
+        K = decode(N, C)
         s = 0.0
         for d in range(8):
             o = ti.Vector([d & 1, (d >> 1) & 1, (d >> 2) & 1])
@@ -90,7 +90,7 @@ def _prolong(mg: ti.template(), l, act):
     cb = mg.lev[L, L_CO]
     for c in range(mg.lev[l, L_NCELL] * act):
         if mg.diag[co + c] > 0.0:
-            K = ti.Vector([c // (n[1] * n[2]), (c // n[2]) % n[1], c % n[2]]) // r
+            K = decode(n, c) // r
             mg.xs[co + c] += mg.xs[cb + local(N, K)]
 
 
