@@ -27,8 +27,8 @@ paths. ``GrainMatcher.load``/``save`` keep them in an HDF5 store (by default RUN
 bit for bit, a re-recorded database or another grid or seed gets a new group.
 (Measured and rejected, validation/rcfd/README.md: pairing the rest within coarser blocks first raises the squared
 distance moved by 10-200%; a sparse assignment (min_weight_full_bipartite_matching) on the pairs within 8 half
-cells is infeasible for a quarter of the jumps, up to 3% costlier and 1-3x faster; integer or perturbed costs do
-not speed up linear_sum_assignment.)
+cells is infeasible for a quarter of the jumps, up to 3% costlier and 1.6-2.5x faster; integer or perturbed costs
+do not speed up linear_sum_assignment.)
 """
 from __future__ import annotations
 
