@@ -83,9 +83,19 @@ def test_analyze_and_reproducible_paths(recorded):
         r = fbed("rcfd", "run", recorded, "--horizon", "0.5", "--paths", "3", "--seed", "3", "--name", name, "--gas")
         assert r.returncode == 0, r.stderr[-3000:]
         runs.append(recorded / "rcfd" / name)
+    # run b reuses the matched jumps run a stored (RUN_DIR/rcfd/matchings.h5): the same mixing to the last digit
     assert (runs[0] / "path.csv").read_text() == (runs[1] / "path.csv").read_text()
     assert (runs[0] / "mixing.csv").read_text() == (runs[1] / "mixing.csv").read_text()
     s = json.loads((runs[0] / "summary.json").read_text())
+    s_b = json.loads((runs[1] / "summary.json").read_text())
+    assert s["jump"] == "match" and s["matchings"]["stored"] == s["matchings"]["used"] >= 1
+    assert s_b["matchings"]["loaded"] >= s["matchings"]["used"] and s_b["matchings"]["stored"] == 0
+    r = fbed("rcfd", "run", recorded, "--horizon", "0.5", "--paths", "3", "--seed", "3", "--name", "st", "--jump",
+             "stitch")
+    assert r.returncode == 0, r.stderr[-3000:]
+    st = json.loads((recorded / "rcfd" / "st" / "summary.json").read_text())
+    assert st["jump"] == "stitch" and "matchings" not in st and st["tracer_drift_max"] <= 1e-12
+    assert (recorded / "rcfd" / "st" / "path.csv").read_text() == (runs[0] / "path.csv").read_text()  # same paths
     assert s["tracer_drift_max"] <= 1e-12
     assert 0.0 <= s["concentration_min"] and s["concentration_max"] <= 1.0
     M = np.loadtxt(runs[0] / "mixing.csv", delimiter=",", skiprows=1)
@@ -104,6 +114,13 @@ def test_bad_input_exits_2(recorded, tmp_path):
     assert r.returncode == 2 and "--tag" in r.stderr and "Traceback" not in r.stderr
     r = fbed("run", ROOT / "presets" / "rcfd_small.toml", "--set", 'probes.rcfd_tag="q<1"', "--out", tmp_path / "o")
     assert r.returncode == 2 and "probes.rcfd_tag" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_a_bad_jump_names_the_option_and_its_choices(tmp_path):
+    r = fbed("rcfd", "run", tmp_path, "--jump", "swap")
+    assert r.returncode == 2 and "--jump" in r.stderr and "'match'" in r.stderr and "'stitch'" in r.stderr
+    assert "Traceback" not in r.stderr
+    assert "--jump {match,stitch}" in fbed("rcfd", "--help").stdout
 
 
 @pytest.mark.restart

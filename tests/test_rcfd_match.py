@@ -105,3 +105,35 @@ def test_sequence_indices_from_movers_equal_the_direct_sums():
         cnt = np.stack([np.bincount(cells[s], minlength=n) for s in states])
         assert np.allclose(M, [mixing_index(direct[i], b[i] - direct[i]) for i in range(len(states))], atol=1e-12)
         assert np.allclose(L, [lacey_index(direct[i], b[i], cnt[i]) for i in range(len(states))], atol=1e-12)
+
+
+def test_stored_matchings_equal_the_direct_ones_and_are_not_reused_for_another_database(tmp_path):
+    """A later run reuses the matchings the first stored (matching.GrainMatcher.save/load): bit for bit the ones it
+    would compute, info included. A matcher on other cells, another seed or another grid finds none under its
+    fingerprint and computes its own; a damaged store is ignored, not trusted."""
+    rng = np.random.default_rng(5)
+    shape = (6, 3, 8)
+    cells, n = _states(rng, shape=shape)
+    vol = np.where(rng.random(cells.shape[1]) < 0.3, 2.0, 1.0)
+    centres = grid_centres(shape, np.zeros(3), 1.0)
+    store = tmp_path / "rcfd" / "matchings.h5"
+    first = GrainMatcher(cells, centres, vol, seed=2)
+    pairs = ((0, 2), (1, 3), (3, 0))
+    direct = {p: first.operator(*p) for p in pairs}
+    assert first.save(store) == 3 and first.save(store) == 0  # nothing new the second time
+    later = GrainMatcher(cells, centres, vol, seed=2)
+    assert later.load(store) == 3 and not later.fresh
+    for p in pairs:
+        perm, info = later.cache[p]
+        assert np.array_equal(perm, direct[p][0]) and perm.dtype == np.int64
+        assert info == pytest.approx(direct[p][1], rel=1e-15)
+    assert np.array_equal(later.operator(1, 2)[0], first.operator(1, 2)[0])  # a new pair computed as before
+    other = cells.copy()
+    other[1, 0] = (other[1, 0] + 1) % n  # one grain elsewhere in one state: another database
+    for m in (GrainMatcher(other, centres, vol, seed=2), GrainMatcher(cells, centres, vol, seed=3),
+              GrainMatcher(cells, centres + 0.5, vol, seed=2)):
+        assert m.load(store) == 0 and not m.cache
+    bad = tmp_path / "bad.h5"
+    bad.write_bytes(b"not an HDF5 file")
+    assert GrainMatcher(cells, centres, vol, seed=2).load(bad) == 0
+    assert GrainMatcher(cells, centres, vol, seed=2).load(tmp_path / "missing.h5") == 0

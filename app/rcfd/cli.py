@@ -48,9 +48,9 @@ def main(args) -> int:
                 raise ConfigError(str(err), "", "--tag") from None
         try:
             s = commands.run_paths(str(d), args.horizon, args.paths, args.seed, args.tag, args.name, args.out,
-                                   args.start, log=log, gas=args.gas, lag=args.lag)
+                                   args.start, log=log, gas=args.gas, lag=args.lag, jump=args.jump)
         except ValueError as err:
-            key = "--lag" if "--lag" in str(err) else "RUN_DIR"
+            key = "--lag" if "--lag" in str(err) else "--jump" if str(err).startswith("jump") else "RUN_DIR"
             raise ConfigError(str(err), str(d / "rcfd.h5"), key) from None
         c = s["cost"]
         print(f"mixing index at {args.horizon:g} s: {s['mixing_final_mean']:.4f} ± {s['mixing_final_std']:.4f} "

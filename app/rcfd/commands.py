@@ -311,12 +311,16 @@ def cost_summary(eng: Engine, rd: pathlib.Path, results: list, horizon: float, t
 
 def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | None, name: str | None = None,
               out: str | None = None, start: str = "end", engine: Engine | None = None, log=print,
-              gas: bool = False, lag: int = 1) -> dict:
+              gas: bool = False, lag: int = 1, jump: str | None = None) -> dict:
     """`fbed rcfd run`: n_paths seeded Markov paths over ``horizon`` seconds from the database's last state
-    (start='end') or its first (start='begin')."""
+    (start='end') or its first (start='begin'). ``jump``: 'match' or 'stitch' (Engine's ``jump``); None: match where
+    the database records each grain's cell, else stitch."""
     rd = pathlib.Path(run_dir)
     db = engine.db if engine else load(rd, lag)
-    eng = engine or Engine(db)
+    if engine is None and jump == "match" and db.cells is None:
+        raise ValueError("jump 'match' pairs grains and needs each grain's cell per boundary (record with "
+                         "probes.rcfd_grain_cells = true); use --jump stitch")
+    eng = engine or Engine(db, jump=jump or "auto")
     dt = db.frame_interval
     n_frames = int(math.ceil(horizon / dt - 1e-9))
     start_state = db.n_states - 1 if start == "end" else 0
@@ -327,6 +331,7 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
     ps = [eng.path(n_frames, start_state, (seed, i)) for i in range(n_paths)]
     t_path = wallclock.perf_counter() - t_path
     results = [eng.transport(p, c0, start_state) for p in ps]
+    stored = eng.save_matchings()
     time = np.arange(n_frames + 1) * dt
     Ms = np.stack([r["M"] for r in results])
     Ls = np.stack([r["lacey"] for r in results])
@@ -359,6 +364,10 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
         "t50": t50, "t90": t90, "t50_mean": nan_mean(t50), "t90_mean": nan_mean(t90),
         "lacey": lacey_summary(time, Ls), "jump": getattr(eng, "jump", "stitch"), **jump_summary(results),
         **path_bed_statistics(db, ps), "cost": cost_summary(eng, rd, results, horizon, t_path), "warnings": warnings}
+    if eng.jump == "match":
+        summary["matchings"] = {"store": str(eng.matchings_path), "loaded": eng.matchings_loaded, "stored": stored,
+                                "used": len({(j[1], j[2]) for p in ps for j in p.jumps if j[0] > 0}),
+                                "seconds": eng.stitch_seconds}
     if gas:
         summary["gas_tracer"] = _gas_paths(eng, ps, od, time, horizon)
     _json(od / "summary.json", summary)

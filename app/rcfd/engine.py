@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import pathlib
 import time as wallclock
 
 import h5py
@@ -86,8 +87,9 @@ class Engine:
     """Everything a set of paths shares: the operators, R, the jump targets, the stitches."""
 
     def __init__(self, db: Database, st: dict | None = None, params: pathmod.PathParams | None = None,
-                 solids: str = "auto", jump_grid: str = "auto", jump: str = "auto"):
-        """``jump``: how the grain tracer crosses a jump, 'match' (grains matched one to one by position,
+                 solids: str = "auto", jump_grid: str = "auto", jump: str = "auto", matchings="auto"):
+        """``matchings``: the HDF5 store of the matched jumps (matching.GrainMatcher.load/save), 'auto' for
+        RUN_DIR/rcfd/matchings.h5 beside the database, None for none; ``jump``: how the grain tracer crosses a jump, 'match' (grains matched one to one by position,
         app.rcfd.matching; the default) or 'stitch' (cell volumes stitched, then each grain takes its cell's mean
         tag); ``jump_grid``: 'cells' locates the grains on the cells even where octants give the half cells."""
         t = wallclock.perf_counter()
@@ -131,6 +133,10 @@ class Engine:
         if self.jump == "match":
             grid, shape, h = (self.fine, db.fine_shape, 0.5 * db.h) if self.half else (db.cells, db.shape, db.h)
             self.matcher = GrainMatcher(grid, grid_centres(shape, db.origin, h), db.grain_volume)
+            if matchings == "auto":
+                matchings = pathlib.Path(db.path).parent / "rcfd" / "matchings.h5"
+            self.matchings_path = matchings
+            self.matchings_loaded = self.matcher.load(matchings) if matchings is not None else 0
         elif self.half:
             fs = db.fine_shape
             nf = int(np.prod(fs))
@@ -141,6 +147,12 @@ class Engine:
             self.fine_stitcher = Stitcher(fs, fine_mask, 0.5 * db.h)
         self.prep_seconds = wallclock.perf_counter() - t + self.st["R_seconds"]
         self.stitch_seconds = 0.0
+
+    def save_matchings(self) -> int:
+        """Store the matched jumps computed so far (see ``matchings``): how many were written."""
+        if self.jump != "match" or getattr(self, "matchings_path", None) is None:
+            return 0
+        return self.matcher.save(self.matchings_path)
 
     def fluxes(self):
         """The frame-mean face fluxes of every frame, read once (float32)."""
