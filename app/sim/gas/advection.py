@@ -91,7 +91,7 @@ def vel_at_face(g: ti.template(), inp: ti.template(), arr: ti.template(), f, a, 
 
 
 @ti.kernel
-def k_advect(g: Grid, inp: Inputs, st: State, dt: float):
+def k_advect(g: Grid, inp: Inputs, st: State, dt: float, serial: ti.template()):
     """vel_old = vel; vel_adv = back-traced vel (MacCormack-corrected when asked) + dt/2 (a at the
     departure point - a here), a being the last step's weighted acceleration; max|vel_old| into SC_UOLD.
 
@@ -100,7 +100,17 @@ def k_advect(g: Grid, inp: Inputs, st: State, dt: float):
     the pair fed back on itself through the next step's a and grew without bound (a gas-only
     cylinder with gusty inflow reached 200 m/s in 380 steps; either piece alone stays bounded).
     Scratch: vel_tmp holds dt/2 (a_departure - a_arrival) per face; the MacCormack result overwrites
-    the face's own lower clamp vel_lo once used."""
+    the face's own lower clamp vel_lo once used. ``serial``: every loop nested in one serial loop."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _advect(g, inp, st, dt)
+    else:
+        _advect(g, inp, st, dt)
+
+
+@ti.func
+def _advect(g: ti.template(), inp: ti.template(), st: ti.template(), dt):
     nf = g.nfaces
     cdt = dt / g.par[P_H]
     st.gsc[SC_UOLD] = 0.0

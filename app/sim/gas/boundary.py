@@ -131,8 +131,18 @@ def face_grad(g: ti.template(), cl: ti.template(), a, I):
 
 
 @ti.kernel
-def k_bc_prep(g: Grid, inp: Inputs, st: State):
+def k_bc_prep(g: Grid, inp: Inputs, st: State, serial: ti.template()):
     """Boundary and closed faces of the advected field; the viscous iterates start from it."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _bc_prep(g, inp, st)
+    else:
+        _bc_prep(g, inp, st)
+
+
+@ti.func
+def _bc_prep(g: ti.template(), inp: ti.template(), st: ti.template()):
     n = g.dims
     for f in range(g.nfaces):
         a, I = fdecode(g, f)

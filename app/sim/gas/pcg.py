@@ -110,10 +110,21 @@ def _active_sum(mg: ti.template(), values: ti.template(), nc):
 
 
 @ti.kernel
-def k_pcg_begin(mg: Multigrid, ks: Krylov, singular: ti.i32, tol: float, scale_mode: ti.i32, scale: float):
+def k_pcg_begin(mg: Multigrid, ks: Krylov, singular: ti.i32, tol: float, scale_mode: ti.i32, scale: float,
+                serial: ti.template()):
     """Project b (singular case), measure max|b|, r = b - A x; the stopping threshold tol * scale with
     scale = max|b| (scale_mode 0), the argument (1) or mg.ctrl[S_SCALE] as a caller's kernel left it (2);
     the solve is active unless r already meets it."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _pcg_begin(mg, ks, singular, tol, scale_mode, scale)
+    else:
+        _pcg_begin(mg, ks, singular, tol, scale_mode, scale)
+
+
+@ti.func
+def _pcg_begin(mg: ti.template(), ks: ti.template(), singular, tol, scale_mode, scale):
     nc = mg.ncell0
     _active_sum(mg, ks.rhs, nc * singular)
     mg.ctrl[S_BNORM] = 0.0
@@ -140,8 +151,13 @@ def k_pcg_begin(mg: Multigrid, ks: Krylov, singular: ti.i32, tol: float, scale_m
 
 
 @ti.kernel
-def k_pcg_from(mg: Multigrid, ks: Krylov, singular: ti.i32):
-    pcg_from(mg, ks, singular)
+def k_pcg_from(mg: Multigrid, ks: Krylov, singular: ti.i32, serial: ti.template()):
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            pcg_from(mg, ks, singular)
+    else:
+        pcg_from(mg, ks, singular)
 
 
 @ti.func
@@ -176,8 +192,13 @@ def pcg_from(mg: ti.template(), ks: ti.template(), singular):
 
 
 @ti.kernel
-def k_pcg_iter(mg: Multigrid, ks: Krylov, max_iter: ti.i32):
-    pcg_iter(mg, ks, max_iter)
+def k_pcg_iter(mg: Multigrid, ks: Krylov, max_iter: ti.i32, serial: ti.template()):
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            pcg_iter(mg, ks, max_iter)
+    else:
+        pcg_iter(mg, ks, max_iter)
 
 
 @ti.func
@@ -234,8 +255,18 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter):
 
 
 @ti.kernel
-def k_pcg_finish(mg: Multigrid, ks: Krylov, singular: ti.i32):
+def k_pcg_finish(mg: Multigrid, ks: Krylov, singular: ti.i32, serial: ti.template()):
     """Once the solve has stopped (and only once): the zero-mean solution of a singular system."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _pcg_finish(mg, ks, singular)
+    else:
+        _pcg_finish(mg, ks, singular)
+
+
+@ti.func
+def _pcg_finish(mg: ti.template(), ks: ti.template(), singular):
     fin = 0
     if mg.ctrl[S_ACTIVE] == 0.0 and mg.ctrl[S_DONE] == 0.0:
         fin = 1

@@ -41,8 +41,18 @@ def face_beta(g: ti.template(), inp: ti.template(), a, I):
 
 
 @ti.kernel
-def k_face_coef(g: Grid, inp: Inputs, st: State):
+def k_face_coef(g: Grid, inp: Inputs, st: State, serial: ti.template()):
     """Face gas fraction (mean of the two cells) and face drag coefficient, once per step."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _face_coef(g, inp, st)
+    else:
+        _face_coef(g, inp, st)
+
+
+@ti.func
+def _face_coef(g: ti.template(), inp: ti.template(), st: ti.template()):
     for f in range(g.nfaces):
         a, I = fdecode(g, f)
         st.eps_f[f] = face_eps(g, inp, a, I)
@@ -181,11 +191,22 @@ def _visc_colour(g: ti.template(), st: ti.template(), colour, nf):
 
 @ti.kernel
 def k_visc(g: Grid, inp: Inputs, cl: Cells, st: State, dt: float, first: ti.i32, factor: float, bc_speed: float,
-           max_sweeps: ti.i32):
+           max_sweeps: ti.i32, serial: ti.template()):
     """VISCOUS_CHUNK red-black Gauss-Seidel sweeps of the implicit predictor, each only while the
     sweeps go on: they stop (on the device) when the largest change of a face velocity is at most
     factor * max(max|u_old|, bc_speed) or after max_sweeps. ``first`` starts the count and computes the
-    sweeps' fixed parts."""
+    sweeps' fixed parts. ``serial``: every loop nested in one serial loop."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _visc(g, inp, cl, st, dt, first, factor, bc_speed, max_sweeps)
+    else:
+        _visc(g, inp, cl, st, dt, first, factor, bc_speed, max_sweeps)
+
+
+@ti.func
+def _visc(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.template(), dt, first, factor, bc_speed,
+          max_sweeps):
     if first:
         st.gsc[SC_NSW] = 0.0
         st.gsc[SC_VACT] = 1.0

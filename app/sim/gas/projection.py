@@ -53,11 +53,23 @@ def cell_balance(g: ti.template(), inp: ti.template(), st: ti.template(), vb: ti
 
 
 @ti.kernel
-def k_build(g: Grid, inp: Inputs, cl: Cells, st: State, mg: Multigrid, ks: Krylov, dt: float, again: ti.i32):
+def k_build(g: Grid, inp: Inputs, cl: Cells, st: State, mg: Multigrid, ks: Krylov, dt: float, again: ti.i32,
+            serial: ti.template()):
     """Outlet faces get their predicted velocity (not ``again``: a refinement round projects the
     corrected field once more); the pressure system's T and b into the linear solver's bundles; the
     residual scale of the solve (the gross-flux scale of the predicted field, or the reference scale
     in a refinement round) into its control scalars."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _build(g, inp, cl, st, mg, ks, dt, again)
+    else:
+        _build(g, inp, cl, st, mg, ks, dt, again)
+
+
+@ti.func
+def _build(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.template(), mg: ti.template(),
+           ks: ti.template(), dt, again):
     n = g.dims
     h = g.par[P_H]
     nfo = g.nfaces
@@ -149,10 +161,22 @@ def cell_outputs(g: ti.template(), inp: ti.template(), st: ti.template(), cl: ti
 
 
 @ti.kernel
-def k_correct(g: Grid, inp: Inputs, mg: Multigrid, ks: Krylov, st: State, cl: Cells, dt: float, again: ti.i32):
+def k_correct(g: Grid, inp: Inputs, mg: Multigrid, ks: Krylov, st: State, cl: Cells, dt: float, again: ti.i32,
+              serial: ti.template()):
     """u = u* - kappa grad phi, p += phi; periodic copies; cell outputs; (max|div|, scale, max|u|)
     into the scalars. The predictor increment is recorded in the first round only. Runs once the
     pressure solve has finished, once per round (the host launches it without waiting)."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _correct(g, inp, mg, ks, st, cl, dt, again)
+    else:
+        _correct(g, inp, mg, ks, st, cl, dt, again)
+
+
+@ti.func
+def _correct(g: ti.template(), inp: ti.template(), mg: ti.template(), ks: ti.template(), st: ti.template(),
+             cl: ti.template(), dt, again):
     n = g.dims
     on = 0
     if mg.ctrl[mgm.S_DONE] > 0.0 and st.gsc[SC_CORR] == 0.0:

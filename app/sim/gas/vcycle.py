@@ -136,24 +136,49 @@ def _down(mg: ti.template(), l):
 
 
 @ti.kernel
-def k_down(vc: VCycle, l: ti.i32):
+def k_down(vc: VCycle, l: ti.i32, serial: ti.template()):
     """Pre-smoothing, residual and restriction of red-black level l."""
-    _down(vc, l)
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _down(vc, l)
+    else:
+        _down(vc, l)
 
 
-@ti.kernel
-def k_iter_down(mg: Multigrid, ks: Krylov, max_iter: ti.i32):
-    """The outer CG's iteration (:func:`.pcg.pcg_iter`, which leaves its residual in level 0's b),
-    then :func:`k_down` of level 0 (red-black, not the last level)."""
+@ti.func
+def _iter_down(mg: ti.template(), ks: ti.template(), max_iter):
     pcg_iter(mg, ks, max_iter)
     _down(mg, 0)
 
 
 @ti.kernel
-def k_down_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32):
-    """:func:`k_down` of the last red-black level l, then the one-thread CG of level l+1 (the coarsest)."""
+def k_iter_down(mg: Multigrid, ks: Krylov, max_iter: ti.i32, serial: ti.template()):
+    """The outer CG's iteration (:func:`.pcg.pcg_iter`, which leaves its residual in level 0's b),
+    then :func:`k_down` of level 0 (red-black, not the last level)."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _iter_down(mg, ks, max_iter)
+    else:
+        _iter_down(mg, ks, max_iter)
+
+
+@ti.func
+def _down_coarse(mg: ti.template(), l, singular):
     _down(mg, l)
     coarse_solve(mg, l + 1, singular, 1)
+
+
+@ti.kernel
+def k_down_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32, serial: ti.template()):
+    """:func:`k_down` of the last red-black level l, then the one-thread CG of level l+1 (the coarsest)."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _down_coarse(mg, l, singular)
+    else:
+        _down_coarse(mg, l, singular)
 
 
 @ti.func
@@ -165,20 +190,35 @@ def _up(mg: ti.template(), l):
 
 
 @ti.kernel
-def k_up(vc: VCycle, l: ti.i32):
+def k_up(vc: VCycle, l: ti.i32, serial: ti.template()):
     """Prolongation from level l+1 and post-smoothing of red-black level l."""
-    _up(vc, l)
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _up(vc, l)
+    else:
+        _up(vc, l)
 
 
-@ti.kernel
-def k_up_from(mg: Multigrid, ks: Krylov, singular: ti.i32):
-    """:func:`k_up` of level 0 (red-black), then the outer CG's new direction (:func:`.pcg.pcg_from`)."""
+@ti.func
+def _up_from(mg: ti.template(), ks: ti.template(), singular):
     _up(mg, 0)
     pcg_from(mg, ks, singular)
 
 
 @ti.kernel
-def k_down_j(mg: Multigrid, l: ti.i32):
+def k_up_from(mg: Multigrid, ks: Krylov, singular: ti.i32, serial: ti.template()):
+    """:func:`k_up` of level 0 (red-black), then the outer CG's new direction (:func:`.pcg.pcg_from`)."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _up_from(mg, ks, singular)
+    else:
+        _up_from(mg, ks, singular)
+
+
+@ti.func
+def _down_j(mg: ti.template(), l):
     _zero_x(mg, l)
     for _s in ti.static(range(PRE_SWEEPS)):
         _jacobi_sweep(mg, l)
@@ -186,10 +226,30 @@ def k_down_j(mg: Multigrid, l: ti.i32):
 
 
 @ti.kernel
-def k_up_j(mg: Multigrid, l: ti.i32):
+def k_down_j(mg: Multigrid, l: ti.i32, serial: ti.template()):
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _down_j(mg, l)
+    else:
+        _down_j(mg, l)
+
+
+@ti.func
+def _up_j(mg: ti.template(), l):
     _prolong(mg, l, on(mg))
     for _s in ti.static(range(POST_SWEEPS)):
         _jacobi_sweep(mg, l)
+
+
+@ti.kernel
+def k_up_j(mg: Multigrid, l: ti.i32, serial: ti.template()):
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _up_j(mg, l)
+    else:
+        _up_j(mg, l)
 
 
 @ti.func
@@ -252,11 +312,21 @@ def k_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32):
     coarse_solve(mg, l, singular, 1)
 
 
-@ti.kernel
-def k_coarse_smooth(mg: Multigrid, l: ti.i32, first: ti.i32):
-    """Large coarsest level (dimensions that do not halve): symmetric red-black sweeps in parallel
-    instead of the one-thread CG."""
+@ti.func
+def _coarse_smooth(mg: ti.template(), l, first):
     if first:
         _zero_x(mg, l)
     for s in ti.static((0, 1, 1, 0)):
         _colour_sweep(mg, l, s, on(mg))
+
+
+@ti.kernel
+def k_coarse_smooth(mg: Multigrid, l: ti.i32, first: ti.i32, serial: ti.template()):
+    """Large coarsest level (dimensions that do not halve): symmetric red-black sweeps in parallel
+    instead of the one-thread CG."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _coarse_smooth(mg, l, first)
+    else:
+        _coarse_smooth(mg, l, first)
