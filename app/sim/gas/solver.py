@@ -30,10 +30,11 @@ class FlowSolver(SolverOutputs):
     """Fractional-step gas solver on a MAC grid (see :mod:`app.sim.gas` for the equations).
 
     ``FlowSolver(config)``; then set the coupling inputs (or write them in ``fields``) and
-    call :meth:`step` (dt) repeatedly. Reads return numpy copies.
+    call :meth:`step` (dt) repeatedly. Reads return numpy copies. ``serial``: run every step kernel's loops
+    nested in one serial loop (default: :func:`app.sim.runtime.serial`, Taichi on one CPU thread).
     """
 
-    def __init__(self, config: FlowConfig):
+    def __init__(self, config: FlowConfig, *, serial: bool | None = None):
         if not isinstance(config, FlowConfig):
             raise ValueError(f"flow: FlowSolver needs a FlowConfig, got {type(config).__name__}")
         self.config = cfg = config
@@ -46,7 +47,7 @@ class FlowSolver(SolverOutputs):
         self._reduced = _zeros(6)  # device-side reductions (diagnostics, end-layer pressures)
         # compile-time choice of every step kernel: its loops nested in one serial loop when Taichi runs on
         # one CPU thread (each top-level loop is then a task of ~70 us), parallel top-level loops otherwise
-        self.serial = runtime.serial()
+        self.serial = runtime.serial() if serial is None else bool(serial)
         self.mg = MGPCG(cfg.shape, per, serial=self.serial)
         kinds = [KINDS[cfg.bc(f).kind] for f in FACES]
         self._kinds = kinds
