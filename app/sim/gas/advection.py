@@ -78,14 +78,46 @@ def vel_at(g: ti.template(), inp: ti.template(), arr: ti.template(), X):
 
 
 @ti.func
-def vel_at_face(g: ti.template(), inp: ti.template(), arr: ti.template(), f, a, X):
-    """:func:`vel_at` at the position X of face f (axis a): the trilinear weights of component a there
-    are 1 on the face itself and 0 elsewhere, so that component is read, not interpolated."""
+def _at_face_centre(g: ti.template(), inp: ti.template(), arr: ti.template(), b, a, I, X):
+    """:func:`interp`'s value of component b (!= a) at the centre X of a-face I. There b's trilinear weights are
+    1/4 on the four b-faces J[b] in {I[b], I[b]+1}, J[a] in {I[a]-1, I[a]}, J[c] = I[c] (fraction 0 along the
+    third axis c) and 0 elsewhere: where :func:`interp`'s stencil is interior, those four are read and summed
+    in its corner order (the same float sum), else :func:`interp` itself is called."""
+    n = g.dims
+    d = fdims(g, b)
+    J0 = I
+    J0[a] -= 1
+    stride = ti.Vector([d[1] * d[2], d[2], 1])
+    inside = True
+    for q in ti.static(range(3)):
+        lim = d[q] - 1
+        if q == b and g.wrap[q] == 1:
+            lim -= 1
+        if (g.wrap[q] == 1 and n[q] == 1) or J0[q] < 0 or J0[q] + 1 > lim:
+            inside = False
+    val = 0.0
+    if inside:
+        p = ti.min(a, b)
+        r = ti.max(a, b)
+        b0 = g.face_off[b] + J0[0] * stride[0] + J0[1] * stride[1] + J0[2] * stride[2]
+        sp = stride[p]
+        sr = stride[r]
+        val = 0.25 * (((arr[b0] + arr[b0 + sp]) + arr[b0 + sr]) + arr[b0 + sp + sr])
+    else:
+        val, _, _ = interp(g, inp, arr, b, X)
+    return val
+
+
+@ti.func
+def vel_at_face(g: ti.template(), inp: ti.template(), arr: ti.template(), f, a, I, X):
+    """:func:`vel_at` at the position X of face f (axis a, index I): the trilinear weights of component a
+    there are 1 on the face itself and 0 elsewhere, so that component is read, not interpolated; the
+    other two are means of four faces (:func:`_at_face_centre`)."""
     U = ti.Vector([0.0, 0.0, 0.0])
     for b in range(3):
         v = arr[f]
         if b != a:
-            v, _, _ = interp(g, inp, arr, b, X)
+            v = _at_face_centre(g, inp, arr, b, a, I, X)
         U[b] = v
     return U
 
@@ -125,7 +157,7 @@ def _advect(g: ti.template(), inp: ti.template(), st: ti.template(), dt):
         if solved(g, f, a, I):
             if g.scheme > 0:
                 X = face_pos(a, I)
-                U1 = vel_at_face(g, inp, st.vel_old, f, a, X)
+                U1 = vel_at_face(g, inp, st.vel_old, f, a, I, X)
                 U2 = vel_at(g, inp, st.vel_old, X - 0.5 * cdt * U1)
                 val, lo, hi = interp(g, inp, st.vel_old, a, X - cdt * U2)
                 v = val
@@ -144,7 +176,7 @@ def _advect(g: ti.template(), inp: ti.template(), st: ti.template(), dt):
         a, I = fdecode(g, f)
         if solved(g, f, a, I):
             X = face_pos(a, I)
-            U1 = vel_at_face(g, inp, st.vel_old, f, a, X)
+            U1 = vel_at_face(g, inp, st.vel_old, f, a, I, X)
             U2 = vel_at(g, inp, st.vel_old, X + 0.5 * cdt * U1)
             back, _, _ = interp(g, inp, st.vel_adv, a, X + cdt * U2)
             v = st.vel_adv[f] + 0.5 * (st.vel_old[f] - back)

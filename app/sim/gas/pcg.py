@@ -79,22 +79,34 @@ class SolveInfo:
 
 # ============================================================================ kernels
 @ti.func
-def _true_residual(mg: ti.template(), ks: ti.template(), nc):
-    """r = b - A x (affine, with the Dirichlet values) over the first nc cells (nc = 0: nothing);
-    max|r| into S_TRUE. It also feeds the next V-cycle (bs)."""
+def _true_residual_cell(mg: ti.template(), ks: ti.template(), n, fo, I, c):
+    r = 0.0
+    if mg.diag[c] > 0.0:
+        _, _, ax = stencil(mg, n, fo, ks.sol, 0, I, c, True)
+        r = ks.rhs[c] - ax
+        ti.atomic_max(mg.ctrl[S_TRUE], ti.abs(r))
+    else:
+        ks.sol[c] = 0.0
+    ks.res[c] = r
+    mg.bs[c] = r
+
+
+@ti.func
+def _true_residual(mg: ti.template(), ks: ti.template(), nc, serial: ti.template()):
+    """r = b - A x (affine, with the Dirichlet values) over the first nc cells (nc = 0: nothing, else all of
+    level 0); max|r| into S_TRUE. It also feeds the next V-cycle (bs). ``serial``: nested loops over i, j, k."""
     n = mgm.dims(mg, 0)
     fo = mgm.face_offsets(mg, 0)
     mg.ctrl[S_TRUE] = 0.0
-    for c in range(nc):
-        r = 0.0
-        if mg.diag[c] > 0.0:
-            _, _, ax = stencil(mg, n, fo, ks.sol, 0, decode(n, c), c, True)
-            r = ks.rhs[c] - ax
-            ti.atomic_max(mg.ctrl[S_TRUE], ti.abs(r))
-        else:
-            ks.sol[c] = 0.0
-        ks.res[c] = r
-        mg.bs[c] = r
+    if ti.static(serial):
+        for i in range(n[0] * ti.cast(nc > 0, ti.i32)):
+            for j in range(n[1]):
+                cij = (i * n[1] + j) * n[2]
+                for k in range(n[2]):
+                    _true_residual_cell(mg, ks, n, fo, ti.Vector([i, j, k]), cij + k)
+    else:
+        for c in range(nc):
+            _true_residual_cell(mg, ks, n, fo, decode(n, c), c)
 
 
 @ti.func
@@ -118,13 +130,13 @@ def k_pcg_begin(mg: Multigrid, ks: Krylov, singular: ti.i32, tol: float, scale_m
     if ti.static(serial):
         ti.loop_config(serialize=True)
         for _ in range(1):
-            _pcg_begin(mg, ks, singular, tol, scale_mode, scale)
+            _pcg_begin(mg, ks, singular, tol, scale_mode, scale, True)
     else:
-        _pcg_begin(mg, ks, singular, tol, scale_mode, scale)
+        _pcg_begin(mg, ks, singular, tol, scale_mode, scale, False)
 
 
 @ti.func
-def _pcg_begin(mg: ti.template(), ks: ti.template(), singular, tol, scale_mode, scale):
+def _pcg_begin(mg: ti.template(), ks: ti.template(), singular, tol, scale_mode, scale, serial: ti.template()):
     nc = mg.ncell0
     _active_sum(mg, ks.rhs, nc * singular)
     mg.ctrl[S_BNORM] = 0.0
@@ -133,7 +145,7 @@ def _pcg_begin(mg: ti.template(), ks: ti.template(), singular, tol, scale_mode, 
             if singular and mg.ctrl[S_CNT] > 0.0:
                 ks.rhs[c] -= mg.ctrl[S_SUM] / mg.ctrl[S_CNT]
             ti.atomic_max(mg.ctrl[S_BNORM], ti.abs(ks.rhs[c]))
-    _true_residual(mg, ks, nc)
+    _true_residual(mg, ks, nc, serial)
     if scale_mode == 0:
         mg.ctrl[S_SCALE] = mg.ctrl[S_BNORM]
     elif scale_mode == 1:
@@ -196,13 +208,23 @@ def k_pcg_iter(mg: Multigrid, ks: Krylov, max_iter: ti.i32, serial: ti.template(
     if ti.static(serial):
         ti.loop_config(serialize=True)
         for _ in range(1):
-            pcg_iter(mg, ks, max_iter)
+            pcg_iter(mg, ks, max_iter, True)
     else:
-        pcg_iter(mg, ks, max_iter)
+        pcg_iter(mg, ks, max_iter, False)
 
 
 @ti.func
-def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter):
+def _ap_cell(mg: ti.template(), ks: ti.template(), n, fo, I, c):
+    ap = 0.0
+    if mg.diag[c] > 0.0:
+        _, _, ax = stencil(mg, n, fo, ks.dirn, 0, I, c, False)
+        ap = ax
+    ks.a_dirn[c] = ap
+    mg.ctrl[S_PAP] += ap * ks.dirn[c]
+
+
+@ti.func
+def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.template()):
     """One outer iteration, decided on the device: x += alpha p, r -= alpha A p; when the recursive
     residual meets the threshold, the true residual b - A x is measured: converged if it meets it
     too, stagnated (stop, the caller may refine) if it did not halve since the last such check,
@@ -212,13 +234,15 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter):
     fo = mgm.face_offsets(mg, 0)
     nc = mg.ncell0 * on(mg)
     mg.ctrl[S_PAP] = 0.0
-    for c in range(nc):
-        ap = 0.0
-        if mg.diag[c] > 0.0:
-            _, _, ax = stencil(mg, n, fo, ks.dirn, 0, decode(n, c), c, False)
-            ap = ax
-        ks.a_dirn[c] = ap
-        mg.ctrl[S_PAP] += ap * ks.dirn[c]
+    if ti.static(serial):  # nested loops over i, j, k: no index decoding by division
+        for i in range(n[0] * on(mg)):
+            for j in range(n[1]):
+                cij = (i * n[1] + j) * n[2]
+                for k in range(n[2]):
+                    _ap_cell(mg, ks, n, fo, ti.Vector([i, j, k]), cij + k)
+    else:
+        for c in range(nc):
+            _ap_cell(mg, ks, n, fo, decode(n, c), c)
     mg.ctrl[S_TRUE] = 0.0
     for c in range(nc):
         alpha = 0.0
@@ -238,7 +262,7 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter):
         if mg.ctrl[S_RINF] <= mg.ctrl[S_THR]:
             cand = 1
     # the recursively updated residual drifts from b - A x in float32: confirm with the true one
-    _true_residual(mg, ks, mg.ncell0 * cand)
+    _true_residual(mg, ks, mg.ncell0 * cand, serial)
     if cand == 1:
         t = mg.ctrl[S_TRUE]
         mg.ctrl[S_RINF] = t
