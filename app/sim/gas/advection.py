@@ -9,7 +9,7 @@ trapezoidal rule for the forces along the path; see :mod:`app.sim.gas`).
 import taichi as ti
 
 from .boundary import comp_value
-from .layout import P_H, P_TRACE, SC_UOLD, Grid, Inputs, State, face_pos, fdecode, fdims, solved
+from .layout import P_H, P_TRACE, SC_UOLD, Grid, Inputs, State, each_face, face_pos, fdims, solved
 
 
 @ti.func
@@ -136,13 +136,71 @@ def k_advect(g: Grid, inp: Inputs, st: State, dt: float, serial: ti.template()):
     if ti.static(serial):
         ti.loop_config(serialize=True)
         for _ in range(1):
-            _advect(g, inp, st, dt)
+            _advect(g, inp, st, dt, True)
     else:
-        _advect(g, inp, st, dt)
+        _advect(g, inp, st, dt, False)
 
 
 @ti.func
-def _advect(g: ti.template(), inp: ti.template(), st: ti.template(), dt):
+def _trace(c: ti.template(), f, a, I):
+    """First pass at face f: the back-traced value, its clamps and dt/2 of the acceleration's change."""
+    _trace_at(c[0], c[1], c[2], c[3], c[4], f, a, I)
+
+
+@ti.func
+def _trace_at(g: ti.template(), inp: ti.template(), st: ti.template(), dt, cdt, f, a, I):
+    v = st.vel_old[f]
+    inc = 0.0
+    if solved(g, f, a, I):
+        if g.scheme > 0:
+            X = face_pos(a, I)
+            U1 = vel_at_face(g, inp, st.vel_old, f, a, I, X)
+            U2 = vel_at(g, inp, st.vel_old, X - 0.5 * cdt * U1)
+            val, lo, hi = interp(g, inp, st.vel_old, a, X - cdt * U2)
+            v = val
+            if g.par[P_TRACE] > 0.0:  # a is all zero with gas.trace_forces off: skip its trace
+                adep, _, _ = interp(g, inp, st.accel, a, X - cdt * U2)
+                inc = 0.5 * dt * (adep - st.accel[f])
+            if g.scheme == 2:
+                st.vel_lo[f] = lo
+                st.vel_hi[f] = hi
+    st.vel_adv[f] = v
+    st.vel_tmp[f] = inc
+
+
+@ti.func
+def _correct(c: ti.template(), f, a, I):
+    """MacCormack pass at face f: forward trace of the result, half the error back, clamped (into vel_lo)."""
+    _correct_at(c[0], c[1], c[2], c[3], c[4], f, a, I)
+
+
+@ti.func
+def _correct_at(g: ti.template(), inp: ti.template(), st: ti.template(), dt, cdt, f, a, I):
+    if solved(g, f, a, I):
+        X = face_pos(a, I)
+        U1 = vel_at_face(g, inp, st.vel_old, f, a, I, X)
+        U2 = vel_at(g, inp, st.vel_old, X + 0.5 * cdt * U1)
+        back, _, _ = interp(g, inp, st.vel_adv, a, X + cdt * U2)
+        v = st.vel_adv[f] + 0.5 * (st.vel_old[f] - back)
+        st.vel_lo[f] = ti.min(ti.max(v, st.vel_lo[f]), st.vel_hi[f])
+
+
+@ti.func
+def _finish(c: ti.template(), f, a, I):
+    _finish_at(c[0], c[1], c[2], c[3], c[4], f, a, I)
+
+
+@ti.func
+def _finish_at(g: ti.template(), inp: ti.template(), st: ti.template(), dt, cdt, f, a, I):
+    if solved(g, f, a, I):
+        v = st.vel_adv[f]
+        if g.scheme == 2:
+            v = st.vel_lo[f]
+        st.vel_adv[f] = v + st.vel_tmp[f]
+
+
+@ti.func
+def _advect(g: ti.template(), inp: ti.template(), st: ti.template(), dt, serial: ti.template()):
     nf = g.nfaces
     cdt = dt / g.par[P_H]
     st.gsc[SC_UOLD] = 0.0
@@ -150,41 +208,9 @@ def _advect(g: ti.template(), inp: ti.template(), st: ti.template(), dt):
         u = st.vel[f]
         st.vel_old[f] = u
         ti.atomic_max(st.gsc[SC_UOLD], ti.abs(u))
-    for f in range(nf):
-        v = st.vel_old[f]
-        inc = 0.0
-        a, I = fdecode(g, f)
-        if solved(g, f, a, I):
-            if g.scheme > 0:
-                X = face_pos(a, I)
-                U1 = vel_at_face(g, inp, st.vel_old, f, a, I, X)
-                U2 = vel_at(g, inp, st.vel_old, X - 0.5 * cdt * U1)
-                val, lo, hi = interp(g, inp, st.vel_old, a, X - cdt * U2)
-                v = val
-                if g.par[P_TRACE] > 0.0:  # a is all zero with gas.trace_forces off: skip its trace
-                    adep, _, _ = interp(g, inp, st.accel, a, X - cdt * U2)
-                    inc = 0.5 * dt * (adep - st.accel[f])
-                if g.scheme == 2:
-                    st.vel_lo[f] = lo
-                    st.vel_hi[f] = hi
-        st.vel_adv[f] = v
-        st.vel_tmp[f] = inc
+    each_face(g, nf, _trace, (g, inp, st, dt, cdt), serial)
     n2 = 0
     if g.scheme == 2:
         n2 = nf
-    for f in range(n2):
-        a, I = fdecode(g, f)
-        if solved(g, f, a, I):
-            X = face_pos(a, I)
-            U1 = vel_at_face(g, inp, st.vel_old, f, a, I, X)
-            U2 = vel_at(g, inp, st.vel_old, X + 0.5 * cdt * U1)
-            back, _, _ = interp(g, inp, st.vel_adv, a, X + cdt * U2)
-            v = st.vel_adv[f] + 0.5 * (st.vel_old[f] - back)
-            st.vel_lo[f] = ti.min(ti.max(v, st.vel_lo[f]), st.vel_hi[f])
-    for f in range(nf):
-        a, I = fdecode(g, f)
-        if solved(g, f, a, I):
-            v = st.vel_adv[f]
-            if g.scheme == 2:
-                v = st.vel_lo[f]
-            st.vel_adv[f] = v + st.vel_tmp[f]
+    each_face(g, n2, _correct, (g, inp, st, dt, cdt), serial)
+    each_face(g, nf, _finish, (g, inp, st, dt, cdt), serial)
