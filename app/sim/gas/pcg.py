@@ -44,7 +44,8 @@ Method
 Implementation: the state is two bundles of ndarrays, :data:`app.sim.gas.multigrid.Multigrid`
 (the hierarchy and the solve's control) and :data:`Krylov` (the level-0 vectors), so every
 kernel compiles once per process whatever the grid. Every loop over cells is the outermost loop
-of its kernel, so it runs in parallel on CPU and CUDA. The iteration's control (convergence, the
+of its kernel, so it runs in parallel on CPU and CUDA (in the serial form, one CPU thread, all of a kernel's
+loops are nested in one serial loop: one task a launch). The iteration's control (convergence, the
 true-residual check, stagnation, max_iter) runs on the device: the host launches a batch of
 iterations without waiting, each of which does nothing once the solve has stopped, and reads
 one record per batch (:meth:`MGPCG.solve`; the gas solver reads it with its own step record).

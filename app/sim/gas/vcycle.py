@@ -6,7 +6,8 @@ the last level, the coarsest level's one-thread CG as well), :func:`k_up` its pr
 post-smoothing; these two take the :data:`~.multigrid.VCycle` bundle (the members they read, so their
 launches cost less host time than with the whole hierarchy). Every loop over cells
 is a top-level loop of its kernel, so each runs as its own parallel task (a grid-wide barrier between
-tasks). Levels with an odd periodic length use damped Jacobi (:func:`k_down_j`, :func:`k_up_j`).
+tasks); in the serial form (one CPU thread, ``serial`` True) the kernel's loops are nested in one serial loop
+and walk i, j, k as nested loops. Levels with an odd periodic length use damped Jacobi (:func:`k_down_j`, :func:`k_up_j`).
 Fusing several levels into one kernel (``ti.static`` unrolled, idle levels over zero cells) was tried
 and dropped: Taichi 1.7.4's compile time grows faster than the kernel (CPU, 16 x 16 x 32: 8 s for the
 whole solver with one level a launch, 21-39 s with two, 198 s with six).
