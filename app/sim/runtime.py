@@ -33,20 +33,22 @@ def cpu_threads(requested: int | None) -> int:
     return 1 if cores <= 2 else cores
 
 
-def init(arch: str = "auto", precision: str = "float32", threads: int | None = None, debug: bool = False) -> str:
+def init(arch: str = "auto", precision: str = "float32", threads: int | None = None, debug: bool = False,
+         kernel_profiler: bool = False) -> str:
     """Start Taichi on ``arch`` ('auto', 'cpu', 'cuda') with ``precision`` ('float32'|'float64').
 
     Re-initialises only when the settings change (re-init drops every field and kernel).
-    Returns the arch actually used ('cpu' or 'cuda').
+    Returns the arch actually used ('cpu' or 'cuda'). ``kernel_profiler``: Taichi's kernel profiler on
+    (benchmarks only: it records every offloaded task, :func:`profiled_tasks`).
     """
     global _current
     if arch == "auto":
         arch = "cuda" if gpu_available() else "cpu"
-    key = (arch, precision, threads, debug)
+    key = (arch, precision, threads, debug) + ((True,) if kernel_profiler else ())
     if _current == key:
         return arch
     fp = ti.f64 if precision == "float64" else ti.f32
-    kwargs = dict(default_fp=fp, default_ip=ti.i32, debug=debug, log_level=ti.WARN)
+    kwargs = dict(default_fp=fp, default_ip=ti.i32, debug=debug, log_level=ti.WARN, kernel_profiler=kernel_profiler)
     if arch == "cpu":
         kwargs["cpu_max_num_threads"] = cpu_threads(threads)
         ti.init(arch=ti.cpu, **kwargs)
@@ -65,8 +67,25 @@ def serial() -> bool:
     tasks, 21 us nested in one serial loop). False before ``init`` and on CUDA."""
     if _current is None:
         return False
-    arch, _, threads, _ = _current
+    arch, threads = _current[0], _current[2]
     return arch == "cpu" and cpu_threads(threads) == 1
+
+
+def clear_profile() -> None:
+    """Forget the kernel profiler's records (Taichi started with ``kernel_profiler=True``)."""
+    ti.sync()
+    ti.profiler.clear_kernel_profiler_info()
+
+
+def profiled_tasks() -> int:
+    """Offloaded tasks run since :func:`clear_profile` (each top-level loop of a kernel, or a serial block, is
+    one task per launch; counted by Taichi's kernel profiler)."""
+    from taichi.profiler.kernel_profiler import get_default_kernel_profiler
+
+    ti.sync()
+    prof = get_default_kernel_profiler()
+    prof._update_records()
+    return len(prof._traced_records)
 
 
 def reset() -> None:
@@ -81,7 +100,8 @@ def sync() -> None:
 
 
 def current() -> tuple | None:
-    """(arch, precision, threads, debug) Taichi was started with, or None before the first init()."""
+    """(arch, precision, threads, debug[, True with the kernel profiler]) Taichi was started with, or None
+    before the first init()."""
     return _current
 
 

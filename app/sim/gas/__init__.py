@@ -120,6 +120,13 @@ the device: the viscous sweeps and the pressure iterations are launched in fixed
 stopping tests run on the device (a launch past convergence does nothing), and the host reads one
 record per step (:func:`app.sim.gas.projection.k_record`), a second only when the pressure solve
 outran its batch or a float32 refinement round is due.
+
+Two compiled forms of every step kernel (a compile-time ``serial`` argument, :attr:`FlowSolver.serial`, set from
+:func:`app.sim.runtime.serial` at construction): on CUDA and several CPU threads each loop over faces or cells is a
+top-level, parallel loop of its kernel; on one CPU thread (Taichi 1.7.4 makes each top-level loop a task of its own,
+~70 us even when empty) the kernel's loops are nested in one serial loop, one task a launch, and walk the grid as
+nested loops over (axis,) i, j, k instead of decoding a flat index by division (:func:`.layout.each_face`,
+:func:`.layout.each_cell`). Both compute the same step up to the order of float sums (tests/test_gas_serial.py).
 """
 from .config import (ALIASES, BC, CONVECTION, EPS_MIN, FACES, GAS_KEYS, INLET, KIND_ALIASES, KINDS, MOVING, OUTLET,
                      PERIODIC, PRESSURE_FORMS, SLIP, THETA_MIN, VISCOUS_REDUCTION, WALL, FlowConfig, StepInfo,

@@ -9,7 +9,7 @@ trapezoidal rule for the forces along the path; see :mod:`app.sim.gas`).
 import taichi as ti
 
 from .boundary import comp_value
-from .layout import P_H, P_TRACE, SC_UOLD, Grid, Inputs, State, face_pos, fdecode, fdims, solved
+from .layout import P_H, P_TRACE, SC_UOLD, Grid, Inputs, State, each_face, face_pos, fdims, solved
 
 
 @ti.func
@@ -78,20 +78,52 @@ def vel_at(g: ti.template(), inp: ti.template(), arr: ti.template(), X):
 
 
 @ti.func
-def vel_at_face(g: ti.template(), inp: ti.template(), arr: ti.template(), f, a, X):
-    """:func:`vel_at` at the position X of face f (axis a): the trilinear weights of component a there
-    are 1 on the face itself and 0 elsewhere, so that component is read, not interpolated."""
+def _at_face_centre(g: ti.template(), inp: ti.template(), arr: ti.template(), b, a, I, X):
+    """:func:`interp`'s value of component b (!= a) at the centre X of a-face I. There b's trilinear weights are
+    1/4 on the four b-faces J[b] in {I[b], I[b]+1}, J[a] in {I[a]-1, I[a]}, J[c] = I[c] (fraction 0 along the
+    third axis c) and 0 elsewhere: where :func:`interp`'s stencil is interior, those four are read and summed
+    in its corner order (the same float sum), else :func:`interp` itself is called."""
+    n = g.dims
+    d = fdims(g, b)
+    J0 = I
+    J0[a] -= 1
+    stride = ti.Vector([d[1] * d[2], d[2], 1])
+    inside = True
+    for q in ti.static(range(3)):
+        lim = d[q] - 1
+        if q == b and g.wrap[q] == 1:
+            lim -= 1
+        if (g.wrap[q] == 1 and n[q] == 1) or J0[q] < 0 or J0[q] + 1 > lim:
+            inside = False
+    val = 0.0
+    if inside:
+        p = ti.min(a, b)
+        r = ti.max(a, b)
+        b0 = g.face_off[b] + J0[0] * stride[0] + J0[1] * stride[1] + J0[2] * stride[2]
+        sp = stride[p]
+        sr = stride[r]
+        val = 0.25 * (((arr[b0] + arr[b0 + sp]) + arr[b0 + sr]) + arr[b0 + sp + sr])
+    else:
+        val, _, _ = interp(g, inp, arr, b, X)
+    return val
+
+
+@ti.func
+def vel_at_face(g: ti.template(), inp: ti.template(), arr: ti.template(), f, a, I, X):
+    """:func:`vel_at` at the position X of face f (axis a, index I): the trilinear weights of component a
+    there are 1 on the face itself and 0 elsewhere, so that component is read, not interpolated; the
+    other two are means of four faces (:func:`_at_face_centre`)."""
     U = ti.Vector([0.0, 0.0, 0.0])
     for b in range(3):
         v = arr[f]
         if b != a:
-            v, _, _ = interp(g, inp, arr, b, X)
+            v = _at_face_centre(g, inp, arr, b, a, I, X)
         U[b] = v
     return U
 
 
 @ti.kernel
-def k_advect(g: Grid, inp: Inputs, st: State, dt: float):
+def k_advect(g: Grid, inp: Inputs, st: State, dt: float, serial: ti.template()):
     """vel_old = vel; vel_adv = back-traced vel (MacCormack-corrected when asked) + dt/2 (a at the
     departure point - a here), a being the last step's weighted acceleration; max|vel_old| into SC_UOLD.
 
@@ -100,7 +132,75 @@ def k_advect(g: Grid, inp: Inputs, st: State, dt: float):
     the pair fed back on itself through the next step's a and grew without bound (a gas-only
     cylinder with gusty inflow reached 200 m/s in 380 steps; either piece alone stays bounded).
     Scratch: vel_tmp holds dt/2 (a_departure - a_arrival) per face; the MacCormack result overwrites
-    the face's own lower clamp vel_lo once used."""
+    the face's own lower clamp vel_lo once used. ``serial``: every loop nested in one serial loop."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _advect(g, inp, st, dt, True)
+    else:
+        _advect(g, inp, st, dt, False)
+
+
+@ti.func
+def _trace(c: ti.template(), f, a, I):
+    """First pass at face f: the back-traced value, its clamps and dt/2 of the acceleration's change."""
+    _trace_at(c[0], c[1], c[2], c[3], c[4], f, a, I)
+
+
+@ti.func
+def _trace_at(g: ti.template(), inp: ti.template(), st: ti.template(), dt, cdt, f, a, I):
+    v = st.vel_old[f]
+    inc = 0.0
+    if solved(g, f, a, I):
+        if g.scheme > 0:
+            X = face_pos(a, I)
+            U1 = vel_at_face(g, inp, st.vel_old, f, a, I, X)
+            U2 = vel_at(g, inp, st.vel_old, X - 0.5 * cdt * U1)
+            val, lo, hi = interp(g, inp, st.vel_old, a, X - cdt * U2)
+            v = val
+            if g.par[P_TRACE] > 0.0:  # a is all zero with gas.trace_forces off: skip its trace
+                adep, _, _ = interp(g, inp, st.accel, a, X - cdt * U2)
+                inc = 0.5 * dt * (adep - st.accel[f])
+            if g.scheme == 2:
+                st.vel_lo[f] = lo
+                st.vel_hi[f] = hi
+    st.vel_adv[f] = v
+    st.vel_tmp[f] = inc
+
+
+@ti.func
+def _correct(c: ti.template(), f, a, I):
+    """MacCormack pass at face f: forward trace of the result, half the error back, clamped (into vel_lo)."""
+    _correct_at(c[0], c[1], c[2], c[3], c[4], f, a, I)
+
+
+@ti.func
+def _correct_at(g: ti.template(), inp: ti.template(), st: ti.template(), dt, cdt, f, a, I):
+    if solved(g, f, a, I):
+        X = face_pos(a, I)
+        U1 = vel_at_face(g, inp, st.vel_old, f, a, I, X)
+        U2 = vel_at(g, inp, st.vel_old, X + 0.5 * cdt * U1)
+        back, _, _ = interp(g, inp, st.vel_adv, a, X + cdt * U2)
+        v = st.vel_adv[f] + 0.5 * (st.vel_old[f] - back)
+        st.vel_lo[f] = ti.min(ti.max(v, st.vel_lo[f]), st.vel_hi[f])
+
+
+@ti.func
+def _finish(c: ti.template(), f, a, I):
+    _finish_at(c[0], c[1], c[2], c[3], c[4], f, a, I)
+
+
+@ti.func
+def _finish_at(g: ti.template(), inp: ti.template(), st: ti.template(), dt, cdt, f, a, I):
+    if solved(g, f, a, I):
+        v = st.vel_adv[f]
+        if g.scheme == 2:
+            v = st.vel_lo[f]
+        st.vel_adv[f] = v + st.vel_tmp[f]
+
+
+@ti.func
+def _advect(g: ti.template(), inp: ti.template(), st: ti.template(), dt, serial: ti.template()):
     nf = g.nfaces
     cdt = dt / g.par[P_H]
     st.gsc[SC_UOLD] = 0.0
@@ -108,41 +208,9 @@ def k_advect(g: Grid, inp: Inputs, st: State, dt: float):
         u = st.vel[f]
         st.vel_old[f] = u
         ti.atomic_max(st.gsc[SC_UOLD], ti.abs(u))
-    for f in range(nf):
-        v = st.vel_old[f]
-        inc = 0.0
-        a, I = fdecode(g, f)
-        if solved(g, f, a, I):
-            if g.scheme > 0:
-                X = face_pos(a, I)
-                U1 = vel_at_face(g, inp, st.vel_old, f, a, X)
-                U2 = vel_at(g, inp, st.vel_old, X - 0.5 * cdt * U1)
-                val, lo, hi = interp(g, inp, st.vel_old, a, X - cdt * U2)
-                v = val
-                if g.par[P_TRACE] > 0.0:  # a is all zero with gas.trace_forces off: skip its trace
-                    adep, _, _ = interp(g, inp, st.accel, a, X - cdt * U2)
-                    inc = 0.5 * dt * (adep - st.accel[f])
-                if g.scheme == 2:
-                    st.vel_lo[f] = lo
-                    st.vel_hi[f] = hi
-        st.vel_adv[f] = v
-        st.vel_tmp[f] = inc
+    each_face(g, nf, _trace, (g, inp, st, dt, cdt), serial)
     n2 = 0
     if g.scheme == 2:
         n2 = nf
-    for f in range(n2):
-        a, I = fdecode(g, f)
-        if solved(g, f, a, I):
-            X = face_pos(a, I)
-            U1 = vel_at_face(g, inp, st.vel_old, f, a, X)
-            U2 = vel_at(g, inp, st.vel_old, X + 0.5 * cdt * U1)
-            back, _, _ = interp(g, inp, st.vel_adv, a, X + cdt * U2)
-            v = st.vel_adv[f] + 0.5 * (st.vel_old[f] - back)
-            st.vel_lo[f] = ti.min(ti.max(v, st.vel_lo[f]), st.vel_hi[f])
-    for f in range(nf):
-        a, I = fdecode(g, f)
-        if solved(g, f, a, I):
-            v = st.vel_adv[f]
-            if g.scheme == 2:
-                v = st.vel_lo[f]
-            st.vel_adv[f] = v + st.vel_tmp[f]
+    each_face(g, n2, _correct, (g, inp, st, dt, cdt), serial)
+    each_face(g, nf, _finish, (g, inp, st, dt, cdt), serial)

@@ -9,7 +9,7 @@ a cell outside the last cell centre.
 import taichi as ti
 
 from .config import INLET, MOVING, OUTLET, WALL
-from .layout import (P_H, P_POUT, Grid, Inputs, State, cidx, eps_at, face_cells, fdecode, fidx, is_boundary,
+from .layout import (P_H, P_POUT, Grid, Inputs, State, cidx, each_face, eps_at, face_cells, fdecode, fidx, is_boundary,
                      solved, tangential, wrap)
 
 
@@ -131,28 +131,46 @@ def face_grad(g: ti.template(), cl: ti.template(), a, I):
 
 
 @ti.kernel
-def k_bc_prep(g: Grid, inp: Inputs, st: State):
+def k_bc_prep(g: Grid, inp: Inputs, st: State, serial: ti.template()):
     """Boundary and closed faces of the advected field; the viscous iterates start from it."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _bc_prep(g, inp, st, True)
+    else:
+        _bc_prep(g, inp, st, False)
+
+
+@ti.func
+def _bc_prep(g: ti.template(), inp: ti.template(), st: ti.template(), serial: ti.template()):
+    each_face(g, g.nfaces, _bc_prep_at, (g, inp, st), serial)
+
+
+@ti.func
+def _bc_prep_at(c: ti.template(), f, a, I):
+    _bc_prep_in(c[0], c[1], c[2], f, a, I)
+
+
+@ti.func
+def _bc_prep_in(g: ti.template(), inp: ti.template(), st: ti.template(), f, a, I):
     n = g.dims
-    for f in range(g.nfaces):
-        a, I = fdecode(g, f)
-        v = st.vel_adv[f]
-        if g.aperture[f] <= 0.0:
+    v = st.vel_adv[f]
+    if g.aperture[f] <= 0.0:
+        v = 0.0
+    elif is_boundary(g, a, I):
+        side = 0 if I[a] == 0 else 1
+        kind = g.bc_kind[2 * a + side]
+        if kind == INLET:
+            t1, t2 = tangential(a)
+            C = I
+            C[a] = 0 if side == 0 else n[a] - 1
+            v = g.bcv[g.bcv_off[2 * a + side] + (a * n[t1] + I[t1]) * n[t2] + I[t2]] / eps_at(inp, C)
+        elif kind != OUTLET:
             v = 0.0
-        elif is_boundary(g, a, I):
-            side = 0 if I[a] == 0 else 1
-            kind = g.bc_kind[2 * a + side]
-            if kind == INLET:
-                t1, t2 = tangential(a)
-                C = I
-                C[a] = 0 if side == 0 else n[a] - 1
-                v = g.bcv[g.bcv_off[2 * a + side] + (a * n[t1] + I[t1]) * n[t2] + I[t2]] / eps_at(inp, C)
-            elif kind != OUTLET:
-                v = 0.0
-        st.vel_adv[f] = v
-        if solved(g, f, a, I):
-            v += st.dpred[f]  # initial iterate: last step's predictor increment (exact when steady)
-        st.vel[f] = v
+    st.vel_adv[f] = v
+    if solved(g, f, a, I):
+        v += st.dpred[f]  # initial iterate: last step's predictor increment (exact when steady)
+    st.vel[f] = v
 
 
 @ti.kernel

@@ -225,3 +225,57 @@ def k_copy(src: ti.types.ndarray(), dst: ti.types.ndarray(), zero: ti.i32):
         if not zero:
             v = src[i]
         dst[i] = v
+
+
+# ---- loops over faces and cells: nested in the serial form, one parallel loop otherwise
+@ti.func
+def each_face(g: ti.template(), nf, body: ti.template(), ctx: ti.template(), serial: ti.template()):
+    """body(ctx, f, a, I) for every face, or none when nf = 0 (nf: g.nfaces or 0). ``serial`` (inside one
+    serial loop): nested loops over a, i, j, k, no index decoding by division; else one loop over f, a
+    top-level parallel loop of the kernel, with :func:`fdecode`. ctx: a tuple of the body's bundles and values."""
+    if ti.static(serial):
+        for a in range(3 * ti.cast(nf > 0, ti.i32)):
+            d = fdims(g, a)
+            for i in range(d[0]):
+                for j in range(d[1]):
+                    fij = g.face_off[a] + (i * d[1] + j) * d[2]
+                    for k in range(d[2]):
+                        body(ctx, fij + k, a, ti.Vector([i, j, k]))
+    else:
+        for f in range(nf):
+            a, I = fdecode(g, f)
+            body(ctx, f, a, I)
+
+
+@ti.func
+def each_face_colour(g: ti.template(), nf, colour, body: ti.template(), ctx: ti.template(), serial: ti.template()):
+    """:func:`each_face` over the faces whose i + j + k has the parity ``colour`` (serial: only those are visited)."""
+    if ti.static(serial):
+        for a in range(3 * ti.cast(nf > 0, ti.i32)):
+            d = fdims(g, a)
+            for i in range(d[0]):
+                for j in range(d[1]):
+                    fij = g.face_off[a] + (i * d[1] + j) * d[2]
+                    k0 = (i + j + colour) % 2
+                    for kk in range((d[2] - k0 + 1) // 2):
+                        k = k0 + 2 * kk
+                        body(ctx, fij + k, a, ti.Vector([i, j, k]))
+    else:
+        for f in range(nf):
+            a, I = fdecode(g, f)
+            if (I[0] + I[1] + I[2]) % 2 == colour:
+                body(ctx, f, a, I)
+
+
+@ti.func
+def each_cell(g: ti.template(), on, body: ti.template(), ctx: ti.template(), serial: ti.template()):
+    """body(ctx, I) for every cell I (none unless ``on``); serial: nested loops, else a parallel ndrange."""
+    n = g.dims
+    if ti.static(serial):
+        for i in range(n[0] * on):
+            for j in range(n[1]):
+                for k in range(n[2]):
+                    body(ctx, ti.Vector([i, j, k]))
+    else:
+        for i, j, k in ti.ndrange(n[0] * on, n[1], n[2]):
+            body(ctx, ti.Vector([i, j, k]))

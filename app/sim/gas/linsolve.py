@@ -12,6 +12,7 @@ from typing import Sequence
 import numpy as np
 import taichi as ti
 
+from .. import runtime
 from . import multigrid as mgm
 from . import pcg, vcycle
 from .pcg import SolveInfo, plan_levels
@@ -29,11 +30,15 @@ class MGPCG:
     """Multigrid-preconditioned CG on a (nx, ny, nz) cell grid (state in the bundles ``mg`` and ``ks``)."""
 
     def __init__(self, shape: Sequence[int], periodic: Sequence[bool] = (False, False, False), *,
-                 min_coarse_cells: int = 8, max_levels: int = 16, coarse_iterations: int | None = None):
+                 min_coarse_cells: int = 8, max_levels: int = 16, coarse_iterations: int | None = None,
+                 serial: bool | None = None):
         self.shape = tuple(int(n) for n in shape)
         if len(self.shape) != 3 or min(self.shape) < 1:
             raise ValueError(f"grid shape must be three positive ints, got {shape!r}")
         self.periodic = tuple(bool(p) for p in periodic)
+        # compile-time: each kernel's loops nested in one serial loop (one task a launch) when Taichi runs
+        # on one CPU thread, where each top-level loop costs a task (~70 us); else parallel top-level loops
+        self.serial = runtime.serial() if serial is None else bool(serial)
         plan = plan_levels(self.shape, int(min_coarse_cells), int(max_levels))
         self.nlevels = len(plan)
         self.level_shapes = [lv["shape"] for lv in plan]
@@ -118,33 +123,34 @@ class MGPCG:
         mg, vc = self.mg, self.vc
         L = self.nlevels - 1
         sg = int(self._singular)
+        ser = self.serial
         fused = L > 0 and not self.coarse_parallel and not self.level_jacobi[L - 1]
         first = L > 1 and not self.level_jacobi[0]  # level 0 red-black and not the last: k_iter_down
         if iterate and not first:
-            pcg.k_pcg_iter(mg, self.ks, self._max_iter)
+            pcg.k_pcg_iter(mg, self.ks, self._max_iter, ser)
         for l in range(L):
             if self.level_jacobi[l]:
-                vcycle.k_down_j(mg, l)
+                vcycle.k_down_j(mg, l, ser)
             elif fused and l == L - 1:
-                vcycle.k_down_coarse(mg, l, sg)
+                vcycle.k_down_coarse(mg, l, sg, ser)
             elif iterate and first and l == 0:
-                vcycle.k_iter_down(mg, self.ks, self._max_iter)
+                vcycle.k_iter_down(mg, self.ks, self._max_iter, ser)
             else:
-                vcycle.k_down(vc, l)
+                vcycle.k_down(vc, l, ser)
         if self.coarse_parallel:
             for k in range(mgm.COARSE_SMOOTH_SWEEPS):
-                vcycle.k_coarse_smooth(mg, L, int(k == 0))
+                vcycle.k_coarse_smooth(mg, L, int(k == 0), ser)
         elif not fused:
             vcycle.k_coarse(mg, L, sg)
         for l in reversed(range(L)):
             if self.level_jacobi[l]:
-                vcycle.k_up_j(mg, l)
+                vcycle.k_up_j(mg, l, ser)
             elif l == 0:
-                vcycle.k_up_from(mg, self.ks, sg)
+                vcycle.k_up_from(mg, self.ks, sg, ser)
             else:
-                vcycle.k_up(vc, l)
+                vcycle.k_up(vc, l, ser)
         if L == 0 or self.level_jacobi[0]:
-            pcg.k_pcg_from(mg, self.ks, sg)
+            pcg.k_pcg_from(mg, self.ks, sg, ser)
 
     def begin(self, tol: float, max_iter: int, *, singular: bool = False, scale: float | None = None,
               device_scale: bool = False) -> None:
@@ -157,11 +163,11 @@ class MGPCG:
         self._singular = bool(singular)
         self._max_iter = int(max_iter)
         self._launched = 0
-        mgm.k_diag(mg, 0)
+        mgm.k_diag(mg, 0, self.serial)
         for l in range(self.nlevels - 1):
-            mgm.k_coarsen(mg, l)
+            mgm.k_coarsen(mg, l, self.serial)
         mode = 2 if device_scale else (0 if scale is None else 1)
-        pcg.k_pcg_begin(mg, ks, int(self._singular), float(tol), mode, float(scale or 0.0))
+        pcg.k_pcg_begin(mg, ks, int(self._singular), float(tol), mode, float(scale or 0.0), self.serial)
         self._precondition()
 
     def launch(self, iterations: int) -> None:
@@ -173,7 +179,7 @@ class MGPCG:
         for _ in range(n):
             self._precondition(iterate=True)
         self._launched += n
-        pcg.k_pcg_finish(mg, ks, sg)
+        pcg.k_pcg_finish(mg, ks, sg, self.serial)
 
     @property
     def exhausted(self) -> bool:

@@ -188,13 +188,28 @@ def level_diag(mg: ti.template(), l):
 
 # ============================================================================ kernels
 @ti.kernel
-def k_diag(mg: Multigrid, l: ti.i32):
-    level_diag(mg, l)
+def k_diag(mg: Multigrid, l: ti.i32, serial: ti.template()):
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            level_diag(mg, l)
+    else:
+        level_diag(mg, l)
 
 
 @ti.kernel
-def k_coarsen(mg: Multigrid, l: ti.i32):
+def k_coarsen(mg: Multigrid, l: ti.i32, serial: ti.template()):
     """Transmissibilities and diagonal of level l+1 from level l."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _coarsen(mg, l)
+    else:
+        _coarsen(mg, l)
+
+
+@ti.func
+def _coarsen(mg: ti.template(), l):
     L = l + 1
     r = _ratio(mg, l)
     N = dims(mg, L)

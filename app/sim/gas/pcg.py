@@ -44,7 +44,8 @@ Method
 Implementation: the state is two bundles of ndarrays, :data:`app.sim.gas.multigrid.Multigrid`
 (the hierarchy and the solve's control) and :data:`Krylov` (the level-0 vectors), so every
 kernel compiles once per process whatever the grid. Every loop over cells is the outermost loop
-of its kernel, so it runs in parallel on CPU and CUDA. The iteration's control (convergence, the
+of its kernel, so it runs in parallel on CPU and CUDA (in the serial form, one CPU thread, all of a kernel's
+loops are nested in one serial loop: one task a launch). The iteration's control (convergence, the
 true-residual check, stagnation, max_iter) runs on the device: the host launches a batch of
 iterations without waiting, each of which does nothing once the solve has stopped, and reads
 one record per batch (:meth:`MGPCG.solve`; the gas solver reads it with its own step record).
@@ -79,22 +80,34 @@ class SolveInfo:
 
 # ============================================================================ kernels
 @ti.func
-def _true_residual(mg: ti.template(), ks: ti.template(), nc):
-    """r = b - A x (affine, with the Dirichlet values) over the first nc cells (nc = 0: nothing);
-    max|r| into S_TRUE. It also feeds the next V-cycle (bs)."""
+def _true_residual_cell(mg: ti.template(), ks: ti.template(), n, fo, I, c):
+    r = 0.0
+    if mg.diag[c] > 0.0:
+        _, _, ax = stencil(mg, n, fo, ks.sol, 0, I, c, True)
+        r = ks.rhs[c] - ax
+        ti.atomic_max(mg.ctrl[S_TRUE], ti.abs(r))
+    else:
+        ks.sol[c] = 0.0
+    ks.res[c] = r
+    mg.bs[c] = r
+
+
+@ti.func
+def _true_residual(mg: ti.template(), ks: ti.template(), nc, serial: ti.template()):
+    """r = b - A x (affine, with the Dirichlet values) over the first nc cells (nc = 0: nothing, else all of
+    level 0); max|r| into S_TRUE. It also feeds the next V-cycle (bs). ``serial``: nested loops over i, j, k."""
     n = mgm.dims(mg, 0)
     fo = mgm.face_offsets(mg, 0)
     mg.ctrl[S_TRUE] = 0.0
-    for c in range(nc):
-        r = 0.0
-        if mg.diag[c] > 0.0:
-            _, _, ax = stencil(mg, n, fo, ks.sol, 0, decode(n, c), c, True)
-            r = ks.rhs[c] - ax
-            ti.atomic_max(mg.ctrl[S_TRUE], ti.abs(r))
-        else:
-            ks.sol[c] = 0.0
-        ks.res[c] = r
-        mg.bs[c] = r
+    if ti.static(serial):
+        for i in range(n[0] * ti.cast(nc > 0, ti.i32)):
+            for j in range(n[1]):
+                cij = (i * n[1] + j) * n[2]
+                for k in range(n[2]):
+                    _true_residual_cell(mg, ks, n, fo, ti.Vector([i, j, k]), cij + k)
+    else:
+        for c in range(nc):
+            _true_residual_cell(mg, ks, n, fo, decode(n, c), c)
 
 
 @ti.func
@@ -110,10 +123,21 @@ def _active_sum(mg: ti.template(), values: ti.template(), nc):
 
 
 @ti.kernel
-def k_pcg_begin(mg: Multigrid, ks: Krylov, singular: ti.i32, tol: float, scale_mode: ti.i32, scale: float):
+def k_pcg_begin(mg: Multigrid, ks: Krylov, singular: ti.i32, tol: float, scale_mode: ti.i32, scale: float,
+                serial: ti.template()):
     """Project b (singular case), measure max|b|, r = b - A x; the stopping threshold tol * scale with
     scale = max|b| (scale_mode 0), the argument (1) or mg.ctrl[S_SCALE] as a caller's kernel left it (2);
     the solve is active unless r already meets it."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _pcg_begin(mg, ks, singular, tol, scale_mode, scale, True)
+    else:
+        _pcg_begin(mg, ks, singular, tol, scale_mode, scale, False)
+
+
+@ti.func
+def _pcg_begin(mg: ti.template(), ks: ti.template(), singular, tol, scale_mode, scale, serial: ti.template()):
     nc = mg.ncell0
     _active_sum(mg, ks.rhs, nc * singular)
     mg.ctrl[S_BNORM] = 0.0
@@ -122,7 +146,7 @@ def k_pcg_begin(mg: Multigrid, ks: Krylov, singular: ti.i32, tol: float, scale_m
             if singular and mg.ctrl[S_CNT] > 0.0:
                 ks.rhs[c] -= mg.ctrl[S_SUM] / mg.ctrl[S_CNT]
             ti.atomic_max(mg.ctrl[S_BNORM], ti.abs(ks.rhs[c]))
-    _true_residual(mg, ks, nc)
+    _true_residual(mg, ks, nc, serial)
     if scale_mode == 0:
         mg.ctrl[S_SCALE] = mg.ctrl[S_BNORM]
     elif scale_mode == 1:
@@ -140,8 +164,13 @@ def k_pcg_begin(mg: Multigrid, ks: Krylov, singular: ti.i32, tol: float, scale_m
 
 
 @ti.kernel
-def k_pcg_from(mg: Multigrid, ks: Krylov, singular: ti.i32):
-    pcg_from(mg, ks, singular)
+def k_pcg_from(mg: Multigrid, ks: Krylov, singular: ti.i32, serial: ti.template()):
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            pcg_from(mg, ks, singular)
+    else:
+        pcg_from(mg, ks, singular)
 
 
 @ti.func
@@ -176,12 +205,27 @@ def pcg_from(mg: ti.template(), ks: ti.template(), singular):
 
 
 @ti.kernel
-def k_pcg_iter(mg: Multigrid, ks: Krylov, max_iter: ti.i32):
-    pcg_iter(mg, ks, max_iter)
+def k_pcg_iter(mg: Multigrid, ks: Krylov, max_iter: ti.i32, serial: ti.template()):
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            pcg_iter(mg, ks, max_iter, True)
+    else:
+        pcg_iter(mg, ks, max_iter, False)
 
 
 @ti.func
-def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter):
+def _ap_cell(mg: ti.template(), ks: ti.template(), n, fo, I, c):
+    ap = 0.0
+    if mg.diag[c] > 0.0:
+        _, _, ax = stencil(mg, n, fo, ks.dirn, 0, I, c, False)
+        ap = ax
+    ks.a_dirn[c] = ap
+    mg.ctrl[S_PAP] += ap * ks.dirn[c]
+
+
+@ti.func
+def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.template()):
     """One outer iteration, decided on the device: x += alpha p, r -= alpha A p; when the recursive
     residual meets the threshold, the true residual b - A x is measured: converged if it meets it
     too, stagnated (stop, the caller may refine) if it did not halve since the last such check,
@@ -191,13 +235,15 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter):
     fo = mgm.face_offsets(mg, 0)
     nc = mg.ncell0 * on(mg)
     mg.ctrl[S_PAP] = 0.0
-    for c in range(nc):
-        ap = 0.0
-        if mg.diag[c] > 0.0:
-            _, _, ax = stencil(mg, n, fo, ks.dirn, 0, decode(n, c), c, False)
-            ap = ax
-        ks.a_dirn[c] = ap
-        mg.ctrl[S_PAP] += ap * ks.dirn[c]
+    if ti.static(serial):  # nested loops over i, j, k: no index decoding by division
+        for i in range(n[0] * on(mg)):
+            for j in range(n[1]):
+                cij = (i * n[1] + j) * n[2]
+                for k in range(n[2]):
+                    _ap_cell(mg, ks, n, fo, ti.Vector([i, j, k]), cij + k)
+    else:
+        for c in range(nc):
+            _ap_cell(mg, ks, n, fo, decode(n, c), c)
     mg.ctrl[S_TRUE] = 0.0
     for c in range(nc):
         alpha = 0.0
@@ -217,7 +263,7 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter):
         if mg.ctrl[S_RINF] <= mg.ctrl[S_THR]:
             cand = 1
     # the recursively updated residual drifts from b - A x in float32: confirm with the true one
-    _true_residual(mg, ks, mg.ncell0 * cand)
+    _true_residual(mg, ks, mg.ncell0 * cand, serial)
     if cand == 1:
         t = mg.ctrl[S_TRUE]
         mg.ctrl[S_RINF] = t
@@ -234,8 +280,18 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter):
 
 
 @ti.kernel
-def k_pcg_finish(mg: Multigrid, ks: Krylov, singular: ti.i32):
+def k_pcg_finish(mg: Multigrid, ks: Krylov, singular: ti.i32, serial: ti.template()):
     """Once the solve has stopped (and only once): the zero-mean solution of a singular system."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _pcg_finish(mg, ks, singular)
+    else:
+        _pcg_finish(mg, ks, singular)
+
+
+@ti.func
+def _pcg_finish(mg: ti.template(), ks: ti.template(), singular):
     fin = 0
     if mg.ctrl[S_ACTIVE] == 0.0 and mg.ctrl[S_DONE] == 0.0:
         fin = 1

@@ -14,7 +14,8 @@ import taichi as ti
 
 from .boundary import face_grad, ghost_coef
 from .layout import (P_G, P_H, P_MU, P_RHO, P_THMIN, SC_DV, SC_NSW, SC_UOLD, SC_VACT, SC_VTHR, Cells, Grid, Inputs,
-                     State, eps_at, face_cells, face_eps, face_mean_comp, fdecode, fidx, solved, wrap)
+                     State, each_face, each_face_colour, eps_at, face_cells, face_eps, face_mean_comp, fidx, solved,
+                     wrap)
 
 VISCOUS_CHUNK = 4  # red-black sweeps per launch of the viscous predictor (each stops itself on the device;
 # each is a copy of the sweep in the compiled kernel; with the fixed parts computed once per step the
@@ -41,12 +42,25 @@ def face_beta(g: ti.template(), inp: ti.template(), a, I):
 
 
 @ti.kernel
-def k_face_coef(g: Grid, inp: Inputs, st: State):
+def k_face_coef(g: Grid, inp: Inputs, st: State, serial: ti.template()):
     """Face gas fraction (mean of the two cells) and face drag coefficient, once per step."""
-    for f in range(g.nfaces):
-        a, I = fdecode(g, f)
-        st.eps_f[f] = face_eps(g, inp, a, I)
-        st.beta_f[f] = face_beta(g, inp, a, I)
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _face_coef(g, inp, st, True)
+    else:
+        _face_coef(g, inp, st, False)
+
+
+@ti.func
+def _face_coef_at(c: ti.template(), f, a, I):
+    c[1].eps_f[f] = face_eps(c[0], c[2], a, I)
+    c[1].beta_f[f] = face_beta(c[0], c[2], a, I)
+
+
+@ti.func
+def _face_coef(g: ti.template(), inp: ti.template(), st: ti.template(), serial: ti.template()):
+    each_face(g, g.nfaces, _face_coef_at, (g, st, inp), serial)
 
 
 @ti.func
@@ -143,59 +157,87 @@ def _visc_const(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.
 
 
 @ti.func
-def _visc_setup(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.template(), dt, nf):
-    """The fixed parts of the sweeps, once per step: D into vel_tmp, R into vel_lo (advection's scratch)."""
-    for f in range(nf):
-        a, I = fdecode(g, f)
-        if solved(g, f, a, I):
-            D, R = _visc_const(g, inp, cl, st, dt, f, a, I)
-            st.vel_tmp[f] = D
-            st.vel_lo[f] = R
+def _visc_setup_at(c: ti.template(), f, a, I):
+    _visc_setup_in(c[0], c[1], c[2], c[3], c[4], f, a, I)
 
 
 @ti.func
-def _visc_colour(g: ti.template(), st: ti.template(), colour, nf):
+def _visc_setup_in(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.template(), dt, f, a, I):
+    if solved(g, f, a, I):
+        D, R = _visc_const(g, inp, cl, st, dt, f, a, I)
+        st.vel_tmp[f] = D
+        st.vel_lo[f] = R
+
+
+@ti.func
+def _visc_setup(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.template(), dt, nf,
+                serial: ti.template()):
+    """The fixed parts of the sweeps, once per step: D into vel_tmp, R into vel_lo (advection's scratch)."""
+    each_face(g, nf, _visc_setup_at, (g, inp, cl, st, dt), serial)
+
+
+@ti.func
+def _visc_colour(g: ti.template(), st: ti.template(), colour, nf, serial: ti.template()):
     """Gauss-Seidel update, in place on the velocity, of the faces of one colour (parity of
     i+j+k) among the first nf faces (all, or none once the sweeps have stopped): the viscous
     stencil couples a face only to faces of the other colour. u = (R + sum of the fluid neighbours'
     c_q u_q) / D with D and R from :func:`_visc_setup`."""
+    each_face_colour(g, nf, colour, _visc_face, (g, st), serial)
+
+
+@ti.func
+def _visc_face(c: ti.template(), f, a, I):
+    _visc_face_in(c[0], c[1], f, a, I)
+
+
+@ti.func
+def _visc_face_in(g: ti.template(), st: ti.template(), f, a, I):
     h = g.par[P_H]
-    for f in range(nf):
-        a, I = fdecode(g, f)
-        if (I[0] + I[1] + I[2]) % 2 == colour and solved(g, f, a, I):
-            eP = st.eps_f[f]
-            s = 0.0
-            for b in range(3):
-                if _coupled(g, b):
-                    for side in range(2):
-                        J, ghost = _neighbour(g, a, I, b, side)
-                        if not ghost:
-                            q = fidx(g, a, J)
-                            solid, _ = _solid(g, q)
-                            if not solid:
-                                s += g.par[P_MU] * 0.5 * (eP + st.eps_f[q]) / (h * h) * st.vel[q]
-            unew = (st.vel_lo[f] + s) / st.vel_tmp[f]
-            ti.atomic_max(st.gsc[SC_DV], ti.abs(unew - st.vel[f]))
-            st.vel[f] = unew
+    if solved(g, f, a, I):
+        eP = st.eps_f[f]
+        s = 0.0
+        for b in range(3):
+            if _coupled(g, b):
+                for side in range(2):
+                    J, ghost = _neighbour(g, a, I, b, side)
+                    if not ghost:
+                        q = fidx(g, a, J)
+                        solid, _ = _solid(g, q)
+                        if not solid:
+                            s += g.par[P_MU] * 0.5 * (eP + st.eps_f[q]) / (h * h) * st.vel[q]
+        unew = (st.vel_lo[f] + s) / st.vel_tmp[f]
+        ti.atomic_max(st.gsc[SC_DV], ti.abs(unew - st.vel[f]))
+        st.vel[f] = unew
 
 
 @ti.kernel
 def k_visc(g: Grid, inp: Inputs, cl: Cells, st: State, dt: float, first: ti.i32, factor: float, bc_speed: float,
-           max_sweeps: ti.i32):
+           max_sweeps: ti.i32, serial: ti.template()):
     """VISCOUS_CHUNK red-black Gauss-Seidel sweeps of the implicit predictor, each only while the
     sweeps go on: they stop (on the device) when the largest change of a face velocity is at most
     factor * max(max|u_old|, bc_speed) or after max_sweeps. ``first`` starts the count and computes the
-    sweeps' fixed parts."""
+    sweeps' fixed parts. ``serial``: every loop nested in one serial loop."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _visc(g, inp, cl, st, dt, first, factor, bc_speed, max_sweeps, True)
+    else:
+        _visc(g, inp, cl, st, dt, first, factor, bc_speed, max_sweeps, False)
+
+
+@ti.func
+def _visc(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.template(), dt, first, factor, bc_speed,
+          max_sweeps, serial: ti.template()):
     if first:
         st.gsc[SC_NSW] = 0.0
         st.gsc[SC_VACT] = 1.0
         st.gsc[SC_VTHR] = factor * ti.max(ti.max(st.gsc[SC_UOLD], bc_speed), 1e-30)
-    _visc_setup(g, inp, cl, st, dt, g.nfaces * first)
+    _visc_setup(g, inp, cl, st, dt, g.nfaces * first, serial)
     for _s in ti.static(range(VISCOUS_CHUNK)):
         nf = g.nfaces * ti.cast(st.gsc[SC_VACT] > 0.0, ti.i32)
         st.gsc[SC_DV] = 0.0
-        _visc_colour(g, st, 0, nf)
-        _visc_colour(g, st, 1, nf)
+        _visc_colour(g, st, 0, nf, serial)
+        _visc_colour(g, st, 1, nf, serial)
         if nf > 0:
             st.gsc[SC_NSW] += 1.0
             if st.gsc[SC_DV] <= st.gsc[SC_VTHR] or st.gsc[SC_NSW] >= ti.cast(max_sweeps, float):

@@ -13,7 +13,7 @@ from . import multigrid as mgm
 from .boundary import face_grad, grad_across, has_grad
 from .config import OUTLET
 from .layout import (P_H, P_RHO, P_TRACE, SC_CORR, SC_DMAX, SC_NSW, SC_SMAX, SC_SPRED, SC_SREF, SC_UMAX, SC_UOLD,
-                     Cells, Grid, Inputs, State, cidx, fdecode, fidx, is_boundary, solved)
+                     Cells, Grid, Inputs, State, cidx, each_cell, each_face, fdecode, fidx, is_boundary, solved)
 from .multigrid import Multigrid
 from .pcg import Krylov, solve_record
 
@@ -53,19 +53,47 @@ def cell_balance(g: ti.template(), inp: ti.template(), st: ti.template(), vb: ti
 
 
 @ti.kernel
-def k_build(g: Grid, inp: Inputs, cl: Cells, st: State, mg: Multigrid, ks: Krylov, dt: float, again: ti.i32):
+def k_build(g: Grid, inp: Inputs, cl: Cells, st: State, mg: Multigrid, ks: Krylov, dt: float, again: ti.i32,
+            serial: ti.template()):
     """Outlet faces get their predicted velocity (not ``again``: a refinement round projects the
     corrected field once more); the pressure system's T and b into the linear solver's bundles; the
     residual scale of the solve (the gross-flux scale of the predicted field, or the reference scale
     in a refinement round) into its control scalars."""
-    n = g.dims
-    h = g.par[P_H]
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _build(g, inp, cl, st, mg, ks, dt, again, True)
+    else:
+        _build(g, inp, cl, st, mg, ks, dt, again, False)
+
+
+@ti.func
+def _build(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.template(), mg: ti.template(),
+           ks: ti.template(), dt, again, serial: ti.template()):
     nfo = g.nfaces
     if again:
         nfo = 0
-    for f in range(nfo):
-        a, I = fdecode(g, f)
-        if is_boundary(g, a, I) and g.aperture[f] > 0.0:
+    each_face(g, nfo, _outlet_at, (g, cl, st, dt), serial)
+    each_face(g, g.nfaces, _trans_at, (g, st, mg, dt), serial)
+    st.gsc[SC_SMAX] = 0.0
+    each_cell(g, 1, _rhs_at, (g, inp, st, ks), serial)
+    if not again:
+        st.gsc[SC_SPRED] = st.gsc[SC_SMAX]
+        st.gsc[SC_SREF] = st.gsc[SC_SMAX]
+    mg.ctrl[mgm.S_SCALE] = st.gsc[SC_SREF]
+    st.gsc[SC_CORR] = 0.0
+
+
+@ti.func
+def _outlet_at(c: ti.template(), f, a, I):
+    """Outlet face f gets its predicted velocity."""
+    _outlet_at_in(c[0], c[1], c[2], c[3], f, a, I)
+
+
+@ti.func
+def _outlet_at_in(g: ti.template(), cl: ti.template(), st: ti.template(), dt: ti.template(), f, a, I):
+    n = g.dims
+    if is_boundary(g, a, I) and g.aperture[f] > 0.0:
             side = 0 if I[a] == 0 else 1
             if g.bc_kind[2 * a + side] == OUTLET:
                 # zero-gradient velocity: the interior neighbour's prediction with its own pressure
@@ -81,121 +109,188 @@ def k_build(g: Grid, inp: Inputs, cl: Cells, st: State, mg: Multigrid, ks: Krylo
                 gb, okb = face_grad(g, cl, a, I)
                 kb, eb = kappa(g, st, a, I, dt)
                 st.vel[f] = u - kb * gb
-    for f in range(g.nfaces):
-        a, I = fdecode(g, f)
-        t = 0.0
-        apf = g.aperture[f]
-        if has_grad(g, a, I):
-            kap, e = kappa(g, st, a, I, dt)
-            t = apf * e * kap / (h * h)
-            if is_boundary(g, a, I):
-                t *= 2.0  # outlet: the pressure is fixed half a cell away
-        mg.trans[mgm.face(mg, 0, a, I)] = t
-    st.gsc[SC_SMAX] = 0.0
-    for i, j, k in ti.ndrange(n[0], n[1], n[2]):
-        I = ti.Vector([i, j, k])
-        c = cidx(g, I)
-        b = 0.0
-        if g.open_vol[I] > 0.0:
-            net, gross = cell_balance(g, inp, st, st.vel, I)
-            b = -net
-            ti.atomic_max(st.gsc[SC_SMAX], gross)
-        ks.rhs[c] = b
-        ks.sol[c] = 0.0  # the solve is for the pressure increment
-    if not again:
-        st.gsc[SC_SPRED] = st.gsc[SC_SMAX]
-        st.gsc[SC_SREF] = st.gsc[SC_SMAX]
-    mg.ctrl[mgm.S_SCALE] = st.gsc[SC_SREF]
-    st.gsc[SC_CORR] = 0.0
 
 
 @ti.func
-def cell_outputs(g: ti.template(), inp: ti.template(), st: ti.template(), cl: ti.template(), on):
+def _trans_at(c: ti.template(), f, a, I):
+    """The pressure system's transmissibility of face f."""
+    _trans_at_in(c[0], c[1], c[2], c[3], f, a, I)
+
+
+@ti.func
+def _trans_at_in(g: ti.template(), st: ti.template(), mg: ti.template(), dt: ti.template(), f, a, I):
+    h = g.par[P_H]
+    t = 0.0
+    apf = g.aperture[f]
+    if has_grad(g, a, I):
+        kap, e = kappa(g, st, a, I, dt)
+        t = apf * e * kap / (h * h)
+        if is_boundary(g, a, I):
+            t *= 2.0  # outlet: the pressure is fixed half a cell away
+    mg.trans[mgm.face(mg, 0, a, I)] = t
+
+
+@ti.func
+def _rhs_at(c: ti.template(), I):
+    """The pressure system's right-hand side at cell I (minus its net outflow rate), the gross-flux scale."""
+    _rhs_at_in(c[0], c[1], c[2], c[3], I)
+
+
+@ti.func
+def _rhs_at_in(g: ti.template(), inp: ti.template(), st: ti.template(), ks: ti.template(), I):
+    ci = cidx(g, I)
+    b = 0.0
+    if g.open_vol[I] > 0.0:
+        net, gross = cell_balance(g, inp, st, st.vel, I)
+        b = -net
+        ti.atomic_max(st.gsc[SC_SMAX], gross)
+    ks.rhs[ci] = b
+    ks.sol[ci] = 0.0  # the solve is for the pressure increment
+
+
+@ti.func
+def _project_at(c: ti.template(), f, a, I):
+    """u = u* - kappa grad phi at face f (the predictor increment recorded in the first round)."""
+    _project_at_in(c[0], c[1], c[2], c[3], c[4], f, a, I)
+
+
+@ti.func
+def _project_at_in(g: ti.template(), ks: ti.template(), st: ti.template(), dt: ti.template(),
+                   again: ti.template(), f, a, I):
+    if not again:
+        dp = 0.0
+        if solved(g, f, a, I):
+            dp = st.vel[f] - st.vel_adv[f]
+        st.dpred[f] = dp
+    gr, ok = grad_across(g, ks.sol, True, 0.0, 0.0, a, I)  # the increment: 0 beyond outlets
+    if ok:
+        kap, _ = kappa(g, st, a, I, dt)
+        st.vel[f] -= kap * gr
+
+
+@ti.func
+def _pressure_at(c: ti.template(), I):
+    _pressure_at_in(c[0], c[1], c[2], I)
+
+
+@ti.func
+def _pressure_at_in(g: ti.template(), ks: ti.template(), cl: ti.template(), I):
+    if g.open_vol[I] > 0.0:
+        cl.pres[I] += ks.sol[cidx(g, I)]
+
+
+@ti.func
+def _accel_at(c: ti.template(), f, a, I):
+    """max|u| and the step's weighted non-advective acceleration at face f."""
+    _accel_at_in(c[0], c[1], c[2], f, a, I)
+
+
+@ti.func
+def _accel_at_in(g: ti.template(), st: ti.template(), dt: ti.template(), f, a, I):
+    ti.atomic_max(st.gsc[SC_UMAX], ti.abs(st.vel[f]))
+    acc = 0.0
+    if solved(g, f, a, I):
+        # net non-advective acceleration of this step, weighted by the inertial share of the
+        # face (-> 0 where drag dominates, so a jump of a drag-balanced pressure gradient is
+        # not carried along trajectories); used by the next step's second-order advection
+        rho = g.par[P_RHO]
+        e = st.eps_f[f]
+        be = st.beta_f[f]
+        wt = rho * e / (rho * e + be * dt)
+        acc = g.par[P_TRACE] * wt * (st.vel[f] - st.vel_adv[f]) / dt
+    st.accel[f] = acc
+
+
+@ti.func
+def cell_outputs(g: ti.template(), inp: ti.template(), st: ti.template(), cl: ti.template(), on,
+                 serial: ti.template()):
     """Cell-centred gas velocity and pressure gradient, divergence and its scale (reductions);
     nothing unless ``on``."""
-    n = g.dims
     if on:
         st.gsc[SC_DMAX] = 0.0
         st.gsc[SC_SMAX] = 0.0
-    for i, j, k in ti.ndrange(n[0] * on, n[1], n[2]):
-        I = ti.Vector([i, j, k])
-        active = g.open_vol[I] > 0.0
-        net = 0.0
+    each_cell(g, on, _outputs_at, (g, inp, st, cl), serial)
+
+
+@ti.func
+def _outputs_at(c: ti.template(), I):
+    _outputs_at_in(c[0], c[1], c[2], c[3], I)
+
+
+@ti.func
+def _outputs_at_in(g: ti.template(), inp: ti.template(), st: ti.template(), cl: ti.template(), I):
+    active = g.open_vol[I] > 0.0
+    net = 0.0
+    if active:
+        net, gross = cell_balance(g, inp, st, st.vel, I)
+        ti.atomic_max(st.gsc[SC_DMAX], ti.abs(net))
+        ti.atomic_max(st.gsc[SC_SMAX], gross)
+    cl.div_cell[I] = net
+    for a in ti.static(range(3)):
+        J = I
+        J[a] += 1
+        uc = 0.0
+        gp = 0.0
         if active:
-            net, gross = cell_balance(g, inp, st, st.vel, I)
-            ti.atomic_max(st.gsc[SC_DMAX], ti.abs(net))
-            ti.atomic_max(st.gsc[SC_SMAX], gross)
-        cl.div_cell[I] = net
-        for a in ti.static(range(3)):
-            J = I
-            J[a] += 1
-            uc = 0.0
-            gp = 0.0
-            if active:
-                uc = 0.5 * (st.vel[fidx(g, a, I)] + st.vel[fidx(g, a, J)])
-                g0, ok0 = face_grad(g, cl, a, I)
-                g1, ok1 = face_grad(g, cl, a, J)
-                cnt = 0.0
-                if ok0:
-                    gp += g0
-                    cnt += 1.0
-                if ok1:
-                    gp += g1
-                    cnt += 1.0
-                if cnt > 0.0:
-                    gp /= cnt
-            cl.u_cell[I][a] = uc
-            cl.gradp_cell[I][a] = gp
+            uc = 0.5 * (st.vel[fidx(g, a, I)] + st.vel[fidx(g, a, J)])
+            g0, ok0 = face_grad(g, cl, a, I)
+            g1, ok1 = face_grad(g, cl, a, J)
+            cnt = 0.0
+            if ok0:
+                gp += g0
+                cnt += 1.0
+            if ok1:
+                gp += g1
+                cnt += 1.0
+            if cnt > 0.0:
+                gp /= cnt
+        cl.u_cell[I][a] = uc
+        cl.gradp_cell[I][a] = gp
 
 
 @ti.kernel
-def k_correct(g: Grid, inp: Inputs, mg: Multigrid, ks: Krylov, st: State, cl: Cells, dt: float, again: ti.i32):
+def k_correct(g: Grid, inp: Inputs, mg: Multigrid, ks: Krylov, st: State, cl: Cells, dt: float, again: ti.i32,
+              serial: ti.template()):
     """u = u* - kappa grad phi, p += phi; periodic copies; cell outputs; (max|div|, scale, max|u|)
     into the scalars. The predictor increment is recorded in the first round only. Runs once the
     pressure solve has finished, once per round (the host launches it without waiting)."""
-    n = g.dims
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _correct(g, inp, mg, ks, st, cl, dt, again, True)
+    else:
+        _correct(g, inp, mg, ks, st, cl, dt, again, False)
+
+
+@ti.func
+def _correct(g: ti.template(), inp: ti.template(), mg: ti.template(), ks: ti.template(), st: ti.template(),
+             cl: ti.template(), dt, again, serial: ti.template()):
     on = 0
     if mg.ctrl[mgm.S_DONE] > 0.0 and st.gsc[SC_CORR] == 0.0:
         on = 1
     nf = g.nfaces * on
-    for f in range(nf):
-        a, I = fdecode(g, f)
-        if not again:
-            dp = 0.0
-            if solved(g, f, a, I):
-                dp = st.vel[f] - st.vel_adv[f]
-            st.dpred[f] = dp
-        gr, ok = grad_across(g, ks.sol, True, 0.0, 0.0, a, I)  # the increment: 0 beyond outlets
-        if ok:
-            kap, _ = kappa(g, st, a, I, dt)
-            st.vel[f] -= kap * gr
-    for i, j, k in ti.ndrange(n[0] * on, n[1], n[2]):
-        I = ti.Vector([i, j, k])
-        if g.open_vol[I] > 0.0:
-            cl.pres[I] += ks.sol[cidx(g, I)]
-    for f in range(nf):
-        a, I = fdecode(g, f)
-        if g.wrap[a] == 1 and I[a] == n[a]:
-            J = I
-            J[a] = 0
-            st.vel[f] = st.vel[fidx(g, a, J)]
+    each_face(g, nf, _project_at, (g, ks, st, dt, again), serial)
+    each_cell(g, on, _pressure_at, (g, ks, cl), serial)
+    n = g.dims
+    nper = 0
+    if g.wrap[0] == 1 or g.wrap[1] == 1 or g.wrap[2] == 1:
+        nper = nf
+    for f in range(nper):  # periodic duplicates (the parallel form's own pass: every face, as before)
+        a = 0
+        if f >= g.face_off[2]:
+            a = 2
+        elif f >= g.face_off[1]:
+            a = 1
+        if g.wrap[a] == 1:
+            _, I = fdecode(g, f)
+            if I[a] == n[a]:
+                J = I
+                J[a] = 0
+                st.vel[f] = st.vel[fidx(g, a, J)]
     if on:
         st.gsc[SC_UMAX] = 0.0
-    rho = g.par[P_RHO]
-    for f in range(nf):
-        ti.atomic_max(st.gsc[SC_UMAX], ti.abs(st.vel[f]))
-        a, I = fdecode(g, f)
-        acc = 0.0
-        if solved(g, f, a, I):
-            # net non-advective acceleration of this step, weighted by the inertial share of the
-            # face (-> 0 where drag dominates, so a jump of a drag-balanced pressure gradient is
-            # not carried along trajectories); used by the next step's second-order advection
-            e = st.eps_f[f]
-            be = st.beta_f[f]
-            wt = rho * e / (rho * e + be * dt)
-            acc = g.par[P_TRACE] * wt * (st.vel[f] - st.vel_adv[f]) / dt
-        st.accel[f] = acc
-    cell_outputs(g, inp, st, cl, on)
+    each_face(g, nf, _accel_at, (g, st, dt), serial)
+    cell_outputs(g, inp, st, cl, on, serial)
     if on:
         st.gsc[SC_SREF] = ti.max(st.gsc[SC_SREF], st.gsc[SC_SMAX])
         st.gsc[SC_CORR] = 1.0
@@ -213,5 +308,5 @@ def k_record(st: State, mg: Multigrid) -> ti.types.vector(12, ti.f64):  # f64: f
 
 @ti.kernel
 def k_outputs(g: Grid, inp: Inputs, st: State, cl: Cells) -> ti.types.vector(2, ti.f64):
-    cell_outputs(g, inp, st, cl, 1)
+    cell_outputs(g, inp, st, cl, 1, False)
     return ti.Vector([st.gsc[SC_DMAX], st.gsc[SC_SMAX]])

@@ -9,6 +9,7 @@ in :class:`~app.sim.gas.outputs.SolverOutputs`.
 import numpy as np
 import taichi as ti
 
+from .. import runtime
 from . import advection, boundary, layout, predictor, projection
 from .config import CONVECTION, FACES, INLET, KINDS, MOVING, OUTLET, PRESSURE_FORMS, THETA_MIN, VISCOUS_REDUCTION
 from .config import ALIASES, FlowConfig, StepInfo
@@ -29,10 +30,11 @@ class FlowSolver(SolverOutputs):
     """Fractional-step gas solver on a MAC grid (see :mod:`app.sim.gas` for the equations).
 
     ``FlowSolver(config)``; then set the coupling inputs (or write them in ``fields``) and
-    call :meth:`step` (dt) repeatedly. Reads return numpy copies.
+    call :meth:`step` (dt) repeatedly. Reads return numpy copies. ``serial``: run every step kernel's loops
+    nested in one serial loop (default: :func:`app.sim.runtime.serial`, Taichi on one CPU thread).
     """
 
-    def __init__(self, config: FlowConfig):
+    def __init__(self, config: FlowConfig, *, serial: bool | None = None):
         if not isinstance(config, FlowConfig):
             raise ValueError(f"flow: FlowSolver needs a FlowConfig, got {type(config).__name__}")
         self.config = cfg = config
@@ -43,7 +45,10 @@ class FlowSolver(SolverOutputs):
         self.cut = cut = cut_cells(grid, cfg.walls, int(cfg.aperture_samples), per, float(cfg.min_open_fraction))
         self.fields = GasFields(grid, cut)
         self._reduced = _zeros(6)  # device-side reductions (diagnostics, end-layer pressures)
-        self.mg = MGPCG(cfg.shape, per)
+        # compile-time choice of every step kernel: its loops nested in one serial loop when Taichi runs on
+        # one CPU thread (each top-level loop is then a task of ~70 us), parallel top-level loops otherwise
+        self.serial = runtime.serial() if serial is None else bool(serial)
+        self.mg = MGPCG(cfg.shape, per, serial=self.serial)
         kinds = [KINDS[cfg.bc(f).kind] for f in FACES]
         self._kinds = kinds
         self._singular = OUTLET not in kinds
@@ -123,7 +128,7 @@ class FlowSolver(SolverOutputs):
 
     def _face_coefficients(self) -> None:
         """Face gas fraction and drag coefficient from the current inputs."""
-        predictor.k_face_coef(self.g, self.inp, self.st)
+        predictor.k_face_coef(self.g, self.inp, self.st, self.serial)
 
     # ------------------------------------------------------------------ host <-> bundle arrays
     @staticmethod
@@ -253,8 +258,8 @@ class FlowSolver(SolverOutputs):
         cfg = self.config
         g, inp, st, cl = self.g, self.inp, self.st, self.cl
         self._face_coefficients()
-        advection.k_advect(g, inp, st, dt)
-        boundary.k_bc_prep(g, inp, st)
+        advection.k_advect(g, inp, st, dt, self.serial)
+        boundary.k_bc_prep(g, inp, st, self.serial)
         # red-black Gauss-Seidel sweeps until the estimated error, change * r/(1-r) with r the
         # contraction factor at this diffusion number, and the change itself (a first sweep from a
         # poor initial iterate leaves red and black faces with different errors: a checkerboard)
@@ -263,7 +268,7 @@ class FlowSolver(SolverOutputs):
         factor = VISCOUS_REDUCTION * min(1.0, (1.0 - r) / max(r, 1e-30))
         nmax = int(cfg.max_viscous_sweeps)
         for c in range(-(-nmax // predictor.VISCOUS_CHUNK)):
-            predictor.k_visc(g, inp, cl, st, dt, int(c == 0), factor, self._bc_speed, nmax)
+            predictor.k_visc(g, inp, cl, st, dt, int(c == 0), factor, self._bc_speed, nmax, self.serial)
         max_iter = int(cfg.max_iter)
         rec = self._project(dt, 0, max_iter)
         first = self.mg.info_from(rec[7:])
@@ -293,12 +298,12 @@ class FlowSolver(SolverOutputs):
         """Pressure system, solve and correction (round ``again``); returns the step record (one read,
         more only when the solve outran its budget)."""
         g, inp, st, cl, mg = self.g, self.inp, self.st, self.cl, self.mg
-        projection.k_build(g, inp, cl, st, mg.mg, mg.ks, dt, again)
+        projection.k_build(g, inp, cl, st, mg.mg, mg.ks, dt, again, self.serial)
         mg.begin(self.config.tol, max_iter, singular=self._singular, device_scale=True)
         n = mg.budget()
         while True:
             mg.launch(n)
-            projection.k_correct(g, inp, mg.mg, mg.ks, st, cl, dt, again)
+            projection.k_correct(g, inp, mg.mg, mg.ks, st, cl, dt, again, self.serial)
             rec = projection.k_record(st, mg.mg)
             if rec[6] > 0.5 or mg.exhausted:
                 return rec

@@ -6,7 +6,8 @@ the last level, the coarsest level's one-thread CG as well), :func:`k_up` its pr
 post-smoothing; these two take the :data:`~.multigrid.VCycle` bundle (the members they read, so their
 launches cost less host time than with the whole hierarchy). Every loop over cells
 is a top-level loop of its kernel, so each runs as its own parallel task (a grid-wide barrier between
-tasks). Levels with an odd periodic length use damped Jacobi (:func:`k_down_j`, :func:`k_up_j`).
+tasks); in the serial form (one CPU thread, ``serial`` True) the kernel's loops are nested in one serial loop
+and walk i, j, k as nested loops. Levels with an odd periodic length use damped Jacobi (:func:`k_down_j`, :func:`k_up_j`).
 Fusing several levels into one kernel (``ti.static`` unrolled, idle levels over zero cells) was tried
 and dropped: Taichi 1.7.4's compile time grows faster than the kernel (CPU, 16 x 16 x 32: 8 s for the
 whole solver with one level a launch, 21-39 s with two, 198 s with six).
@@ -25,35 +26,62 @@ from .multigrid import (JACOBI_WEIGHT, L_CO, L_NCELL, POST_SWEEPS, PRE_SWEEPS, M
 
 
 @ti.func
-def _first_red(mg: ti.template(), l, act):
-    """x = 0 on the level, then one red sweep: x = b / diag on active red cells."""
-    n = dims(mg, l)
-    co = mg.lev[l, L_CO]
-    for c in range(mg.lev[l, L_NCELL] * act):
-        I = decode(n, c)
-        x = 0.0
-        dg = mg.diag[co + c]
-        if (I[0] + I[1] + I[2]) % 2 == 0 and dg > 0.0:
-            x = mg.bs[co + c] / dg
-        mg.xs[co + c] = x
+def _red_cell(mg: ti.template(), co, c, red):
+    x = 0.0
+    dg = mg.diag[co + c]
+    if red and dg > 0.0:
+        x = mg.bs[co + c] / dg
+    mg.xs[co + c] = x
 
 
 @ti.func
-def _colour_sweep(mg: ti.template(), l, colour: ti.template(), act):
-    """Gauss-Seidel update of the cells of one colour (parity of i+j+k), visiting only those."""
+def _first_red(mg: ti.template(), l, act, serial: ti.template()):
+    """x = 0 on the level, then one red sweep: x = b / diag on active red cells. ``serial``: nested loops over
+    i, j, k (inside one serial loop: no index decoding by division), else one parallel loop over cells."""
+    n = dims(mg, l)
+    co = mg.lev[l, L_CO]
+    if ti.static(serial):
+        for i in range(n[0] * act):
+            for j in range(n[1]):
+                cij = (i * n[1] + j) * n[2]
+                for k in range(n[2]):
+                    _red_cell(mg, co, cij + k, (i + j + k) % 2 == 0)
+    else:
+        for c in range(mg.lev[l, L_NCELL] * act):
+            I = decode(n, c)
+            _red_cell(mg, co, c, (I[0] + I[1] + I[2]) % 2 == 0)
+
+
+@ti.func
+def _gs_cell(mg: ti.template(), n, fo, co, I, c):
+    if mg.diag[co + c] > 0.0:
+        d, s, _ = stencil(mg, n, fo, mg.xs, co, I, c, False)
+        mg.xs[co + c] = (mg.bs[co + c] + s) / d
+
+
+@ti.func
+def _colour_sweep(mg: ti.template(), l, colour: ti.template(), act, serial: ti.template()):
+    """Gauss-Seidel update of the cells of one colour (parity of i+j+k), visiting only those (``serial``:
+    nested loops over i, j and every other k, no index decoding by division)."""
     n = dims(mg, l)
     fo = face_offsets(mg, l)
     co = mg.lev[l, L_CO]
     h2 = (n[2] + 1) // 2
-    for q in range(n[0] * n[1] * h2 * act):
-        ij = q // h2
-        I = ti.Vector([ij // n[1], ij % n[1], 0])
-        I[2] = 2 * (q % h2) + (I[0] + I[1] + colour) % 2
-        if I[2] < n[2]:
-            c = local(n, I)
-            if mg.diag[co + c] > 0.0:
-                d, s, _ = stencil(mg, n, fo, mg.xs, co, I, c, False)
-                mg.xs[co + c] = (mg.bs[co + c] + s) / d
+    if ti.static(serial):
+        for i in range(n[0] * act):
+            for j in range(n[1]):
+                k0 = (i + j + colour) % 2
+                cij = (i * n[1] + j) * n[2]
+                for kk in range((n[2] - k0 + 1) // 2):
+                    k = k0 + 2 * kk
+                    _gs_cell(mg, n, fo, co, ti.Vector([i, j, k]), cij + k)
+    else:
+        for q in range(n[0] * n[1] * h2 * act):
+            ij = q // h2
+            I = ti.Vector([ij // n[1], ij % n[1], 0])
+            I[2] = 2 * (q % h2) + (I[0] + I[1] + colour) % 2
+            if I[2] < n[2]:
+                _gs_cell(mg, n, fo, co, I, local(n, I))
 
 
 @ti.func
@@ -81,17 +109,29 @@ def _restrict_residual(mg: ti.template(), l, act):
 
 
 @ti.func
-def _prolong(mg: ti.template(), l, act):
+def _prolong(mg: ti.template(), l, act, serial: ti.template()):
+    """x of level l += x of the coarse cell (level l+1) each fine cell lies in (``serial``: nested loops, the
+    coarse index by shifts: every ratio is 1 or 2)."""
     L = l + 1
     r = _ratio(mg, l)
     n = dims(mg, l)
     N = dims(mg, L)
     co = mg.lev[l, L_CO]
     cb = mg.lev[L, L_CO]
-    for c in range(mg.lev[l, L_NCELL] * act):
-        if mg.diag[co + c] > 0.0:
-            K = decode(n, c) // r
-            mg.xs[co + c] += mg.xs[cb + local(N, K)]
+    if ti.static(serial):
+        sh = r - 1
+        for i in range(n[0] * act):
+            for j in range(n[1]):
+                cij = (i * n[1] + j) * n[2]
+                Cij = cb + ((i >> sh[0]) * N[1] + (j >> sh[1])) * N[2]
+                for k in range(n[2]):
+                    if mg.diag[co + cij + k] > 0.0:
+                        mg.xs[co + cij + k] += mg.xs[Cij + (k >> sh[2])]
+    else:
+        for c in range(mg.lev[l, L_NCELL] * act):
+            if mg.diag[co + c] > 0.0:
+                K = decode(n, c) // r
+                mg.xs[co + c] += mg.xs[cb + local(N, K)]
 
 
 @ti.func
@@ -127,58 +167,98 @@ def _zero_x(mg: ti.template(), l):
 
 # ============================================================================ kernels
 @ti.func
-def _down(mg: ti.template(), l):
+def _down(mg: ti.template(), l, serial: ti.template()):
     act = on(mg)
-    _first_red(mg, l, act)
+    _first_red(mg, l, act, serial)
     for s in ti.static(range(2 * PRE_SWEEPS - 1)):
-        _colour_sweep(mg, l, (s + 1) % 2, act)
+        _colour_sweep(mg, l, (s + 1) % 2, act, serial)
     _restrict_residual(mg, l, act)
 
 
 @ti.kernel
-def k_down(vc: VCycle, l: ti.i32):
+def k_down(vc: VCycle, l: ti.i32, serial: ti.template()):
     """Pre-smoothing, residual and restriction of red-black level l."""
-    _down(vc, l)
-
-
-@ti.kernel
-def k_iter_down(mg: Multigrid, ks: Krylov, max_iter: ti.i32):
-    """The outer CG's iteration (:func:`.pcg.pcg_iter`, which leaves its residual in level 0's b),
-    then :func:`k_down` of level 0 (red-black, not the last level)."""
-    pcg_iter(mg, ks, max_iter)
-    _down(mg, 0)
-
-
-@ti.kernel
-def k_down_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32):
-    """:func:`k_down` of the last red-black level l, then the one-thread CG of level l+1 (the coarsest)."""
-    _down(mg, l)
-    coarse_solve(mg, l + 1, singular, 1)
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _down(vc, l, True)
+    else:
+        _down(vc, l, False)
 
 
 @ti.func
-def _up(mg: ti.template(), l):
+def _iter_down(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.template()):
+    pcg_iter(mg, ks, max_iter, serial)
+    _down(mg, 0, serial)
+
+
+@ti.kernel
+def k_iter_down(mg: Multigrid, ks: Krylov, max_iter: ti.i32, serial: ti.template()):
+    """The outer CG's iteration (:func:`.pcg.pcg_iter`, which leaves its residual in level 0's b),
+    then :func:`k_down` of level 0 (red-black, not the last level)."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _iter_down(mg, ks, max_iter, True)
+    else:
+        _iter_down(mg, ks, max_iter, False)
+
+
+@ti.func
+def _down_coarse(mg: ti.template(), l, singular, serial: ti.template()):
+    _down(mg, l, serial)
+    coarse_solve(mg, l + 1, singular, 1)
+
+
+@ti.kernel
+def k_down_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32, serial: ti.template()):
+    """:func:`k_down` of the last red-black level l, then the one-thread CG of level l+1 (the coarsest)."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _down_coarse(mg, l, singular, True)
+    else:
+        _down_coarse(mg, l, singular, False)
+
+
+@ti.func
+def _up(mg: ti.template(), l, serial: ti.template()):
     act = on(mg)
-    _prolong(mg, l, act)
+    _prolong(mg, l, act, serial)
     for s in ti.static(range(2 * POST_SWEEPS)):
-        _colour_sweep(mg, l, (s + 1) % 2, act)
+        _colour_sweep(mg, l, (s + 1) % 2, act, serial)
 
 
 @ti.kernel
-def k_up(vc: VCycle, l: ti.i32):
+def k_up(vc: VCycle, l: ti.i32, serial: ti.template()):
     """Prolongation from level l+1 and post-smoothing of red-black level l."""
-    _up(vc, l)
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _up(vc, l, True)
+    else:
+        _up(vc, l, False)
 
 
-@ti.kernel
-def k_up_from(mg: Multigrid, ks: Krylov, singular: ti.i32):
-    """:func:`k_up` of level 0 (red-black), then the outer CG's new direction (:func:`.pcg.pcg_from`)."""
-    _up(mg, 0)
+@ti.func
+def _up_from(mg: ti.template(), ks: ti.template(), singular, serial: ti.template()):
+    _up(mg, 0, serial)
     pcg_from(mg, ks, singular)
 
 
 @ti.kernel
-def k_down_j(mg: Multigrid, l: ti.i32):
+def k_up_from(mg: Multigrid, ks: Krylov, singular: ti.i32, serial: ti.template()):
+    """:func:`k_up` of level 0 (red-black), then the outer CG's new direction (:func:`.pcg.pcg_from`)."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _up_from(mg, ks, singular, True)
+    else:
+        _up_from(mg, ks, singular, False)
+
+
+@ti.func
+def _down_j(mg: ti.template(), l, serial: ti.template()):
     _zero_x(mg, l)
     for _s in ti.static(range(PRE_SWEEPS)):
         _jacobi_sweep(mg, l)
@@ -186,10 +266,30 @@ def k_down_j(mg: Multigrid, l: ti.i32):
 
 
 @ti.kernel
-def k_up_j(mg: Multigrid, l: ti.i32):
-    _prolong(mg, l, on(mg))
+def k_down_j(mg: Multigrid, l: ti.i32, serial: ti.template()):
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _down_j(mg, l, True)
+    else:
+        _down_j(mg, l, False)
+
+
+@ti.func
+def _up_j(mg: ti.template(), l, serial: ti.template()):
+    _prolong(mg, l, on(mg), serial)
     for _s in ti.static(range(POST_SWEEPS)):
         _jacobi_sweep(mg, l)
+
+
+@ti.kernel
+def k_up_j(mg: Multigrid, l: ti.i32, serial: ti.template()):
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _up_j(mg, l, True)
+    else:
+        _up_j(mg, l, False)
 
 
 @ti.func
@@ -252,11 +352,21 @@ def k_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32):
     coarse_solve(mg, l, singular, 1)
 
 
-@ti.kernel
-def k_coarse_smooth(mg: Multigrid, l: ti.i32, first: ti.i32):
-    """Large coarsest level (dimensions that do not halve): symmetric red-black sweeps in parallel
-    instead of the one-thread CG."""
+@ti.func
+def _coarse_smooth(mg: ti.template(), l, first, serial: ti.template()):
     if first:
         _zero_x(mg, l)
     for s in ti.static((0, 1, 1, 0)):
-        _colour_sweep(mg, l, s, on(mg))
+        _colour_sweep(mg, l, s, on(mg), serial)
+
+
+@ti.kernel
+def k_coarse_smooth(mg: Multigrid, l: ti.i32, first: ti.i32, serial: ti.template()):
+    """Large coarsest level (dimensions that do not halve): symmetric red-black sweeps in parallel
+    instead of the one-thread CG."""
+    if ti.static(serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _coarse_smooth(mg, l, first, True)
+    else:
+        _coarse_smooth(mg, l, first, False)
