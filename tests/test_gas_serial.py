@@ -9,7 +9,7 @@ from app.sim import gas, runtime
 from app.sim.geometry import CylinderWall
 from conftest import _session_runtime
 
-pytestmark = pytest.mark.unit
+pytestmark = pytest.mark.verification  # minutes from a cold cache: compiles the parallel form (not a unit test)
 
 H, DT = 0.006, 1e-3
 
