@@ -254,6 +254,18 @@ def dem_substeps(model: ti.template(), sizes: ti.template(), state: ti.template(
             substep_parts(model, sizes, state, history, nlist, walls)
 
 
+@ti.kernel
+def dem_build(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+              nlist: ti.template()):
+    """The list build that the next substep would start with, done ahead (nothing when no build is flagged)."""
+    if ti.static(model.serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            rebuild_if_flagged(model, sizes, state, history, nlist)
+    else:
+        rebuild_if_flagged(model, sizes, state, history, nlist)
+
+
 @ti.func
 def substep_parts(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                   nlist: ti.template(), walls: ti.template()):
