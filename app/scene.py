@@ -189,12 +189,13 @@ def flow_config(cfg: Config, walls: list):
                            min_open_fraction=g.min_open_fraction)
 
 
-def coupling_model(cfg: Config):
+def coupling_model(cfg: Config, serial: bool = False):
     c = cfg.coupling
     return coupling.CouplingModel(law=drag.law_of(c.drag), model_b=cfg.gas.pressure_form == "gas",
                                   eps_min=c.eps_min, gas_density=cfg.gas.density, gas_viscosity=cfg.gas.viscosity,
                                   gravity=tuple(cfg.domain.gravity),
-                                  smoothing_passes=coupling.smoothing_passes(c.smoothing_width, cfg.gas.cell_size))
+                                  smoothing_passes=coupling.smoothing_passes(c.smoothing_width, cfg.gas.cell_size),
+                                  serial=serial)
 
 
 class Scene:
@@ -246,7 +247,7 @@ class Scene:
             self.initial = {"position": pos, "velocity": np.zeros_like(pos), "radius": radius}
         self.n = n
         self.model = dem_model(cfg, self.derived, n, self.walls, coupled=cfg.gas is not None, serial=serial)
-        self.coupling = coupling_model(cfg) if cfg.gas is not None else None
+        self.coupling = coupling_model(cfg, serial) if cfg.gas is not None else None
 
 
 def place_grains(dem: DemSolver, initial: dict) -> None:

@@ -57,7 +57,8 @@ drag = "beetstra"
 bottom = {{ kind = "velocity_inlet", velocity = [0.0, 0.0, 1.0] }}
 top = "pressure_outlet"
 """
-    return Scene(load_text(text, "coupled_bench.toml"), "coupled_bench.toml")
+    # serial as `fbed run` decides it (app/run.py): on one CPU thread each solver's loops run as few tasks
+    return Scene(load_text(text, "coupled_bench.toml"), "coupled_bench.toml", serial=runtime.serial())
 
 
 def measure(n, repeats, precision, threads):

@@ -43,9 +43,10 @@ def merged(**changes) -> dict:
     return cfg
 
 
-def scene_of(initial=None, **changes) -> Scene:
-    """The Scene of BASE updated with ``changes``; ``initial``: its grains (position, radius, velocity ...)."""
-    return Scene(load_text(toml_text(merged(**changes)), "test.toml"), "test.toml", initial=initial)
+def scene_of(initial=None, serial=False, **changes) -> Scene:
+    """The Scene of BASE updated with ``changes``; ``initial``: its grains (position, radius, velocity ...);
+    ``serial``: its kernels as on one CPU thread (``Scene``'s)."""
+    return Scene(load_text(toml_text(merged(**changes)), "test.toml"), "test.toml", initial=initial, serial=serial)
 
 
 def grains(position, radius, velocity=None) -> dict:

@@ -112,3 +112,24 @@ def test_one_thread_advance_in_one_launch_matches_substep_by_substep():
     assert np.abs(a["rolling"]).max() > 0 and np.abs(a["wall_tangential"]).max() > 0
     for key in a:
         assert np.array_equal(a[key], b[key]), key
+
+
+@pytest.mark.parametrize("serial", [True, False])
+def test_prepare_does_the_set_up_ahead_and_changes_nothing(serial):
+    """``prepare`` (the sort and the list build a timed ``advance`` would start with, done ahead: the benchmark
+    against LIGGGHTS leaves them out of the timing, as LIGGGHTS' own set-up is) must leave the substeps that
+    follow as they were, bit for bit, and leave the next ``advance`` no build to do first."""
+    scene, pos, vel, radius = scrambled_bed(False)
+    model = dataclasses.replace(scene.model, sort_interval=1, sort_min_grains=0, serial=serial)
+    ahead, plain = DemSolver(model), DemSolver(model)
+    for dem in (ahead, plain):
+        dem.set_grains(pos, vel, radius)
+    ahead.prepare()
+    assert ahead.nlist.builds == plain.nlist.builds + 1 and not ahead._sort_due
+    for dem in (ahead, plain):
+        dem.advance(40)
+    assert ahead.nlist.builds == plain.nlist.builds
+    a, b = ahead.state_arrays(), plain.state_arrays()
+    assert np.abs(a["tangential"]).max() > 0
+    for key in a:
+        assert np.array_equal(a[key], b[key]), key

@@ -48,6 +48,7 @@ class CouplingModel:
     gas_viscosity: float    # [Pa s]
     gravity: tuple          # [m/s^2]
     smoothing_passes: int   # conservative diffusion passes of the solid volume (0: none)
+    serial: bool = False    # one CPU thread: each half of the coupling one serial task (``coupling_serial``)
 
 
 grain_volume_func = ti.func(grain_volume)  # a grain's volume inside a kernel: the config's one formula
@@ -119,19 +120,48 @@ def _weights(gf: ti.template(), geo: ti.template(), x):
     return cells, w
 
 
+# Each part of the coupling is a cell's or a grain's body (a ti.func) and the kernels loop over them:
+# as top-level loops (each a parallel task: a struct-for over the cells, a range-for over the grains), or,
+# on one CPU thread (``cm.serial``), all nested in one serial loop (``coupling_serial``): one task for a
+# half of the coupling instead of one per loop (~70 us each on one thread), the same bodies in the same
+# order.
+
+@ti.func
+def _deposit_grain(m: ti.template(), g: ti.template(), s: ti.template(), gf: ti.template(), geo: ti.template(),
+                   cf: ti.template(), i):
+    if s.alive[i]:
+        r = grain_radius(m, g, i)
+        vol = grain_volume_func(r)
+        cells, w = _weights(gf, geo, s.x[i])
+        for k in ti.static(range(8)):
+            c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
+            ti.atomic_add(cf.solid[c], w[k] * vol)
+
+
 @ti.kernel
 def deposit(m: ti.template(), g: ti.template(), s: ti.template(), gf: ti.template(), geo: CellGeometry,
             cf: ti.template()):
     for I in ti.grouped(cf.solid):
         cf.solid[I] = 0.0
     for i in range(m.n):
-        if s.alive[i]:
-            r = grain_radius(m, g, i)
-            vol = grain_volume_func(r)
-            cells, w = _weights(gf, geo, s.x[i])
-            for k in ti.static(range(8)):
-                c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
-                ti.atomic_add(cf.solid[c], w[k] * vol)
+        _deposit_grain(m, g, s, gf, geo, cf, i)
+
+
+@ti.func
+def _smooth_cell(gf: ti.template(), geo: ti.template(), f: ti.template(), tmp: ti.template(), I):
+    acc = f[I]
+    if geo.active_cell[I]:
+        pI = ti.max(geo.open_frac[I], 1e-12)
+        cI = f[I] / pI
+        for a in ti.static(range(3)):
+            for sgn in ti.static((-1, 1)):
+                J = I
+                J[a] += sgn
+                if 0 <= J[a] < gf.shape[a]:
+                    if geo.active_cell[J]:
+                        pJ = ti.max(geo.open_frac[J], 1e-12)
+                        acc += SMOOTH_ALPHA * ti.min(pI, pJ) * (f[J] / pJ - cI)
+    tmp[I] = acc
 
 
 @ti.kernel
@@ -144,21 +174,27 @@ def smooth_pass(gf: ti.template(), geo: CellGeometry, f: ti.template(), tmp: ti.
     were whole cells, clip their eps and leave their drag empty). Stable: the weights of c_I
     sum to at most 6 alpha < 1."""
     for I in ti.grouped(f):
-        acc = f[I]
-        if geo.active_cell[I]:
-            pI = ti.max(geo.open_frac[I], 1e-12)
-            cI = f[I] / pI
-            for a in ti.static(range(3)):
-                for sgn in ti.static((-1, 1)):
-                    J = I
-                    J[a] += sgn
-                    if 0 <= J[a] < gf.shape[a]:
-                        if geo.active_cell[J]:
-                            pJ = ti.max(geo.open_frac[J], 1e-12)
-                            acc += SMOOTH_ALPHA * ti.min(pI, pJ) * (f[J] / pJ - cI)
-        tmp[I] = acc
+        _smooth_cell(gf, geo, f, tmp, I)
     for I in ti.grouped(f):
         f[I] = tmp[I]
+
+
+@ti.func
+def _void_cell(cm: ti.template(), gf: ti.template(), geo: ti.template(), cf: ti.template(), dt, first,
+               gin: ti.template(), I):
+    vcell = gf.h * gf.h * gf.h
+    e = 1.0
+    if geo.active_cell[I]:
+        e = 1.0 - cf.solid[I] / (vcell * ti.max(geo.open_frac[I], 1e-12))
+        if e < cm.eps_min:
+            e = ti.cast(cm.eps_min, float)
+            cf.clipped[None] += 1
+    prev = cf.eps_prev[I]
+    if first:
+        prev = e
+    gin.gas_deps_dt[I] = (e - prev) / dt
+    gin.gas_eps[I] = e
+    cf.eps_prev[I] = e
 
 
 @ti.kernel
@@ -167,20 +203,56 @@ def void_fraction(cm: ti.template(), gf: ti.template(), geo: CellGeometry, cf: t
     """eps = 1 - solid / open cell volume, clipped at eps_min; d(eps)/dt against the previous step: the
     gas's inputs (``gin``, its own arrays)."""
     cf.clipped[None] = 0
-    vcell = gf.h * gf.h * gf.h
     for I in ti.grouped(cf.solid):
-        e = 1.0
-        if geo.active_cell[I]:
-            e = 1.0 - cf.solid[I] / (vcell * ti.max(geo.open_frac[I], 1e-12))
-            if e < cm.eps_min:
-                e = ti.cast(cm.eps_min, float)
-                cf.clipped[None] += 1
-        prev = cf.eps_prev[I]
-        if first:
-            prev = e
-        gin.gas_deps_dt[I] = (e - prev) / dt
-        gin.gas_eps[I] = e
-        cf.eps_prev[I] = e
+        _void_cell(cm, gf, geo, cf, dt, first, gin, I)
+
+
+@ti.func
+def _clear_exchange_cell(cm: ti.template(), cf: ti.template(), gin: ti.template(), I):
+    cf.k_sum[I] = 0.0
+    cf.k_v[I] = ti.Vector([0.0, 0.0, 0.0])
+    if ti.static(cm.model_b):
+        gin.ext_force[I] = ti.Vector([0.0, 0.0, 0.0])
+
+
+@ti.func
+def _exchange_grain(cm: ti.template(), m: ti.template(), g: ti.template(), s: ti.template(), gf: ti.template(),
+                    geo: ti.template(), gout: ti.template(), cf: ti.template(), gin: ti.template(), i):
+    if s.alive[i]:
+        r = grain_radius(m, g, i)
+        vol = grain_volume_func(r)
+        cells, w = _weights(gf, geo, s.x[i])
+        eps = 0.0
+        ug = ti.Vector([0.0, 0.0, 0.0])
+        gp = ti.Vector([0.0, 0.0, 0.0])
+        for k in ti.static(range(8)):
+            c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
+            eps += w[k] * gin.gas_eps[c]
+            ug += w[k] * gout.gas_u[c]
+            gp += w[k] * gout.gas_gradp[c]
+        v = s.v[i]
+        slip = (ug - v).norm()
+        phi = ti.max(1.0 - eps, 0.0)
+        # beta / phi directly: in float32 a grain alone in a large cell has eps == 1 (phi == 0)
+        kp = drag.per_grain_volume_func(cm.law, eps, phi, slip, 2.0 * r, cm.gas_density, cm.gas_viscosity) * vol
+        if ti.static(cm.model_b):
+            kp /= eps
+            buoyancy = -cm.gas_density * vol * ti.Vector(cm.gravity)
+            s.external_force[i] = buoyancy
+            # its reaction on the gas, so momentum is conserved and the gas column weighs rho_g g
+            # everywhere (as in Model A): both forms then give the same pressure drop
+            for k in ti.static(range(8)):
+                c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
+                vc = gf.h * gf.h * gf.h * ti.max(geo.open_frac[c], 1e-12)
+                ti.atomic_add(gin.ext_force[c], -w[k] * buoyancy / vc)
+        else:
+            s.external_force[i] = -vol * gp
+        s.drag_coeff[i] = kp
+        s.gas_velocity[i] = ug
+        for k in ti.static(range(8)):
+            c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
+            ti.atomic_add(cf.k_sum[c], w[k] * kp)
+            ti.atomic_add(cf.k_v[c], w[k] * kp * v)
 
 
 @ti.kernel
@@ -189,60 +261,67 @@ def exchange(cm: ti.template(), m: ti.template(), g: ti.template(), s: ti.templa
     """Per-grain drag coefficient, gas velocity and explicit force from the gas's outputs (``gout``) and
     gas fraction; the reaction onto the gas cells (the sums in ``cf``; Model B's explicit source in ``gin``)."""
     for I in ti.grouped(cf.k_sum):
-        cf.k_sum[I] = 0.0
-        cf.k_v[I] = ti.Vector([0.0, 0.0, 0.0])
-        if ti.static(cm.model_b):
-            gin.ext_force[I] = ti.Vector([0.0, 0.0, 0.0])
+        _clear_exchange_cell(cm, cf, gin, I)
     for i in range(m.n):
-        if s.alive[i]:
-            r = grain_radius(m, g, i)
-            vol = grain_volume_func(r)
-            cells, w = _weights(gf, geo, s.x[i])
-            eps = 0.0
-            ug = ti.Vector([0.0, 0.0, 0.0])
-            gp = ti.Vector([0.0, 0.0, 0.0])
-            for k in ti.static(range(8)):
-                c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
-                eps += w[k] * gin.gas_eps[c]
-                ug += w[k] * gout.gas_u[c]
-                gp += w[k] * gout.gas_gradp[c]
-            v = s.v[i]
-            slip = (ug - v).norm()
-            phi = ti.max(1.0 - eps, 0.0)
-            # beta / phi directly: in float32 a grain alone in a large cell has eps == 1 (phi == 0)
-            kp = drag.per_grain_volume_func(cm.law, eps, phi, slip, 2.0 * r, cm.gas_density, cm.gas_viscosity) * vol
-            if ti.static(cm.model_b):
-                kp /= eps
-                buoyancy = -cm.gas_density * vol * ti.Vector(cm.gravity)
-                s.external_force[i] = buoyancy
-                # its reaction on the gas, so momentum is conserved and the gas column weighs rho_g g
-                # everywhere (as in Model A): both forms then give the same pressure drop
-                for k in ti.static(range(8)):
-                    c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
-                    vc = gf.h * gf.h * gf.h * ti.max(geo.open_frac[c], 1e-12)
-                    ti.atomic_add(gin.ext_force[c], -w[k] * buoyancy / vc)
-            else:
-                s.external_force[i] = -vol * gp
-            s.drag_coeff[i] = kp
-            s.gas_velocity[i] = ug
-            for k in ti.static(range(8)):
-                c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
-                ti.atomic_add(cf.k_sum[c], w[k] * kp)
-                ti.atomic_add(cf.k_v[c], w[k] * kp * v)
+        _exchange_grain(cm, m, g, s, gf, geo, gout, cf, gin, i)
+
+
+@ti.func
+def _drag_cell(gf: ti.template(), geo: ti.template(), cf: ti.template(), gin: ti.template(), I):
+    k = cf.k_sum[I]
+    vc = gf.h * gf.h * gf.h * ti.max(geo.open_frac[I], 1e-12)
+    gin.drag_beta[I] = k / vc
+    us = ti.Vector([0.0, 0.0, 0.0])
+    if k > 0:
+        us = cf.k_v[I] / k
+    gin.solid_vel[I] = us
 
 
 @ti.kernel
 def drag_on_gas(gf: ti.template(), geo: CellGeometry, cf: ti.template(), gin: Inputs):
     """beta and us per cell (the gas's inputs ``gin``) from the (smoothed) sums of w K and w K v."""
-    vcell = gf.h * gf.h * gf.h
     for I in ti.grouped(cf.k_sum):
-        k = cf.k_sum[I]
-        vc = vcell * ti.max(geo.open_frac[I], 1e-12)
-        gin.drag_beta[I] = k / vc
-        us = ti.Vector([0.0, 0.0, 0.0])
-        if k > 0:
-            us = cf.k_v[I] / k
-        gin.solid_vel[I] = us
+        _drag_cell(gf, geo, cf, gin, I)
+
+
+@ti.func
+def _smooth_nested(gf: ti.template(), geo: ti.template(), f: ti.template(), tmp: ti.template()):
+    """``smooth_pass`` inside a loop (a struct-for cannot be nested: the cells as an ndrange)."""
+    for I in ti.grouped(ti.ndrange(*gf.shape)):
+        _smooth_cell(gf, geo, f, tmp, I)
+    for I in ti.grouped(ti.ndrange(*gf.shape)):
+        f[I] = tmp[I]
+
+
+@ti.kernel
+def coupling_serial(cm: ti.template(), m: ti.template(), g: ti.template(), s: ti.template(), gf: ti.template(),
+                    geo: CellGeometry, gout: Outputs, cf: ti.template(), gin: Inputs, dt: float, first: ti.i32,
+                    with_deposit: ti.template(), with_exchange: ti.template()):
+    """On one CPU thread: the deposit (with its smoothing and the void fraction) and/or the exchange (with
+    its smoothing and the drag on the gas) as one serial task, the loops of the kernels above in their order."""
+    ti.static_assert(cm.serial, "coupling_serial runs on one CPU thread only")
+    ti.loop_config(serialize=True)
+    for _ in range(1):
+        if ti.static(with_deposit):
+            for I in ti.grouped(ti.ndrange(*gf.shape)):
+                cf.solid[I] = 0.0
+            for i in range(m.n):
+                _deposit_grain(m, g, s, gf, geo, cf, i)
+            for _p in range(cm.smoothing_passes):
+                _smooth_nested(gf, geo, cf.solid, cf.solid_tmp)
+            cf.clipped[None] = 0
+            for I in ti.grouped(ti.ndrange(*gf.shape)):
+                _void_cell(cm, gf, geo, cf, dt, first, gin, I)
+        if ti.static(with_exchange):
+            for I in ti.grouped(ti.ndrange(*gf.shape)):
+                _clear_exchange_cell(cm, cf, gin, I)
+            for i in range(m.n):
+                _exchange_grain(cm, m, g, s, gf, geo, gout, cf, gin, i)
+            for _p in range(cm.smoothing_passes):
+                _smooth_nested(gf, geo, cf.k_sum, cf.solid_tmp)
+                _smooth_nested(gf, geo, cf.k_v, cf.vec_tmp)
+            for I in ti.grouped(ti.ndrange(*gf.shape)):
+                _drag_cell(gf, geo, cf, gin, I)
 
 
 class Coupler:
@@ -256,18 +335,29 @@ class Coupler:
         self.cf = CouplingFields(self.gf.shape)
         self._first = True
 
+    def _serial(self, dt: float, with_deposit: bool, with_exchange: bool) -> None:
+        d, gf = self.dem, self.gf
+        coupling_serial(self.cm, d.m, d.fixed, d.state, gf, gf.geometry, gf.outputs, self.cf, gf.inputs, dt,
+                        int(self._first), with_deposit, with_exchange)
+
     def deposit(self, dt: float) -> None:
         """Grains -> eps and d(eps)/dt on the gas grid."""
         d, gf = self.dem, self.gf
-        deposit(d.m, d.fixed, d.state, gf, gf.geometry, self.cf)
-        for _ in range(self.cm.smoothing_passes):
-            smooth_pass(gf, gf.geometry, self.cf.solid, self.cf.solid_tmp)
-        void_fraction(self.cm, gf, gf.geometry, self.cf, dt, int(self._first), gf.inputs)
+        if self.cm.serial:
+            self._serial(dt, True, False)
+        else:
+            deposit(d.m, d.fixed, d.state, gf, gf.geometry, self.cf)
+            for _ in range(self.cm.smoothing_passes):
+                smooth_pass(gf, gf.geometry, self.cf.solid, self.cf.solid_tmp)
+            void_fraction(self.cm, gf, gf.geometry, self.cf, dt, int(self._first), gf.inputs)
         self._first = False
 
     def exchange(self) -> None:
         """Drag coefficients onto the gas diagonal and onto the grains (uses the current gas velocity)."""
         d, gf = self.dem, self.gf
+        if self.cm.serial:
+            self._serial(1.0, False, True)
+            return
         exchange(self.cm, d.m, d.fixed, d.state, gf, gf.geometry, gf.outputs, self.cf, gf.inputs)
         # the gas feels the drag spread like the grains' volume, so beta and eps agree cell by cell
         for _ in range(self.cm.smoothing_passes):
@@ -276,9 +366,14 @@ class Coupler:
         drag_on_gas(gf, gf.geometry, self.cf, gf.inputs)
 
     def step(self, dt: float) -> None:
-        """The coupling half of a fluid step: deposit, then exchange (the gas step and DEM substeps follow)."""
-        self.deposit(dt)
-        self.exchange()
+        """The coupling half of a fluid step: deposit, then exchange (the gas step and DEM substeps follow);
+        on one CPU thread one launch of one serial task."""
+        if self.cm.serial:
+            self._serial(dt, True, True)
+            self._first = False
+        else:
+            self.deposit(dt)
+            self.exchange()
 
     @property
     def clipped_cells(self) -> int:

@@ -52,6 +52,11 @@ def normal_force(model: ti.template(), wall: ti.template(), delta, ddelta, r_eff
     return ti.max(fn, 0.0), k_n, root_rd, damp_root
 
 
+def float32() -> bool:
+    """Whether the kernels compute in float32 (read at compile time)."""
+    return ti.lang.impl.current_cfg().default_fp == ti.f32
+
+
 @ti.func
 def tangential_force(model: ti.template(), wall: ti.template(), spring, n, vt, fn, root_rd, damp_root):
     """Tangential force on grain i and the updated slip spring (``root_rd``, ``damp_root`` from
@@ -60,12 +65,20 @@ def tangential_force(model: ti.template(), wall: ti.template(), spring, n, vt, f
     g_star = ti.static(model.w_g_star if wall else model.g_star)
     damping = ti.static(model.w_damping if wall else model.damping)
     mu = ti.static(model.w_mu if wall else model.mu)
-    # keep the spring in the current tangent plane, at its length
+    # keep the spring in the current tangent plane, at its length: times sqrt(mag2 / proj2) = sqrt(1 + y),
+    # y = sn^2 / proj2. In float32 that is skipped where 1 + y rounds to 1, as it does for most contacts (the
+    # contact's slow turn keeps y tiny; measured 1.08x faster substeps at 125k grains); float64 always
+    # rescales (there y is rarely below its rounding, and the test costs more than it saves)
     mag2 = spring.dot(spring)
-    spring -= spring.dot(n) * n
-    proj2 = spring.dot(spring)
-    if proj2 > 1e-60:
-        spring *= ti.sqrt(mag2 / proj2)
+    sn = spring.dot(n)
+    spring -= sn * n
+    rescale = True
+    if ti.static(float32()):
+        rescale = sn * sn > 2.0 ** -24 * mag2
+    if rescale:
+        proj2 = spring.dot(spring)
+        if proj2 > 1e-60:
+            spring *= ti.sqrt(mag2 / proj2)
     spring += vt * model.dt
     kt = 0.0
     gamma = 0.0

@@ -247,7 +247,19 @@ def move_partners(model: ti.template(), nlist: ti.template(), scratch: ti.templa
 @ti.kernel
 def sort_by_cell(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                  nlist: ti.template()):
-    """Re-order every per-grain array by cell (dead grains last); the list stays valid."""
+    """Re-order every per-grain array by cell (dead grains last); the list stays valid. On one CPU thread
+    (``model.serial``) one serial task (its ~50 loops nested in one loop, in the same order)."""
+    if ti.static(model.serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            sort_parts(model, sizes, state, history, nlist)
+    else:
+        sort_parts(model, sizes, state, history, nlist)
+
+
+@ti.func
+def sort_parts(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+               nlist: ti.template()):
     bin_by_cell(model, state, nlist, False)
     for p in range(model.n):  # the new slot of the grain now in slot o
         state.force[nlist.sorted[p]][2] = p

@@ -8,7 +8,7 @@ import taichi as ti
 from ...config.derived import grain_mass
 from ..fields import NO_SPRING, ROLL_EPSD, ContactHistory, DemModel, GrainModel, GrainState, NeighborList, WallData
 from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW, sort_by_cell
-from .step import DIAG_COLUMNS, dem_substep, dem_substeps, measure
+from .step import DIAG_COLUMNS, dem_build, dem_substep, dem_substeps, measure
 
 
 class NeighborOverflow(RuntimeError):
@@ -255,6 +255,15 @@ class DemSolver:
             self._ids = None
             self._sort_due = False
             self._builds_at_sort = self._builds_seen
+
+    def prepare(self) -> None:
+        """Do now what the next ``advance`` would start with: the sort by cell when one is due, then the list
+        build when one is flagged (after ``set_grains``, say), so a timed ``advance`` leaves out its set-up,
+        as a LIGGGHTS run's timed loop leaves out the list its set-up builds. The substeps that follow are
+        the same, to the bit. Queued; reads nothing."""
+        if self._sort_due:
+            self.sort()
+        dem_build(self.m, self.fixed, self.state, self.history, self.nlist)
 
     def substep(self) -> None:
         """Queue one substep; reads nothing back (see ``advance`` for the checks)."""

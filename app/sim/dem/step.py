@@ -254,6 +254,18 @@ def dem_substeps(model: ti.template(), sizes: ti.template(), state: ti.template(
             substep_parts(model, sizes, state, history, nlist, walls)
 
 
+@ti.kernel
+def dem_build(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+              nlist: ti.template()):
+    """The list build that the next substep would start with, done ahead (nothing when no build is flagged)."""
+    if ti.static(model.serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            rebuild_if_flagged(model, sizes, state, history, nlist)
+    else:
+        rebuild_if_flagged(model, sizes, state, history, nlist)
+
+
 @ti.func
 def substep_parts(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                   nlist: ti.template(), walls: ti.template()):
@@ -280,7 +292,19 @@ def measure(model: ti.template(), sizes: ti.template(), state: ti.template(), nl
             col: ti.i32):
     """Fill ``out`` with [KE_trans, KE_rot, max overlap/diameter, max speed, alive, bad values, touching
     pairs] and ``hist`` with a height histogram of alive grains, then write the step's record (DIAG_COLUMNS)
-    into ``ring[row, col:]`` (float64): nothing is returned, so the host waits for nothing."""
+    into ``ring[row, col:]`` (float64): nothing is returned, so the host waits for nothing. On one CPU
+    thread (``model.serial``) one serial task (the loops nested in one loop, in the same order)."""
+    if ti.static(model.serial):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            measure_parts(model, sizes, state, nlist, walls, out, hist, ring, row, col)
+    else:
+        measure_parts(model, sizes, state, nlist, walls, out, hist, ring, row, col)
+
+
+@ti.func
+def measure_parts(model: ti.template(), sizes: ti.template(), state: ti.template(), nlist: ti.template(),
+                  walls: ti.template(), out: ti.template(), hist: ti.template(), ring: ti.template(), row, col):
     for k in range(7):
         out[k] = 0.0
     for b in range(hist.shape[0]):
