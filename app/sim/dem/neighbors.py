@@ -21,6 +21,7 @@ import taichi as ti
 
 from ..fields import NO_SPRING, ROLL_EPSD, SCAN_BLOCK
 from .grains import grain_id, grain_radius
+from ..tasks import one_task
 
 REBUILD, OVERFLOW, REMOVED, BUILDS, SPRING_OVERFLOW, DEAD = 0, 1, 2, 3, 4, 5  # nlist.counters
 
@@ -249,12 +250,7 @@ def sort_by_cell(model: ti.template(), sizes: ti.template(), state: ti.template(
                  nlist: ti.template()):
     """Re-order every per-grain array by cell (dead grains last); the list stays valid. On one CPU thread
     (``model.serial``) one serial task (its ~50 loops nested in one loop, in the same order)."""
-    if ti.static(model.serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            sort_parts(model, sizes, state, history, nlist)
-    else:
-        sort_parts(model, sizes, state, history, nlist)
+    one_task(model.serial, sort_parts, (model, sizes, state, history, nlist))
 
 
 @ti.func

@@ -23,6 +23,7 @@ from ..geometry import wall_clearance_normal
 from .contact import contact
 from .grains import grain_mass, grain_radius, scatter_add
 from .neighbors import REBUILD, REMOVED, SPRING_OVERFLOW, rebuild_if_flagged
+from ..tasks import one_task
 
 
 @ti.func
@@ -234,12 +235,7 @@ def dem_substep(model: ti.template(), sizes: ti.template(), state: ti.template()
     """One DEM step in one launch: [rebuild] -> pair and wall forces -> integration. On one CPU thread
     (``model.serial``) the whole step is one serial task (the parts' loops nested in one loop of one
     pass, run in the same order: the same results, without a task's start-up per loop)."""
-    if ti.static(model.serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            substep_parts(model, sizes, state, history, nlist, walls)
-    else:
-        substep_parts(model, sizes, state, history, nlist, walls)
+    one_task(model.serial, substep_parts, (model, sizes, state, history, nlist, walls))
 
 
 @ti.kernel
@@ -258,12 +254,7 @@ def dem_substeps(model: ti.template(), sizes: ti.template(), state: ti.template(
 def dem_build(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
               nlist: ti.template()):
     """The list build that the next substep would start with, done ahead (nothing when no build is flagged)."""
-    if ti.static(model.serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            rebuild_if_flagged(model, sizes, state, history, nlist)
-    else:
-        rebuild_if_flagged(model, sizes, state, history, nlist)
+    one_task(model.serial, rebuild_if_flagged, (model, sizes, state, history, nlist))
 
 
 @ti.func
@@ -294,12 +285,7 @@ def measure(model: ti.template(), sizes: ti.template(), state: ti.template(), nl
     pairs] and ``hist`` with a height histogram of alive grains, then write the step's record (DIAG_COLUMNS)
     into ``ring[row, col:]`` (float64): nothing is returned, so the host waits for nothing. On one CPU
     thread (``model.serial``) one serial task (the loops nested in one loop, in the same order)."""
-    if ti.static(model.serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            measure_parts(model, sizes, state, nlist, walls, out, hist, ring, row, col)
-    else:
-        measure_parts(model, sizes, state, nlist, walls, out, hist, ring, row, col)
+    one_task(model.serial, measure_parts, (model, sizes, state, nlist, walls, out, hist, ring, row, col))
 
 
 @ti.func

@@ -10,6 +10,7 @@ import taichi as ti
 
 from .boundary import comp_value
 from .layout import P_H, P_TRACE, SC_UOLD, Grid, Inputs, State, each_face, face_pos, fdims, solved
+from ..tasks import one_task
 
 
 @ti.func
@@ -133,12 +134,7 @@ def k_advect(g: Grid, inp: Inputs, st: State, dt: float, serial: ti.template()):
     cylinder with gusty inflow reached 200 m/s in 380 steps; either piece alone stays bounded).
     Scratch: vel_tmp holds dt/2 (a_departure - a_arrival) per face; the MacCormack result overwrites
     the face's own lower clamp vel_lo once used. ``serial``: every loop nested in one serial loop."""
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _advect(g, inp, st, dt, True)
-    else:
-        _advect(g, inp, st, dt, False)
+    one_task(serial, _advect, (g, inp, st, dt, serial))
 
 
 @ti.func

@@ -11,6 +11,7 @@ import taichi as ti
 from .config import INLET, MOVING, OUTLET, WALL
 from .layout import (P_H, P_POUT, Grid, Inputs, State, cidx, each_face, eps_at, face_cells, fdecode, fidx, is_boundary,
                      solved, tangential, wrap)
+from ..tasks import one_task
 
 
 @ti.func
@@ -133,12 +134,7 @@ def face_grad(g: ti.template(), cl: ti.template(), a, I):
 @ti.kernel
 def k_bc_prep(g: Grid, inp: Inputs, st: State, serial: ti.template()):
     """Boundary and closed faces of the advected field; the viscous iterates start from it."""
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _bc_prep(g, inp, st, True)
-    else:
-        _bc_prep(g, inp, st, False)
+    one_task(serial, _bc_prep, (g, inp, st, serial))
 
 
 @ti.func

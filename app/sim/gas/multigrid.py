@@ -12,6 +12,7 @@ they compile once per process whatever the grid.
 """
 import numpy as np
 import taichi as ti
+from ..tasks import one_task
 
 NMETA = 16
 # per-level slots of lev[l, ...]
@@ -189,23 +190,13 @@ def level_diag(mg: ti.template(), l):
 # ============================================================================ kernels
 @ti.kernel
 def k_diag(mg: Multigrid, l: ti.i32, serial: ti.template()):
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            level_diag(mg, l)
-    else:
-        level_diag(mg, l)
+    one_task(serial, level_diag, (mg, l))
 
 
 @ti.kernel
 def k_coarsen(mg: Multigrid, l: ti.i32, serial: ti.template()):
     """Transmissibilities and diagonal of level l+1 from level l."""
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _coarsen(mg, l)
-    else:
-        _coarsen(mg, l)
+    one_task(serial, _coarsen, (mg, l))
 
 
 @ti.func

@@ -57,6 +57,7 @@ import taichi as ti
 from . import multigrid as mgm
 from .multigrid import (S_ACTIVE, S_BNORM, S_CNT, S_CONV, S_DONE, S_FIRST, S_IT, S_LAST, S_PAP, S_R0, S_RINF,
                         S_RZ, S_RZN, S_RZO, S_SCALE, S_SUM, S_THR, S_TRUE, Multigrid, decode, on, plan_levels, stencil)
+from ..tasks import one_task
 
 __all__ = ["SolveInfo", "Krylov", "plan_levels", "solve_record"]  # the solver object: app.sim.gas.linsolve.MGPCG
 
@@ -128,12 +129,7 @@ def k_pcg_begin(mg: Multigrid, ks: Krylov, singular: ti.i32, tol: float, scale_m
     """Project b (singular case), measure max|b|, r = b - A x; the stopping threshold tol * scale with
     scale = max|b| (scale_mode 0), the argument (1) or mg.ctrl[S_SCALE] as a caller's kernel left it (2);
     the solve is active unless r already meets it."""
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _pcg_begin(mg, ks, singular, tol, scale_mode, scale, True)
-    else:
-        _pcg_begin(mg, ks, singular, tol, scale_mode, scale, False)
+    one_task(serial, _pcg_begin, (mg, ks, singular, tol, scale_mode, scale, serial))
 
 
 @ti.func
@@ -165,12 +161,7 @@ def _pcg_begin(mg: ti.template(), ks: ti.template(), singular, tol, scale_mode, 
 
 @ti.kernel
 def k_pcg_from(mg: Multigrid, ks: Krylov, singular: ti.i32, serial: ti.template()):
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            pcg_from(mg, ks, singular)
-    else:
-        pcg_from(mg, ks, singular)
+    one_task(serial, pcg_from, (mg, ks, singular))
 
 
 @ti.func
@@ -206,12 +197,7 @@ def pcg_from(mg: ti.template(), ks: ti.template(), singular):
 
 @ti.kernel
 def k_pcg_iter(mg: Multigrid, ks: Krylov, max_iter: ti.i32, serial: ti.template()):
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            pcg_iter(mg, ks, max_iter, True)
-    else:
-        pcg_iter(mg, ks, max_iter, False)
+    one_task(serial, pcg_iter, (mg, ks, max_iter, serial))
 
 
 @ti.func
@@ -282,12 +268,7 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.template
 @ti.kernel
 def k_pcg_finish(mg: Multigrid, ks: Krylov, singular: ti.i32, serial: ti.template()):
     """Once the solve has stopped (and only once): the zero-mean solution of a singular system."""
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _pcg_finish(mg, ks, singular)
-    else:
-        _pcg_finish(mg, ks, singular)
+    one_task(serial, _pcg_finish, (mg, ks, singular))
 
 
 @ti.func

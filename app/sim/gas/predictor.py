@@ -16,6 +16,7 @@ from .boundary import face_grad, ghost_coef
 from .layout import (P_G, P_H, P_MU, P_RHO, P_THMIN, SC_DV, SC_NSW, SC_UOLD, SC_VACT, SC_VTHR, Cells, Grid, Inputs,
                      State, each_face, each_face_colour, eps_at, face_cells, face_eps, face_mean_comp, fidx, solved,
                      wrap)
+from ..tasks import one_task
 
 VISCOUS_CHUNK = 4  # red-black sweeps per launch of the viscous predictor (each stops itself on the device;
 # each is a copy of the sweep in the compiled kernel; with the fixed parts computed once per step the
@@ -44,12 +45,7 @@ def face_beta(g: ti.template(), inp: ti.template(), a, I):
 @ti.kernel
 def k_face_coef(g: Grid, inp: Inputs, st: State, serial: ti.template()):
     """Face gas fraction (mean of the two cells) and face drag coefficient, once per step."""
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _face_coef(g, inp, st, True)
-    else:
-        _face_coef(g, inp, st, False)
+    one_task(serial, _face_coef, (g, inp, st, serial))
 
 
 @ti.func
@@ -217,12 +213,7 @@ def k_visc(g: Grid, inp: Inputs, cl: Cells, st: State, dt: float, first: ti.i32,
     sweeps go on: they stop (on the device) when the largest change of a face velocity is at most
     factor * max(max|u_old|, bc_speed) or after max_sweeps. ``first`` starts the count and computes the
     sweeps' fixed parts. ``serial``: every loop nested in one serial loop."""
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _visc(g, inp, cl, st, dt, first, factor, bc_speed, max_sweeps, True)
-    else:
-        _visc(g, inp, cl, st, dt, first, factor, bc_speed, max_sweeps, False)
+    one_task(serial, _visc, (g, inp, cl, st, dt, first, factor, bc_speed, max_sweeps, serial))
 
 
 @ti.func

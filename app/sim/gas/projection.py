@@ -16,6 +16,7 @@ from .layout import (P_H, P_RHO, P_TRACE, SC_CORR, SC_DMAX, SC_NSW, SC_SMAX, SC_
                      Cells, Grid, Inputs, State, cidx, each_cell, each_face, fdecode, fidx, is_boundary, solved)
 from .multigrid import Multigrid
 from .pcg import Krylov, solve_record
+from ..tasks import one_task
 
 
 @ti.func
@@ -59,12 +60,7 @@ def k_build(g: Grid, inp: Inputs, cl: Cells, st: State, mg: Multigrid, ks: Krylo
     corrected field once more); the pressure system's T and b into the linear solver's bundles; the
     residual scale of the solve (the gross-flux scale of the predicted field, or the reference scale
     in a refinement round) into its control scalars."""
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _build(g, inp, cl, st, mg, ks, dt, again, True)
-    else:
-        _build(g, inp, cl, st, mg, ks, dt, again, False)
+    one_task(serial, _build, (g, inp, cl, st, mg, ks, dt, again, serial))
 
 
 @ti.func
@@ -254,12 +250,7 @@ def k_correct(g: Grid, inp: Inputs, mg: Multigrid, ks: Krylov, st: State, cl: Ce
     """u = u* - kappa grad phi, p += phi; periodic copies; cell outputs; (max|div|, scale, max|u|)
     into the scalars. The predictor increment is recorded in the first round only. Runs once the
     pressure solve has finished, once per round (the host launches it without waiting)."""
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _correct(g, inp, mg, ks, st, cl, dt, again, True)
-    else:
-        _correct(g, inp, mg, ks, st, cl, dt, again, False)
+    one_task(serial, _correct, (g, inp, mg, ks, st, cl, dt, again, serial))
 
 
 @ti.func

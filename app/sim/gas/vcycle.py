@@ -23,6 +23,7 @@ import taichi as ti
 from .pcg import Krylov, pcg_from, pcg_iter
 from .multigrid import (JACOBI_WEIGHT, L_CO, L_NCELL, POST_SWEEPS, PRE_SWEEPS, Multigrid, VCycle, _ncell, _ratio,
                         decode, dims, face_offsets, local, on, stencil)
+from ..tasks import one_task
 
 
 @ti.func
@@ -178,12 +179,7 @@ def _down(mg: ti.template(), l, serial: ti.template()):
 @ti.kernel
 def k_down(vc: VCycle, l: ti.i32, serial: ti.template()):
     """Pre-smoothing, residual and restriction of red-black level l."""
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _down(vc, l, True)
-    else:
-        _down(vc, l, False)
+    one_task(serial, _down, (vc, l, serial))
 
 
 @ti.func
@@ -196,12 +192,7 @@ def _iter_down(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.templa
 def k_iter_down(mg: Multigrid, ks: Krylov, max_iter: ti.i32, serial: ti.template()):
     """The outer CG's iteration (:func:`.pcg.pcg_iter`, which leaves its residual in level 0's b),
     then :func:`k_down` of level 0 (red-black, not the last level)."""
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _iter_down(mg, ks, max_iter, True)
-    else:
-        _iter_down(mg, ks, max_iter, False)
+    one_task(serial, _iter_down, (mg, ks, max_iter, serial))
 
 
 @ti.func
@@ -213,12 +204,7 @@ def _down_coarse(mg: ti.template(), l, singular, serial: ti.template()):
 @ti.kernel
 def k_down_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32, serial: ti.template()):
     """:func:`k_down` of the last red-black level l, then the one-thread CG of level l+1 (the coarsest)."""
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _down_coarse(mg, l, singular, True)
-    else:
-        _down_coarse(mg, l, singular, False)
+    one_task(serial, _down_coarse, (mg, l, singular, serial))
 
 
 @ti.func
@@ -232,12 +218,7 @@ def _up(mg: ti.template(), l, serial: ti.template()):
 @ti.kernel
 def k_up(vc: VCycle, l: ti.i32, serial: ti.template()):
     """Prolongation from level l+1 and post-smoothing of red-black level l."""
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _up(vc, l, True)
-    else:
-        _up(vc, l, False)
+    one_task(serial, _up, (vc, l, serial))
 
 
 @ti.func
@@ -249,12 +230,7 @@ def _up_from(mg: ti.template(), ks: ti.template(), singular, serial: ti.template
 @ti.kernel
 def k_up_from(mg: Multigrid, ks: Krylov, singular: ti.i32, serial: ti.template()):
     """:func:`k_up` of level 0 (red-black), then the outer CG's new direction (:func:`.pcg.pcg_from`)."""
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _up_from(mg, ks, singular, True)
-    else:
-        _up_from(mg, ks, singular, False)
+    one_task(serial, _up_from, (mg, ks, singular, serial))
 
 
 @ti.func
@@ -267,12 +243,7 @@ def _down_j(mg: ti.template(), l, serial: ti.template()):
 
 @ti.kernel
 def k_down_j(mg: Multigrid, l: ti.i32, serial: ti.template()):
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _down_j(mg, l, True)
-    else:
-        _down_j(mg, l, False)
+    one_task(serial, _down_j, (mg, l, serial))
 
 
 @ti.func
@@ -284,12 +255,7 @@ def _up_j(mg: ti.template(), l, serial: ti.template()):
 
 @ti.kernel
 def k_up_j(mg: Multigrid, l: ti.i32, serial: ti.template()):
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _up_j(mg, l, True)
-    else:
-        _up_j(mg, l, False)
+    one_task(serial, _up_j, (mg, l, serial))
 
 
 @ti.func
@@ -364,9 +330,4 @@ def _coarse_smooth(mg: ti.template(), l, first, serial: ti.template()):
 def k_coarse_smooth(mg: Multigrid, l: ti.i32, first: ti.i32, serial: ti.template()):
     """Large coarsest level (dimensions that do not halve): symmetric red-black sweeps in parallel
     instead of the one-thread CG."""
-    if ti.static(serial):
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _coarse_smooth(mg, l, first, True)
-    else:
-        _coarse_smooth(mg, l, first, False)
+    one_task(serial, _coarse_smooth, (mg, l, first, serial))
