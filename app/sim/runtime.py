@@ -6,11 +6,15 @@ scene with the same settings reuses the compiled kernels instead of resetting Ta
 from __future__ import annotations
 
 import contextlib
+import gc
 import os
 
 import taichi as ti
 
 _current: tuple | None = None
+#: Taichi wrappers (ndarrays, argpacks) still referenced when Taichi restarted, by id: kept alive for good (see
+#: :func:`_keep_survivors`)
+_survivors: dict = {}
 
 
 def gpu_available() -> bool:
@@ -33,6 +37,25 @@ def cpu_threads(requested: int | None) -> int:
     return 1 if cores <= 2 else cores
 
 
+def _keep_survivors() -> None:
+    """Before a restart: every ndarray and argpack wrapper of the old program is made harmless to the new one.
+
+    Taichi 1.7.4 frees all of a program's ndarrays and argpacks at a restart, but a Python wrapper that dies later
+    calls ``delete_ndarray`` / ``delete_argpack`` on the *current* program with its old pointer; once the new program
+    has put a new ndarray at that freed address (malloc reuses it: seen within a few restarts), that live array is
+    freed under its owner, whose next kernel launch reads a freed shape: a segfault, or "RuntimeError: argument not
+    found" (fmt failing to format the assertion "External array cannot have > {max_num_indices} indices"). So the
+    wrappers nothing references die now, in their own program, and the ones still referenced are kept for good
+    (a few hundred bytes each; their arrays are gone with the old program either way)."""
+    from taichi.lang._ndarray import Ndarray
+    from taichi.lang.argpack import ArgPack
+
+    gc.collect()
+    for o in gc.get_objects():
+        if isinstance(o, (Ndarray, ArgPack)):
+            _survivors[id(o)] = o
+
+
 def init(arch: str = "auto", precision: str = "float32", threads: int | None = None, debug: bool = False,
          kernel_profiler: bool = False) -> str:
     """Start Taichi on ``arch`` ('auto', 'cpu', 'cuda') with ``precision`` ('float32'|'float64').
@@ -49,6 +72,7 @@ def init(arch: str = "auto", precision: str = "float32", threads: int | None = N
         return arch
     fp = ti.f64 if precision == "float64" else ti.f32
     kwargs = dict(default_fp=fp, default_ip=ti.i32, debug=debug, log_level=ti.WARN, kernel_profiler=kernel_profiler)
+    _keep_survivors()
     if arch == "cpu":
         kwargs["cpu_max_num_threads"] = cpu_threads(threads)
         ti.init(arch=ti.cpu, **kwargs)
