@@ -64,3 +64,42 @@ def test_wrappers_outliving_a_restart_leave_the_new_programs_arrays_alone(tmp_pa
     errors = [line for line in r.stderr.splitlines() if "Error" in line or "Assertion" in line]
     assert r.returncode == 0, f"exit {r.returncode} (-11: segfault): {errors[-3:]}"
     assert "reused" in r.stdout, "no freed address was reused in 8 restarts: the scenario did not arise"
+
+
+CACHE_SCENARIO = """
+import taichi as ti
+from app.sim import runtime
+
+runtime.init("cpu", "float32", 1)
+
+@ti.kernel
+def twice(x: ti.types.ndarray(ndim=1)):
+    for i in x:
+        x[i] *= 2
+
+a = ti.ndarray(float, shape=(4,))
+twice(a)
+"""
+
+
+@pytest.mark.parametrize("age_s", [3600.0, 0.0], ids=["stale", "fresh"])
+def test_a_stale_offline_cache_lock_is_removed_and_the_cache_is_written(tmp_path, age_s):
+    """A killed process can leave Taichi's cache lock behind, and then no later process reads or writes the
+    cache (every kernel is compiled from scratch, for good). ``runtime.init`` removes a lock older than
+    ``STALE_LOCK_S``, so the kernel compiled here is written to the cache; a fresh lock (a live process may hold it)
+    is left alone, and then nothing is written."""
+    cache = tmp_path / "ticache"
+    cache.mkdir()
+    lock = cache / "ticache.lock"
+    lock.touch()
+    os.utime(lock, (lock.stat().st_atime - age_s, lock.stat().st_mtime - age_s))
+    script = tmp_path / "compile.py"
+    script.write_text(CACHE_SCENARIO)
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, cwd=ROOT, timeout=300,
+                       env=dict(os.environ, PYTHONPATH=str(ROOT), TI_OFFLINE_CACHE_FILE_PATH=str(cache)))
+    assert r.returncode == 0, r.stderr[-2000:]
+    written = sorted(p.name for p in cache.iterdir() if p.suffix in (".tic", ".tcb"))
+    if age_s > 0:
+        assert not lock.exists() and "ticache.tcb" in written and len(written) >= 2, written
+    else:
+        assert lock.exists() and written == [], written

@@ -56,6 +56,34 @@ def _keep_survivors() -> None:
             _survivors[id(o)] = o
 
 
+#: a Taichi offline-cache lock older than this is stale (s): the lock is held only while the cache's index is read
+#: or written, well under a second
+STALE_LOCK_S = 120.0
+
+
+def _clear_stale_cache_lock() -> str | None:
+    """Remove a stale lock of Taichi's offline cache; returns its path when one was removed.
+
+    Taichi 1.7.4 guards the cache with a lock file (``ticache.lock``, made with O_EXCL, removed on unlock, no owner
+    recorded). A process killed while it holds the lock leaves the file for good, and from then on every Taichi
+    program fails to take it ("Lock ... ticache.lock failed") and neither reads nor writes the cache: every process
+    compiles every kernel from scratch (seen 2026-12-02: a 45 s test took 240 s, the unit tier 5 min instead of
+    40 s, for hours). A lock older than :data:`STALE_LOCK_S` cannot belong to a live reader or writer."""
+    import time
+
+    from taichi.lang import impl
+
+    path = os.environ.get("TI_OFFLINE_CACHE_FILE_PATH") or impl.default_cfg().offline_cache_file_path
+    lock = os.path.join(path, "ticache.lock")
+    try:
+        if time.time() - os.path.getmtime(lock) > STALE_LOCK_S:
+            os.remove(lock)
+            return lock
+    except OSError:  # no lock, or another process removed it first
+        pass
+    return None
+
+
 def init(arch: str = "auto", precision: str = "float32", threads: int | None = None, debug: bool = False,
          kernel_profiler: bool = False) -> str:
     """Start Taichi on ``arch`` ('auto', 'cpu', 'cuda') with ``precision`` ('float32'|'float64').
@@ -73,6 +101,7 @@ def init(arch: str = "auto", precision: str = "float32", threads: int | None = N
     fp = ti.f64 if precision == "float64" else ti.f32
     kwargs = dict(default_fp=fp, default_ip=ti.i32, debug=debug, log_level=ti.WARN, kernel_profiler=kernel_profiler)
     _keep_survivors()
+    _clear_stale_cache_lock()
     if arch == "cpu":
         kwargs["cpu_max_num_threads"] = cpu_threads(threads)
         ti.init(arch=ti.cpu, **kwargs)
