@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import gc
 import os
+import time
 
 import taichi as ti
 
@@ -61,16 +62,14 @@ def _keep_survivors() -> None:
 STALE_LOCK_S = 120.0
 
 
-def _clear_stale_cache_lock() -> str | None:
-    """Remove a stale lock of Taichi's offline cache; returns its path when one was removed.
+def _clear_stale_cache_lock() -> None:
+    """Remove a stale lock of Taichi's offline cache.
 
     Taichi 1.7.4 guards the cache with a lock file (``ticache.lock``, made with O_EXCL, removed on unlock, no owner
     recorded). A process killed while it holds the lock leaves the file for good, and from then on every Taichi
     program fails to take it ("Lock ... ticache.lock failed") and neither reads nor writes the cache: every process
     compiles every kernel from scratch (seen 2026-12-02: a 45 s test took 240 s, the unit tier 5 min instead of
     40 s, for hours). A lock older than :data:`STALE_LOCK_S` cannot belong to a live reader or writer."""
-    import time
-
     from taichi.lang import impl
 
     path = os.environ.get("TI_OFFLINE_CACHE_FILE_PATH") or impl.default_cfg().offline_cache_file_path
@@ -78,10 +77,8 @@ def _clear_stale_cache_lock() -> str | None:
     try:
         if time.time() - os.path.getmtime(lock) > STALE_LOCK_S:
             os.remove(lock)
-            return lock
     except OSError:  # no lock, or another process removed it first
         pass
-    return None
 
 
 def init(arch: str = "auto", precision: str = "float32", threads: int | None = None, debug: bool = False,
