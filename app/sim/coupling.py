@@ -31,6 +31,7 @@ import dataclasses
 import numpy as np
 import taichi as ti
 
+from .launch import kernel
 from ..config.derived import grain_volume
 from . import drag
 from .dem import grain_radius
@@ -138,7 +139,7 @@ def _deposit_grain(m: ti.template(), g: ti.template(), s: ti.template(), gf: ti.
             ti.atomic_add(cf.solid[c], w[k] * vol)
 
 
-@ti.kernel
+@kernel
 def deposit(m: ti.template(), g: ti.template(), s: ti.template(), gf: ti.template(), geo: CellGeometry,
             cf: ti.template()):
     for I in ti.grouped(cf.solid):
@@ -164,7 +165,7 @@ def _smooth_cell(gf: ti.template(), geo: ti.template(), f: ti.template(), tmp: t
     tmp[I] = acc
 
 
-@ti.kernel
+@kernel
 def smooth_pass(gf: ti.template(), geo: CellGeometry, f: ti.template(), tmp: ti.template()):
     """One conservative diffusion pass of an extensive cell quantity f (grain volume, drag
     coefficient sums): the flux between open neighbours I, J is alpha min(phi_I, phi_J) (c_J - c_I),
@@ -197,7 +198,7 @@ def _void_cell(cm: ti.template(), gf: ti.template(), geo: ti.template(), cf: ti.
     cf.eps_prev[I] = e
 
 
-@ti.kernel
+@kernel
 def void_fraction(cm: ti.template(), gf: ti.template(), geo: CellGeometry, cf: ti.template(), dt: float,
                   first: ti.i32, gin: Inputs):
     """eps = 1 - solid / open cell volume, clipped at eps_min; d(eps)/dt against the previous step: the
@@ -255,7 +256,7 @@ def _exchange_grain(cm: ti.template(), m: ti.template(), g: ti.template(), s: ti
             ti.atomic_add(cf.k_v[c], w[k] * kp * v)
 
 
-@ti.kernel
+@kernel
 def exchange(cm: ti.template(), m: ti.template(), g: ti.template(), s: ti.template(), gf: ti.template(),
              geo: CellGeometry, gout: Outputs, cf: ti.template(), gin: Inputs):
     """Per-grain drag coefficient, gas velocity and explicit force from the gas's outputs (``gout``) and
@@ -277,7 +278,7 @@ def _drag_cell(gf: ti.template(), geo: ti.template(), cf: ti.template(), gin: ti
     gin.solid_vel[I] = us
 
 
-@ti.kernel
+@kernel
 def drag_on_gas(gf: ti.template(), geo: CellGeometry, cf: ti.template(), gin: Inputs):
     """beta and us per cell (the gas's inputs ``gin``) from the (smoothed) sums of w K and w K v."""
     for I in ti.grouped(cf.k_sum):
@@ -293,7 +294,7 @@ def _smooth_nested(gf: ti.template(), geo: ti.template(), f: ti.template(), tmp:
         f[I] = tmp[I]
 
 
-@ti.kernel
+@kernel
 def coupling_serial(cm: ti.template(), m: ti.template(), g: ti.template(), s: ti.template(), gf: ti.template(),
                     geo: CellGeometry, gout: Outputs, cf: ti.template(), gin: Inputs, dt: float, first: ti.i32,
                     with_deposit: ti.template(), with_exchange: ti.template()):

@@ -11,11 +11,12 @@ steps, or sooner when a writer or the guard needs the current figures (``Simulat
 import numpy as np
 import taichi as ti
 
+from .launch import kernel
 from .dem.step import DIAG_COLUMNS
 from .gas.outputs import GAS_DIAG_COLUMNS
 
 
-@ti.kernel
+@kernel
 def _k_store_count(count: ti.template(), ring: ti.types.ndarray(), row: ti.i32, col: ti.i32):
     ring[row, col] = ti.cast(count[None], ti.f64)
 

@@ -19,6 +19,7 @@ to the new slot (the springs themselves stay put); each thread writes only its o
 so no second list buffer is needed."""
 import taichi as ti
 
+from ..launch import kernel
 from ..fields import NO_SPRING, ROLL_EPSD, SCAN_BLOCK
 from .grains import grain_id, grain_radius
 from ..tasks import one_task
@@ -245,7 +246,7 @@ def move_partners(model: ti.template(), nlist: ti.template(), scratch: ti.templa
             nlist.partner[k, p] = ti.cast(scratch[p][k - k0], ti.i32)
 
 
-@ti.kernel
+@kernel
 def sort_by_cell(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                  nlist: ti.template()):
     """Re-order every per-grain array by cell (dead grains last); the list stays valid. On one CPU thread

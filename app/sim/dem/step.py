@@ -18,6 +18,7 @@ when asked for. No I/O, no printing.
 """
 import taichi as ti
 
+from ..launch import kernel
 from ..fields import NO_SPRING, ROLL_EPSD
 from ..geometry import wall_clearance_normal
 from .contact import contact
@@ -229,7 +230,7 @@ def integrate(model: ti.template(), sizes: ti.template(), state: ti.template(), 
                     nlist.counters[REBUILD] = 1  # every writer stores the same value
 
 
-@ti.kernel
+@kernel
 def dem_substep(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                 nlist: ti.template(), walls: ti.template()):
     """One DEM step in one launch: [rebuild] -> pair and wall forces -> integration. On one CPU thread
@@ -238,7 +239,7 @@ def dem_substep(model: ti.template(), sizes: ti.template(), state: ti.template()
     one_task(model.serial, substep_parts, (model, sizes, state, history, nlist, walls))
 
 
-@ti.kernel
+@kernel
 def dem_substeps(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                  nlist: ti.template(), walls: ti.template(), substeps: ti.i32):
     """``substeps`` DEM steps in one launch, on one CPU thread only (``model.serial``): one serial task,
@@ -250,7 +251,7 @@ def dem_substeps(model: ti.template(), sizes: ti.template(), state: ti.template(
             substep_parts(model, sizes, state, history, nlist, walls)
 
 
-@ti.kernel
+@kernel
 def dem_build(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
               nlist: ti.template()):
     """The list build that the next substep would start with, done ahead (nothing when no build is flagged)."""
@@ -277,7 +278,7 @@ DIAG_COLUMNS = ("kinetic_energy_translational", "kinetic_energy_rotational", "ma
                 "height_in_bin")
 
 
-@ti.kernel
+@kernel
 def measure(model: ti.template(), sizes: ti.template(), state: ti.template(), nlist: ti.template(),
             walls: ti.template(), out: ti.template(), hist: ti.template(), ring: ti.types.ndarray(), row: ti.i32,
             col: ti.i32):

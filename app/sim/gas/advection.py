@@ -8,6 +8,7 @@ trapezoidal rule for the forces along the path; see :mod:`app.sim.gas`).
 """
 import taichi as ti
 
+from ..launch import kernel
 from .boundary import comp_value
 from .layout import P_H, P_TRACE, SC_UOLD, Grid, Inputs, State, each_face, face_pos, fdims, solved
 from ..tasks import one_task
@@ -123,7 +124,7 @@ def vel_at_face(g: ti.template(), inp: ti.template(), arr: ti.template(), f, a, 
     return U
 
 
-@ti.kernel
+@kernel
 def k_advect(g: Grid, inp: Inputs, st: State, dt: float, serial: ti.template()):
     """vel_old = vel; vel_adv = back-traced vel (MacCormack-corrected when asked) + dt/2 (a at the
     departure point - a here), a being the last step's weighted acceleration; max|vel_old| into SC_UOLD.

@@ -8,6 +8,7 @@ a cell outside the last cell centre.
 """
 import taichi as ti
 
+from ..launch import kernel
 from .config import INLET, MOVING, OUTLET, WALL
 from .layout import (P_H, P_POUT, Grid, Inputs, State, cidx, each_face, eps_at, face_cells, fdecode, fidx, is_boundary,
                      solved, tangential, wrap)
@@ -131,7 +132,7 @@ def face_grad(g: ti.template(), cl: ti.template(), a, I):
     return grad_across(g, cl.pres, False, g.par[P_POUT + 2 * a], g.par[P_POUT + 2 * a + 1], a, I)
 
 
-@ti.kernel
+@kernel
 def k_bc_prep(g: Grid, inp: Inputs, st: State, serial: ti.template()):
     """Boundary and closed faces of the advected field; the viscous iterates start from it."""
     one_task(serial, _bc_prep, (g, inp, st, serial))
@@ -169,7 +170,7 @@ def _bc_prep_in(g: ti.template(), inp: ti.template(), st: ti.template(), f, a, I
     st.vel[f] = v
 
 
-@ti.kernel
+@kernel
 def k_periodic_copy(g: Grid, st: State):
     """Periodic duplicates of the first faces and zero on closed faces (after the host set velocities)."""
     n = g.dims

@@ -8,11 +8,12 @@ write the same arrays (one copy of each: nothing is copied in or out per step).
 import numpy as np
 import taichi as ti
 
+from ..launch import kernel
 from .grid import CutCells, MacGrid
 from .layout import CellGeometry, Inputs, Outputs
 
 
-@ti.kernel
+@kernel
 def _k_gas_extremes(u: ti.types.ndarray(), p: ti.types.ndarray(), out: ti.types.ndarray()):
     """out = [largest |u|^2 over the cells, number of cells with a non-finite velocity or pressure]: the
     per-step diagnostics reduced on the device (copying u and p to the host every step cost more)."""
@@ -30,7 +31,7 @@ def _k_gas_extremes(u: ti.types.ndarray(), p: ti.types.ndarray(), out: ti.types.
         ti.atomic_add(out[1], bad)
 
 
-@ti.kernel
+@kernel
 def _k_end_layer_pressures(p: ti.types.ndarray(), vf: ti.types.ndarray(), out: ti.types.ndarray()):
     """out = [sums over the first, second, second-to-last and last cell layers of p x open fraction of the
     end layer (first for the bottom two, last for the top two), the first layer's and the last's open sum]."""

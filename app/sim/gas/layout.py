@@ -12,6 +12,7 @@ two bundles of the same type.
 """
 import taichi as ti
 
+from ..launch import kernel
 from .config import EPS_MIN
 
 ND1 = ti.types.ndarray(ndim=1)
@@ -205,19 +206,19 @@ def face_pos(a, I):
 
 
 # ---- generic copies between the host and one bundle array
-@ti.kernel
+@kernel
 def k_write(dst: ti.types.ndarray(), off: ti.i32, src: ti.types.ndarray()):
     for i in range(src.shape[0]):
         dst[off + i] = src[i]
 
 
-@ti.kernel
+@kernel
 def k_read(src: ti.types.ndarray(), off: ti.i32, dst: ti.types.ndarray()):
     for i in range(dst.shape[0]):
         dst[i] = src[off + i]
 
 
-@ti.kernel
+@kernel
 def k_copy(src: ti.types.ndarray(), dst: ti.types.ndarray(), zero: ti.i32):
     """dst = src (or 0 when ``zero``), whole arrays of one size."""
     for i in range(dst.shape[0]):

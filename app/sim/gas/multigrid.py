@@ -12,6 +12,8 @@ they compile once per process whatever the grid.
 """
 import numpy as np
 import taichi as ti
+
+from ..launch import kernel
 from ..tasks import one_task
 
 NMETA = 16
@@ -188,12 +190,12 @@ def level_diag(mg: ti.template(), l):
 
 
 # ============================================================================ kernels
-@ti.kernel
+@kernel
 def k_diag(mg: Multigrid, l: ti.i32, serial: ti.template()):
     one_task(serial, level_diag, (mg, l))
 
 
-@ti.kernel
+@kernel
 def k_coarsen(mg: Multigrid, l: ti.i32, serial: ti.template()):
     """Transmissibilities and diagonal of level l+1 from level l."""
     one_task(serial, _coarsen, (mg, l))

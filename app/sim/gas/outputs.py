@@ -7,12 +7,13 @@ off the hot loop) and restores state; the checkpoint arrays keep the names they 
 import numpy as np
 import taichi as ti
 
+from ..launch import kernel
 from .config import ALIASES, FACES, INLET, MOVING
 from .fields import _k_end_layer_pressures, _k_gas_extremes, _load
 from .projection import k_outputs
 
 
-@ti.kernel
+@kernel
 def _k_add_face_flux(aperture: ti.types.ndarray(), eps_f: ti.types.ndarray(), vel: ti.types.ndarray(),
                      w: float, acc: ti.types.ndarray()):
     """acc[f] += w * aperture * face gas fraction (the step's) * velocity, on every face (the rCFD probe's sums)."""
@@ -26,7 +27,7 @@ GAS_DIAG_COLUMNS = ("max_speed_squared", "non_finite", "p_first", "p_second", "p
                     "open_first", "open_last")
 
 
-@ti.kernel
+@kernel
 def _k_ring_row(src: ti.types.ndarray(), n: ti.i32, ring: ti.types.ndarray(), row: ti.i32, col: ti.i32):
     for k in range(n):
         ring[row, col + k] = ti.cast(src[k], ti.f64)

@@ -54,6 +54,7 @@ import dataclasses
 
 import taichi as ti
 
+from ..launch import kernel
 from . import multigrid as mgm
 from .multigrid import (S_ACTIVE, S_BNORM, S_CNT, S_CONV, S_DONE, S_FIRST, S_IT, S_LAST, S_PAP, S_R0, S_RINF,
                         S_RZ, S_RZN, S_RZO, S_SCALE, S_SUM, S_THR, S_TRUE, Multigrid, decode, on, plan_levels, stencil)
@@ -123,7 +124,7 @@ def _active_sum(mg: ti.template(), values: ti.template(), nc):
             mg.ctrl[S_CNT] += 1.0
 
 
-@ti.kernel
+@kernel
 def k_pcg_begin(mg: Multigrid, ks: Krylov, singular: ti.i32, tol: float, scale_mode: ti.i32, scale: float,
                 serial: ti.template()):
     """Project b (singular case), measure max|b|, r = b - A x; the stopping threshold tol * scale with
@@ -159,7 +160,7 @@ def _pcg_begin(mg: ti.template(), ks: ti.template(), singular, tol, scale_mode, 
     mg.ctrl[S_ACTIVE] = ti.select(conv, 0.0, 1.0)
 
 
-@ti.kernel
+@kernel
 def k_pcg_from(mg: Multigrid, ks: Krylov, singular: ti.i32, serial: ti.template()):
     one_task(serial, pcg_from, (mg, ks, singular))
 
@@ -195,7 +196,7 @@ def pcg_from(mg: ti.template(), ks: ti.template(), singular):
         mg.ctrl[S_RZ] = mg.ctrl[S_RZN]
 
 
-@ti.kernel
+@kernel
 def k_pcg_iter(mg: Multigrid, ks: Krylov, max_iter: ti.i32, serial: ti.template()):
     one_task(serial, pcg_iter, (mg, ks, max_iter, serial))
 
@@ -265,7 +266,7 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.template
         mg.ctrl[S_ACTIVE] = 0.0
 
 
-@ti.kernel
+@kernel
 def k_pcg_finish(mg: Multigrid, ks: Krylov, singular: ti.i32, serial: ti.template()):
     """Once the solve has stopped (and only once): the zero-mean solution of a singular system."""
     one_task(serial, _pcg_finish, (mg, ks, singular))
@@ -295,13 +296,13 @@ def solve_record(mg: ti.template()):
                       mg.ctrl[S_DONE]])
 
 
-@ti.kernel
+@kernel
 def k_record(mg: Multigrid) -> ti.types.vector(6, ti.f64):
     return solve_record(mg)
 
 
 # ---- host <-> level-0 transfer (used by tests and by callers without their own kernels)
-@ti.kernel
+@kernel
 def _k_set_faces(mg: Multigrid, a: ti.i32, src: ti.types.ndarray()):
     # loop bounds built without a dynamic-index store (Taichi 1.7.4 gets ndrange bounds wrong
     # after ``d[a] += 1`` with a runtime a)
@@ -310,20 +311,20 @@ def _k_set_faces(mg: Multigrid, a: ti.i32, src: ti.types.ndarray()):
         mg.trans[mgm.face(mg, 0, a, ti.Vector([i, j, k]))] = src[i, j, k]
 
 
-@ti.kernel
+@kernel
 def _k_get_faces(mg: Multigrid, a: ti.i32, dst: ti.types.ndarray()):
     n = mgm.dims(mg, 0)
     for i, j, k in ti.ndrange(n[0] + (a == 0), n[1] + (a == 1), n[2] + (a == 2)):
         dst[i, j, k] = mg.trans[mgm.face(mg, 0, a, ti.Vector([i, j, k]))]
 
 
-@ti.kernel
+@kernel
 def _k_cells_in(v: ti.types.ndarray(), src: ti.types.ndarray()):
     for i, j, k in src:
         v[(i * src.shape[1] + j) * src.shape[2] + k] = src[i, j, k]
 
 
-@ti.kernel
+@kernel
 def _k_cells_out(v: ti.types.ndarray(), dst: ti.types.ndarray()):
     for i, j, k in dst:
         dst[i, j, k] = v[(i * dst.shape[1] + j) * dst.shape[2] + k]

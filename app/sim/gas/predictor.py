@@ -12,6 +12,7 @@ Cut-cell walls enter as ghost values u_G = -u_P (1 - t)/t (see :mod:`app.sim.gas
 """
 import taichi as ti
 
+from ..launch import kernel
 from .boundary import face_grad, ghost_coef
 from .layout import (P_G, P_H, P_MU, P_RHO, P_THMIN, SC_DV, SC_NSW, SC_UOLD, SC_VACT, SC_VTHR, Cells, Grid, Inputs,
                      State, each_face, each_face_colour, eps_at, face_cells, face_eps, face_mean_comp, fidx, solved,
@@ -42,7 +43,7 @@ def face_beta(g: ti.template(), inp: ti.template(), a, I):
     return e ** m1 * r / ti.max(cnt, 1.0)
 
 
-@ti.kernel
+@kernel
 def k_face_coef(g: Grid, inp: Inputs, st: State, serial: ti.template()):
     """Face gas fraction (mean of the two cells) and face drag coefficient, once per step."""
     one_task(serial, _face_coef, (g, inp, st, serial))
@@ -206,7 +207,7 @@ def _visc_face_in(g: ti.template(), st: ti.template(), f, a, I):
         st.vel[f] = unew
 
 
-@ti.kernel
+@kernel
 def k_visc(g: Grid, inp: Inputs, cl: Cells, st: State, dt: float, first: ti.i32, factor: float, bc_speed: float,
            max_sweeps: ti.i32, serial: ti.template()):
     """VISCOUS_CHUNK red-black Gauss-Seidel sweeps of the implicit predictor, each only while the

@@ -9,6 +9,7 @@ there: the solver's bundles are its interface, not private state.
 """
 import taichi as ti
 
+from ..launch import kernel
 from . import multigrid as mgm
 from .boundary import face_grad, grad_across, has_grad
 from .config import OUTLET
@@ -53,7 +54,7 @@ def cell_balance(g: ti.template(), inp: ti.template(), st: ti.template(), vb: ti
     return net, gross
 
 
-@ti.kernel
+@kernel
 def k_build(g: Grid, inp: Inputs, cl: Cells, st: State, mg: Multigrid, ks: Krylov, dt: float, again: ti.i32,
             serial: ti.template()):
     """Outlet faces get their predicted velocity (not ``again``: a refinement round projects the
@@ -244,7 +245,7 @@ def _outputs_at_in(g: ti.template(), inp: ti.template(), st: ti.template(), cl: 
         cl.gradp_cell[I][a] = gp
 
 
-@ti.kernel
+@kernel
 def k_correct(g: Grid, inp: Inputs, mg: Multigrid, ks: Krylov, st: State, cl: Cells, dt: float, again: ti.i32,
               serial: ti.template()):
     """u = u* - kappa grad phi, p += phi; periodic copies; cell outputs; (max|div|, scale, max|u|)
@@ -287,7 +288,7 @@ def _correct(g: ti.template(), inp: ti.template(), mg: ti.template(), ks: ti.tem
         st.gsc[SC_CORR] = 1.0
 
 
-@ti.kernel
+@kernel
 def k_record(st: State, mg: Multigrid) -> ti.types.vector(12, ti.f64):  # f64: fixed at import, maybe before ti.init
     """The step record, read once per step: max|u_old|, max|u_new|, viscous sweeps, max|div|, the
     corrected field's flux scale, the reference scale, 1 once corrected, then the pressure solve's
@@ -297,7 +298,7 @@ def k_record(st: State, mg: Multigrid) -> ti.types.vector(12, ti.f64):  # f64: f
                       st.gsc[SC_SREF], st.gsc[SC_CORR], r[0], r[1], r[2], r[3], r[4]])
 
 
-@ti.kernel
+@kernel
 def k_outputs(g: Grid, inp: Inputs, st: State, cl: Cells) -> ti.types.vector(2, ti.f64):
     cell_outputs(g, inp, st, cl, 1, False)
     return ti.Vector([st.gsc[SC_DMAX], st.gsc[SC_SMAX]])

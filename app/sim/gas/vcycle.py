@@ -20,6 +20,7 @@ to one coarse cell), so the level's residual is not stored.
 """
 import taichi as ti
 
+from ..launch import kernel
 from .pcg import Krylov, pcg_from, pcg_iter
 from .multigrid import (JACOBI_WEIGHT, L_CO, L_NCELL, POST_SWEEPS, PRE_SWEEPS, Multigrid, VCycle, _ncell, _ratio,
                         decode, dims, face_offsets, local, on, stencil)
@@ -176,7 +177,7 @@ def _down(mg: ti.template(), l, serial: ti.template()):
     _restrict_residual(mg, l, act)
 
 
-@ti.kernel
+@kernel
 def k_down(vc: VCycle, l: ti.i32, serial: ti.template()):
     """Pre-smoothing, residual and restriction of red-black level l."""
     one_task(serial, _down, (vc, l, serial))
@@ -188,7 +189,7 @@ def _iter_down(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.templa
     _down(mg, 0, serial)
 
 
-@ti.kernel
+@kernel
 def k_iter_down(mg: Multigrid, ks: Krylov, max_iter: ti.i32, serial: ti.template()):
     """The outer CG's iteration (:func:`.pcg.pcg_iter`, which leaves its residual in level 0's b),
     then :func:`k_down` of level 0 (red-black, not the last level)."""
@@ -201,7 +202,7 @@ def _down_coarse(mg: ti.template(), l, singular, serial: ti.template()):
     coarse_solve(mg, l + 1, singular, 1)
 
 
-@ti.kernel
+@kernel
 def k_down_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32, serial: ti.template()):
     """:func:`k_down` of the last red-black level l, then the one-thread CG of level l+1 (the coarsest)."""
     one_task(serial, _down_coarse, (mg, l, singular, serial))
@@ -215,7 +216,7 @@ def _up(mg: ti.template(), l, serial: ti.template()):
         _colour_sweep(mg, l, (s + 1) % 2, act, serial)
 
 
-@ti.kernel
+@kernel
 def k_up(vc: VCycle, l: ti.i32, serial: ti.template()):
     """Prolongation from level l+1 and post-smoothing of red-black level l."""
     one_task(serial, _up, (vc, l, serial))
@@ -227,7 +228,7 @@ def _up_from(mg: ti.template(), ks: ti.template(), singular, serial: ti.template
     pcg_from(mg, ks, singular)
 
 
-@ti.kernel
+@kernel
 def k_up_from(mg: Multigrid, ks: Krylov, singular: ti.i32, serial: ti.template()):
     """:func:`k_up` of level 0 (red-black), then the outer CG's new direction (:func:`.pcg.pcg_from`)."""
     one_task(serial, _up_from, (mg, ks, singular, serial))
@@ -241,7 +242,7 @@ def _down_j(mg: ti.template(), l, serial: ti.template()):
     _restrict_residual(mg, l, on(mg))
 
 
-@ti.kernel
+@kernel
 def k_down_j(mg: Multigrid, l: ti.i32, serial: ti.template()):
     one_task(serial, _down_j, (mg, l, serial))
 
@@ -253,7 +254,7 @@ def _up_j(mg: ti.template(), l, serial: ti.template()):
         _jacobi_sweep(mg, l)
 
 
-@ti.kernel
+@kernel
 def k_up_j(mg: Multigrid, l: ti.i32, serial: ti.template()):
     one_task(serial, _up_j, (mg, l, serial))
 
@@ -313,7 +314,7 @@ def coarse_solve(mg: ti.template(), l, singular, act):
                 rz = rzn
 
 
-@ti.kernel
+@kernel
 def k_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32):
     coarse_solve(mg, l, singular, 1)
 
@@ -326,7 +327,7 @@ def _coarse_smooth(mg: ti.template(), l, first, serial: ti.template()):
         _colour_sweep(mg, l, s, on(mg), serial)
 
 
-@ti.kernel
+@kernel
 def k_coarse_smooth(mg: Multigrid, l: ti.i32, first: ti.i32, serial: ti.template()):
     """Large coarsest level (dimensions that do not halve): symmetric red-black sweeps in parallel
     instead of the one-thread CG."""
