@@ -10,7 +10,8 @@
 # own process session so that it outlives this call: the machine stays lent while later calls poll it),
 # wait (poll the background run until it ends or LIMIT_wait), accuracy / stiffness (the full-size benches),
 # gas (the gas step alone on the Verma grid 32x32x116 and on 32x32x64 with a bed's void fraction and drag:
-# ms per step, then launches and host reads per step; issue 18's target is <= 3 ms per Verma step on one H200),
+# ms per step, then launches and host reads per step, then the launches' host cost: Taichi's own call against
+# the cached plans of app/sim/launch.py, interleaved; issue 18's target is <= 3 ms per Verma step on one H200),
 # series (issue 21: verma_small on the GPU, its summary.json wall_split with the callbacks' share, then the host
 # reads per fluid step of its first 0.1 s, the step's and the callbacks', by benchmarks/series_reads.py).
 # Before a call that runs the cavity or the Verma analysis: `mkdir -p runs && cp -r ../shared/reference runs/`
@@ -41,7 +42,8 @@ for stage in "$@"; do
   case "$stage" in
     gas)
       $T bash -c 'python3 benchmarks/flow_throughput.py --arch cuda --grids 32x32x116 32x32x64 --steps 50 \
-        --warmup 5 && python3 benchmarks/gas_counts.py --arch cuda --grids 32x32x116 32x32x64 --label cuda' ;;
+        --warmup 5 && python3 benchmarks/gas_counts.py --arch cuda --grids 32x32x116 32x32x64 --label cuda &&
+        python3 benchmarks/launch_cost.py --arch cuda --grids 8x8x16 32x32x116 --blocks 5' ;;
     series)
       $T bash -c 'python3 -m app run presets/verma_small.toml --arch cuda --out runs/verma_small --overwrite &&
         python3 benchmarks/series_reads.py presets/verma_small.toml --arch cuda --set run.duration=0.1 --label cuda' ;;
