@@ -5,7 +5,9 @@ lower 40% re-randomised every step, 0.5 m/s inflow, Model A, MacCormack, dt = 1e
 
 A host read is a kernel launch that returns a value, a to_numpy() or a Python-scope element read
 of a field or ndarray (counted by tests/kernel_counter.py around every kernel of app.sim); the
-launches count every kernel of app.sim. Counted over ``--steps`` steps after ``--warmup``; prints
+launches count every kernel of app.sim, and so do the ndarray arguments those launches set (each
+ndarray member of an argument pack counts: Taichi 1.7.4 sets every one at every launch, ~3 us each on
+the host, most of a launch's host cost once app/sim/launch.py cached the rest). Counted over ``--steps`` steps after ``--warmup``; prints
 the median per step with the min and max and appends a table to benchmarks/RESULTS.md.
 
 ``--tasks`` counts instead the offloaded tasks per step with Taichi's kernel profiler (every top-level loop of a
@@ -53,7 +55,7 @@ def main(argv=None) -> int:
         s, bed, eps, rng = scene(shape, 1e-6)
         for _ in range(args.warmup):
             s.step(DT)
-        launches, reads, iters, sweeps = [], [], [], []
+        launches, reads, nd_args, iters, sweeps = [], [], [], [], []
         top = None
         with KernelCounter(gas_modules()) as kc:
             for _ in range(args.steps):
@@ -62,6 +64,7 @@ def main(argv=None) -> int:
                 info = s.step(DT)
                 launches.append(kc.launches)
                 reads.append(kc.reads)
+                nd_args.append(kc.ndarray_args)
                 iters.append(info.pressure_iterations)
                 sweeps.append(info.viscous_sweeps)
                 top = dict(kc.reads_by)
@@ -69,6 +72,8 @@ def main(argv=None) -> int:
         rows.append({"label": args.label, "grid": g, "launches/step (median, min-max)":
                      f"{med(launches):g} ({min(launches)}-{max(launches)})",
                      "host reads/step (median, min-max)": f"{med(reads):g} ({min(reads)}-{max(reads)})",
+                     "ndarray arguments set/step (median, min-max)":
+                     f"{med(nd_args):g} ({min(nd_args)}-{max(nd_args)})",
                      "p-iters (median)": f"{med(iters):g}", "viscous sweeps (median)": f"{med(sweeps):g}"})
         print(rows[-1], "reads by:", top, flush=True)
     title = (f"Gas step: kernel launches and host reads per step ({arch}, {args.precision}; the flow_throughput "

@@ -3,13 +3,28 @@
 ``with KernelCounter(modules) as kc: ...`` replaces every Taichi kernel defined in ``modules``
 by a wrapper that counts its launches, and counts as one *host read* each launch of a kernel
 that returns a value (the host waits for it), each ``to_numpy()`` of a field or ndarray and each
-element read of one from Python scope (``field[i]``). Everything is restored on exit.
+element read of one from Python scope (``field[i]``), and the ndarray arguments each launch sets (every
+ndarray member of an argument pack counts: Taichi 1.7.4 sets them all, read or not, ~3 us each on the host).
+Everything is restored on exit.
 Used by the gas-step test and by benchmarks/gas_counts.py.
 """
 from __future__ import annotations
 
 import collections
 import importlib
+
+
+def _ndarrays(args) -> int:
+    """Ndarray arguments a launch with these positional arguments sets (top level and pack members)."""
+    nd = importlib.import_module("taichi.lang._ndarray").Ndarray
+    pack = importlib.import_module("taichi.lang.argpack").ArgPack
+    n = 0
+    for a in args:
+        if isinstance(a, nd):
+            n += 1
+        elif isinstance(a, pack):
+            n += _ndarrays(a._ArgPack__entries.values())
+    return n
 
 
 def _classes():
@@ -25,6 +40,7 @@ class KernelCounter:
         self.modules = list(modules)
         self.launches = 0
         self.reads = 0
+        self.ndarray_args = 0
         self.by_kernel = collections.Counter()
         self.reads_by = collections.Counter()
         self._saved = []
@@ -32,6 +48,7 @@ class KernelCounter:
     def reset(self) -> None:
         self.launches = 0
         self.reads = 0
+        self.ndarray_args = 0
         self.by_kernel.clear()
         self.reads_by.clear()
 
@@ -42,6 +59,7 @@ class KernelCounter:
         def wrapped(*args, **kw):
             counter.launches += 1
             counter.by_kernel[name] += 1
+            counter.ndarray_args += _ndarrays(args)
             if returns:
                 counter.reads += 1
                 counter.reads_by[name] += 1

@@ -170,6 +170,31 @@ def _bed_step_state(plans_on: bool):
         return s._get(s._st["vel"], s._nf), s.pressure(), info
 
 
+def test_a_narrowed_view_shares_the_arrays_and_cannot_drop_a_read():
+    """launch.narrowed / launch.view: a kernel given the view writes the full pack's own array; a type without a
+    member the kernel reads does not compile; a name that is not a member is refused."""
+    Dst = launch.narrowed(Pack, "dst", "shift")
+    assert list(Dst.members) == ["dst", "shift"]
+    full = _pack(3, shift=4)
+    part = launch.view(Dst, full)
+
+    def put(p: Dst):
+        for i in range(p.dst.shape[0]):
+            p.dst[i] = p.shift + i
+
+    launch.kernel(put)(part)
+    np.testing.assert_array_equal(full.dst.to_numpy(), [4.0, 5.0, 6.0])  # the full pack's dst itself
+
+    def reads_src(p: Dst):
+        for i in range(p.dst.shape[0]):
+            p.dst[i] = p.src[i]
+
+    with pytest.raises(Exception, match="src"):
+        launch.kernel(reads_src)(part)
+    with pytest.raises(KeyError, match="nothing"):
+        launch.narrowed(Pack, "dst", "nothing")
+
+
 def test_gas_steps_with_plans_are_bit_identical_to_taichis_own_launches():
     v_own, p_own, i_own = _bed_step_state(False)
     v_fast, p_fast, i_fast = _bed_step_state(True)

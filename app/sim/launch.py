@@ -215,6 +215,23 @@ def plans(on: bool):
         FastKernel.plans_on = before
 
 
+def narrowed(full: ArgPackType, *names: str) -> ArgPackType:
+    """The argpack type of ``full``'s members ``names`` only, for a kernel launched many times a step that reads
+    no other: Taichi 1.7.4 sets every ndarray member of a pack at every launch, ~3 us each on the host (CPU,
+    2026-12-03), whether the kernel reads it or not. A member the kernel reads but the type lacks fails the
+    kernel's compilation, so a narrowed type cannot drop a read silently."""
+    missing = [n for n in names if n not in full.members]
+    if missing:
+        raise KeyError(f"narrowed: {missing} not members of the pack ({list(full.members)})")
+    return ti.types.argpack(**{n: full.members[n] for n in names})
+
+
+def view(pack_type: ArgPackType, pack: ArgPack) -> ArgPack:
+    """A ``pack_type`` (a :func:`narrowed` type) holding ``pack``'s own arrays and values: nothing copied, so a
+    kernel given the view reads and writes the arrays of ``pack``."""
+    return pack_type(**{n: pack[n] for n in pack_type.members})
+
+
 def kernel(func) -> FastKernel:
     """``@launch.kernel`` in place of ``@ti.kernel``: the same kernel, launched from a cached plan."""
     return FastKernel(func)

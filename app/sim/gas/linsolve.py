@@ -16,6 +16,7 @@ from .. import runtime
 from . import multigrid as mgm
 from . import pcg, vcycle
 from .pcg import SolveInfo, plan_levels
+from ..launch import view
 
 __all__ = ["MGPCG", "SolveInfo", "plan_levels"]
 
@@ -68,6 +69,11 @@ class MGPCG:
         self._x, self._b0 = _zeros(n0), _zeros(n0)
         self.ks = pcg.Krylov(sol=self._x, res=_zeros(n0), prec=_zeros(n0), prec_old=_zeros(n0),
                              dirn=_zeros(n0), a_dirn=_zeros(n0), rhs=self._b0)
+        # the outer CG's fused kernels take views of the bundles with only the members they read (vcycle.py)
+        self._mg_iter = view(vcycle.IterMultigrid, self.mg)
+        self._mg_setup = view(mgm.Hierarchy, self.mg)
+        self._ks_down = view(vcycle.IterDownKrylov, self.ks)
+        self._ks_up = view(vcycle.UpFromKrylov, self.ks)
         self.last: SolveInfo | None = None
         self._singular = False
         self._max_iter = 0
@@ -134,7 +140,7 @@ class MGPCG:
             elif fused and l == L - 1:
                 vcycle.k_down_coarse(mg, l, sg, ser)
             elif iterate and first and l == 0:
-                vcycle.k_iter_down(mg, self.ks, self._max_iter, ser)
+                vcycle.k_iter_down(self._mg_iter, self._ks_down, self._max_iter, ser)
             else:
                 vcycle.k_down(vc, l, ser)
         if self.coarse_parallel:
@@ -146,7 +152,7 @@ class MGPCG:
             if self.level_jacobi[l]:
                 vcycle.k_up_j(mg, l, ser)
             elif l == 0:
-                vcycle.k_up_from(mg, self.ks, sg, ser)
+                vcycle.k_up_from(self._mg_iter, self._ks_up, sg, ser)
             else:
                 vcycle.k_up(vc, l, ser)
         if L == 0 or self.level_jacobi[0]:
@@ -163,9 +169,9 @@ class MGPCG:
         self._singular = bool(singular)
         self._max_iter = int(max_iter)
         self._launched = 0
-        mgm.k_diag(mg, 0, self.serial)
+        mgm.k_diag(self._mg_setup, 0, self.serial)
         for l in range(self.nlevels - 1):
-            mgm.k_coarsen(mg, l, self.serial)
+            mgm.k_coarsen(self._mg_setup, l, self.serial)
         mode = 2 if device_scale else (0 if scale is None else 1)
         pcg.k_pcg_begin(mg, ks, int(self._singular), float(tol), mode, float(scale or 0.0), self.serial)
         self._precondition()

@@ -13,7 +13,7 @@ they compile once per process whatever the grid.
 import numpy as np
 import taichi as ti
 
-from ..launch import kernel
+from ..launch import kernel, narrowed
 from ..tasks import one_task
 
 NMETA = 16
@@ -189,14 +189,18 @@ def level_diag(mg: ti.template(), l):
         mg.diag[co + c] = d
 
 
+#: the members the hierarchy's set-up kernels read (k_coarsen runs once per level each solve)
+Hierarchy = narrowed(Multigrid, "lev", "trans", "diag", "periodic")
+
+
 # ============================================================================ kernels
 @kernel
-def k_diag(mg: Multigrid, l: ti.i32, serial: ti.template()):
+def k_diag(mg: Hierarchy, l: ti.i32, serial: ti.template()):
     one_task(serial, level_diag, (mg, l))
 
 
 @kernel
-def k_coarsen(mg: Multigrid, l: ti.i32, serial: ti.template()):
+def k_coarsen(mg: Hierarchy, l: ti.i32, serial: ti.template()):
     """Transmissibilities and diagonal of level l+1 from level l."""
     one_task(serial, _coarsen, (mg, l))
 

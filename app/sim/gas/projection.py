@@ -9,7 +9,7 @@ there: the solver's bundles are its interface, not private state.
 """
 import taichi as ti
 
-from ..launch import kernel
+from ..launch import kernel, narrowed
 from . import multigrid as mgm
 from .boundary import face_grad, grad_across, has_grad
 from .config import OUTLET
@@ -54,8 +54,21 @@ def cell_balance(g: ti.template(), inp: ti.template(), st: ti.template(), vb: ti
     return net, gross
 
 
+#: the members each kernel of the projection reads (Taichi 1.7.4 sets every member of a pack at every launch,
+#: ~3 us each on the host: the full bundles would set 43 arrays a launch here)
+BuildState = narrowed(State, "vel", "eps_f", "beta_f", "gsc")
+CorrectState = narrowed(State, "vel", "vel_adv", "accel", "dpred", "eps_f", "beta_f", "gsc")
+RecordState = narrowed(State, "gsc")
+RateInputs = narrowed(Inputs, "gas_deps_dt")
+PresCells = narrowed(Cells, "pres")
+BuildMultigrid = narrowed(Multigrid, "lev", "trans", "ctrl")
+CtrlMultigrid = narrowed(Multigrid, "ctrl")
+BuildKrylov = narrowed(Krylov, "sol", "rhs")
+SolKrylov = narrowed(Krylov, "sol")
+
+
 @kernel
-def k_build(g: Grid, inp: Inputs, cl: Cells, st: State, mg: Multigrid, ks: Krylov, dt: float, again: ti.i32,
+def k_build(g: Grid, inp: RateInputs, cl: PresCells, st: BuildState, mg: BuildMultigrid, ks: BuildKrylov, dt: float, again: ti.i32,
             serial: ti.template()):
     """Outlet faces get their predicted velocity (not ``again``: a refinement round projects the
     corrected field once more); the pressure system's T and b into the linear solver's bundles; the
@@ -246,7 +259,7 @@ def _outputs_at_in(g: ti.template(), inp: ti.template(), st: ti.template(), cl: 
 
 
 @kernel
-def k_correct(g: Grid, inp: Inputs, mg: Multigrid, ks: Krylov, st: State, cl: Cells, dt: float, again: ti.i32,
+def k_correct(g: Grid, inp: RateInputs, mg: CtrlMultigrid, ks: SolKrylov, st: CorrectState, cl: Cells, dt: float, again: ti.i32,
               serial: ti.template()):
     """u = u* - kappa grad phi, p += phi; periodic copies; cell outputs; (max|div|, scale, max|u|)
     into the scalars. The predictor increment is recorded in the first round only. Runs once the
@@ -289,7 +302,7 @@ def _correct(g: ti.template(), inp: ti.template(), mg: ti.template(), ks: ti.tem
 
 
 @kernel
-def k_record(st: State, mg: Multigrid) -> ti.types.vector(12, ti.f64):  # f64: fixed at import, maybe before ti.init
+def k_record(st: RecordState, mg: CtrlMultigrid) -> ti.types.vector(12, ti.f64):  # f64: fixed at import, maybe before ti.init
     """The step record, read once per step: max|u_old|, max|u_new|, viscous sweeps, max|div|, the
     corrected field's flux scale, the reference scale, 1 once corrected, then the pressure solve's
     (iterations, max|r|, converged, scale, initial max|r|)."""

@@ -18,6 +18,7 @@ from .grid import cut_cells
 from .layout import NPAR, NSC, P_G, P_H, P_MU, P_POUT, P_RHO, P_THMIN, P_TRACE, k_copy
 from .linsolve import MGPCG
 from .outputs import SolverOutputs
+from ..launch import view
 
 
 def _zeros(n: int):
@@ -95,6 +96,16 @@ class FlowSolver(SolverOutputs):
         self._div_cell = ti.ndarray(float, shape=cfg.shape)
         self._div_cell.fill(0.0)
         self.cl = layout.Cells(pres=fl.p, u_cell=fl.u_gas, gradp_cell=fl.grad_p, div_cell=self._div_cell)
+        # the viscous sweeps take views with only the members they read (predictor.py)
+        self._visc_args = (view(predictor.ViscInputs, self.inp), view(predictor.ViscCells, self.cl),
+                           view(predictor.ViscState, self.st))
+        m, ks = self.mg.mg, self.mg.ks
+        P = projection
+        self._build_args = (view(P.RateInputs, self.inp), view(P.PresCells, self.cl), view(P.BuildState, self.st),
+                            view(P.BuildMultigrid, m), view(P.BuildKrylov, ks))
+        self._correct_args = (view(P.RateInputs, self.inp), view(P.CtrlMultigrid, m), view(P.SolKrylov, ks),
+                              view(P.CorrectState, self.st), self.cl)
+        self._record_args = (view(P.RecordState, self.st), view(P.CtrlMultigrid, m))
         self._load_constants(cfg, cut, kinds, has_walls)
         # ---- bookkeeping
         self._ncoupled = sum(1 for a in range(3) if not (per[a] and cfg.shape[a] == 1))
@@ -268,7 +279,7 @@ class FlowSolver(SolverOutputs):
         factor = VISCOUS_REDUCTION * min(1.0, (1.0 - r) / max(r, 1e-30))
         nmax = int(cfg.max_viscous_sweeps)
         for c in range(-(-nmax // predictor.VISCOUS_CHUNK)):
-            predictor.k_visc(g, inp, cl, st, dt, int(c == 0), factor, self._bc_speed, nmax, self.serial)
+            predictor.k_visc(g, *self._visc_args, dt, int(c == 0), factor, self._bc_speed, nmax, self.serial)
         max_iter = int(cfg.max_iter)
         rec = self._project(dt, 0, max_iter)
         first = self.mg.info_from(rec[7:])
@@ -297,14 +308,14 @@ class FlowSolver(SolverOutputs):
     def _project(self, dt: float, again: int, max_iter: int):
         """Pressure system, solve and correction (round ``again``); returns the step record (one read,
         more only when the solve outran its budget)."""
-        g, inp, st, cl, mg = self.g, self.inp, self.st, self.cl, self.mg
-        projection.k_build(g, inp, cl, st, mg.mg, mg.ks, dt, again, self.serial)
+        g, mg = self.g, self.mg
+        projection.k_build(g, *self._build_args, dt, again, self.serial)
         mg.begin(self.config.tol, max_iter, singular=self._singular, device_scale=True)
         n = mg.budget()
         while True:
             mg.launch(n)
-            projection.k_correct(g, inp, mg.mg, mg.ks, st, cl, dt, again, self.serial)
-            rec = projection.k_record(st, mg.mg)
+            projection.k_correct(g, *self._correct_args, dt, again, self.serial)
+            rec = projection.k_record(*self._record_args)
             if rec[6] > 0.5 or mg.exhausted:
                 return rec
             n = max(4, n // 2)

@@ -20,7 +20,7 @@ to one coarse cell), so the level's residual is not stored.
 """
 import taichi as ti
 
-from ..launch import kernel
+from ..launch import kernel, narrowed
 from .pcg import Krylov, pcg_from, pcg_iter
 from .multigrid import (JACOBI_WEIGHT, L_CO, L_NCELL, POST_SWEEPS, PRE_SWEEPS, Multigrid, VCycle, _ncell, _ratio,
                         decode, dims, face_offsets, local, on, stencil)
@@ -183,6 +183,13 @@ def k_down(vc: VCycle, l: ti.i32, serial: ti.template()):
     one_task(serial, _down, (vc, l, serial))
 
 
+#: the members the outer CG's two fused kernels read (each launched once an iteration: fewer members, less host
+#: time a launch; Taichi 1.7.4 sets every member of a pack at every launch)
+IterMultigrid = narrowed(Multigrid, "lev", "trans", "diag", "xs", "bs", "dirichlet", "ctrl", "periodic", "ncell0")
+IterDownKrylov = narrowed(Krylov, "sol", "res", "dirn", "a_dirn", "rhs")
+UpFromKrylov = narrowed(Krylov, "res", "prec", "prec_old", "dirn")
+
+
 @ti.func
 def _iter_down(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.template()):
     pcg_iter(mg, ks, max_iter, serial)
@@ -190,7 +197,7 @@ def _iter_down(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.templa
 
 
 @kernel
-def k_iter_down(mg: Multigrid, ks: Krylov, max_iter: ti.i32, serial: ti.template()):
+def k_iter_down(mg: IterMultigrid, ks: IterDownKrylov, max_iter: ti.i32, serial: ti.template()):
     """The outer CG's iteration (:func:`.pcg.pcg_iter`, which leaves its residual in level 0's b),
     then :func:`k_down` of level 0 (red-black, not the last level)."""
     one_task(serial, _iter_down, (mg, ks, max_iter, serial))
@@ -229,7 +236,7 @@ def _up_from(mg: ti.template(), ks: ti.template(), singular, serial: ti.template
 
 
 @kernel
-def k_up_from(mg: Multigrid, ks: Krylov, singular: ti.i32, serial: ti.template()):
+def k_up_from(mg: IterMultigrid, ks: UpFromKrylov, singular: ti.i32, serial: ti.template()):
     """:func:`k_up` of level 0 (red-black), then the outer CG's new direction (:func:`.pcg.pcg_from`)."""
     one_task(serial, _up_from, (mg, ks, singular, serial))
 
