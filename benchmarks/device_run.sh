@@ -43,7 +43,8 @@ for stage in "$@"; do
     gas)
       $T bash -c 'python3 benchmarks/flow_throughput.py --arch cuda --grids 32x32x116 32x32x64 --steps 50 \
         --warmup 5 && python3 benchmarks/gas_counts.py --arch cuda --grids 32x32x116 32x32x64 --label cuda &&
-        python3 benchmarks/launch_cost.py --arch cuda --grids 8x8x16 32x32x116 --blocks 5' ;;
+        python3 benchmarks/launch_cost.py --arch cuda --grids 8x8x16 32x32x116 --blocks 5 &&
+        python3 benchmarks/launch_cost.py --arch cuda --per-array' ;;
     series)
       $T bash -c 'python3 -m app run presets/verma_small.toml --arch cuda --out runs/verma_small --overwrite &&
         python3 benchmarks/series_reads.py presets/verma_small.toml --arch cuda --set run.duration=0.1 --label cuda' ;;

@@ -11,6 +11,7 @@ GPU the host's part is what the device waits on between kernels.
 
     python benchmarks/launch_cost.py --grids 4x4x8 8x8x16 16x16x32
     python benchmarks/launch_cost.py --arch cuda --grids 8x8x16 32x32x116
+    python benchmarks/launch_cost.py --per-array     # us a launch against the ndarrays it sets
 """
 from __future__ import annotations
 
@@ -68,6 +69,44 @@ def run(shape, steps: int, blocks: int, tol: float) -> dict:
             "us saved a launch": f"{1e6 * (a - b) / launches:.0f}"}
 
 
+def per_array(sizes=(0, 1, 4, 16), launches: int = 2000, repeats: int = 7) -> list:
+    """us a launch of a kernel that takes one pack of n ndarrays (and touches one element), plans on: the host
+    cost each ndarray argument adds (Taichi 1.7.4 sets every member of a pack at every launch)."""
+    import taichi as ti
+
+    from app.sim import launch
+
+    rows = []
+    for n in sizes:
+        arrays = [ti.ndarray(ti.f32, (4, 4, 4)) for _ in range(max(n, 1))]
+        # annotations set by hand: this module's `from __future__ import annotations` makes them strings
+        if n == 0:
+            def touch(x):
+                pass
+            touch.__annotations__ = {"x": ti.f32}
+            arg = 1.0
+        else:
+            pt = ti.types.argpack(**{f"a{i}": ti.types.ndarray(ti.f32, ndim=3) for i in range(n)})
+            arg = pt(**{f"a{i}": arrays[i] for i in range(n)})
+
+            def touch(p):
+                p.a0[0, 0, 0] += 1.0
+            touch.__annotations__ = {"p": pt}
+        k = launch.kernel(touch)
+        for _ in range(50):
+            k(arg)
+        us = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            for _ in range(launches):
+                k(arg)
+            us.append(1e6 * (time.perf_counter() - t) / launches)
+        rows.append({"ndarrays in the pack": str(n), "us a launch (median of %d)" % repeats:
+                     f"{statistics.median(us):.1f} ({min(us):.1f}-{max(us):.1f})"})
+        print(rows[-1], flush=True)
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--arch", default="cpu", choices=("cpu", "cuda"))
@@ -77,11 +116,19 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=10, help="steps a block")
     ap.add_argument("--blocks", type=int, default=7, help="pairs of blocks")
     ap.add_argument("--tol", type=float, default=1e-6)
+    ap.add_argument("--per-array", action="store_true",
+                    help="instead: us a launch of a kernel taking a pack of 0, 1, 4, 16 ndarrays")
     ap.add_argument("--dry", action="store_true", help="print only, do not append to RESULTS.md")
     args = ap.parse_args(argv)
     from app.sim import runtime
 
     arch = runtime.init(args.arch, args.precision, threads=args.threads)
+    if args.per_array:
+        title = (f"Launch host cost by ndarray arguments ({arch}, {args.precision}, threads {args.threads or 'all'}; "
+                 f"a kernel taking one pack of n ndarrays, touching one element; launch.kernel's plans; 7 x 2000 "
+                 f"launches)")
+        append_results(title, per_array(), arch, dry=args.dry)
+        return 0
     rows = []
     for g in args.grids:
         rows.append(run(tuple(int(x) for x in g.lower().split("x")), args.steps, args.blocks, args.tol))
