@@ -170,6 +170,31 @@ def _bed_step_state(plans_on: bool):
         return s._get(s._st["vel"], s._nf), s.pressure(), info
 
 
+def _entry_of(fast, pack):
+    """The compiled-data entry of the plan that launches ``fast`` with ``pack``."""
+    (plan,) = [pl for pl in fast._plans.values() if pl and any(ref() is pack for _, ref in pl.refs)]
+    return fast._compiled[id(plan.t_kernel)]
+
+
+def test_after_any_own_launch_a_plan_fetches_its_compiled_kernel_again(kernels):
+    """Taichi 1.7.4 frees the compiled data it handed out for a kernel from the disk cache whenever it is fetched
+    again, which its own launch does every time: after one, a plan must not launch what it fetched before
+    (it did: a segfault in a two-grid gas test, 2026-12-03)."""
+    fast, _, _ = kernels
+    p = _pack(4)
+    fast(p, 0.5, 1, False)
+    fast(p, 0.5, 1, False)  # from the plan
+    entry = _entry_of(fast, p)
+    seen = entry[0]
+    with launch.plans(False):
+        fast(p, 0.5, 1, False)  # Taichi's own launch
+    assert launch._own_launches[0] > seen
+    fast(p, 0.25, 2, False)
+    entry = _entry_of(fast, p)
+    assert entry[0] == launch._own_launches[0]  # fetched again after the own launch
+    np.testing.assert_allclose(p.dst.to_numpy(), 1.5 * np.arange(4) + 0.25 + 2 + 3)
+
+
 def test_a_narrowed_view_shares_the_arrays_and_cannot_drop_a_read():
     """launch.narrowed / launch.view: a kernel given the view writes the full pack's own array; a type without a
     member the kernel reads does not compile; a name that is not a member is refused."""

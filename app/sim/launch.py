@@ -25,7 +25,7 @@ import weakref
 
 import numpy as np
 import taichi as ti
-from taichi.lang import impl, runtime_ops
+from taichi.lang import impl, kernel_impl, runtime_ops
 from taichi.lang._ndarray import Ndarray
 from taichi.lang.argpack import ArgPack, ArgPackType
 from taichi.lang.exception import handle_exception_from_cpp
@@ -42,12 +42,30 @@ _TEMPLATE, _OBJECT, _SCALAR = 0, 1, 2
 MAX_PLANS = 64
 
 
+# Taichi's own launches so far. Why they matter: Taichi 1.7.4 hands out a kernel's compiled data by reference, and
+# for a kernel read from the offline cache on disk it reads the file again at every ``compile_kernel`` call and
+# frees the copy it handed out before (KernelCompilationManager::try_load_cached_kernel). Taichi's own launch calls
+# it every time; a plan keeps the reference, so after any launch of Taichi's own (a first call, a fallback, a plain
+# ti.kernel) every plan fetches its compiled data again once. Our own fetches are one per Taichi kernel instance
+# (shared by all its plans), so they free nothing a plan still holds.
+_own_launches = [0]
+_taichi_launch = kernel_impl.Kernel.launch_kernel
+
+
+def _counted_launch(self, t_kernel, *args):
+    _own_launches[0] += 1
+    return _taichi_launch(self, t_kernel, *args)
+
+
+kernel_impl.Kernel.launch_kernel = _counted_launch
+
+
 class _Slow(Exception):
     """An argument the plan does not handle: the call goes through Taichi's own path."""
 
 
 class _Plan:
-    __slots__ = ("prog", "t_kernel", "compiled", "refs", "packs", "members", "ndarrays", "scalars")
+    __slots__ = ("prog", "t_kernel", "refs", "packs", "members", "ndarrays", "scalars")
 
     def valid(self, args, prog) -> bool:
         if prog is not self.prog:
@@ -81,6 +99,8 @@ class FastKernel:
         self._primal = self._kernel._primal
         functools.update_wrapper(self, func)  # its name, module and text are the function's
         self._plans: dict = {}
+        # per Taichi kernel instance (id): [Taichi's own launches when fetched, its compiled data, the instance]
+        self._compiled: dict = {}
         self._external = False  # set once it is given a numpy array: then every call is Taichi's own
         self._kinds = None  # per argument: True for a template, False otherwise (read at the first call)
 
@@ -121,7 +141,6 @@ class FastKernel:
             plan = _Plan()
             plan.prog = prog
             plan.t_kernel = k.compiled_kernels[key]
-            plan.compiled = prog.compile_kernel(prog.config(), prog.get_device_caps(), plan.t_kernel)
             plan.refs, plan.packs, plan.members, plan.ndarrays, plan.scalars = [], [], [], [], []
             later = []  # ndarrays inside packs: Taichi gives them the slots after the top-level arguments
             slot = 0
@@ -170,6 +189,14 @@ class FastKernel:
         except (_Slow, TypeError):
             return False
 
+    def _compiled_data(self, plan: _Plan, prog):
+        """The plan's compiled kernel, fetched again after any launch of Taichi's own (see ``_own_launches``)."""
+        entry = self._compiled.get(id(plan.t_kernel))
+        if entry is None or entry[0] != _own_launches[0] or entry[2] is not plan.t_kernel:
+            data = prog.compile_kernel(prog.config(), prog.get_device_caps(), plan.t_kernel)
+            entry = self._compiled[id(plan.t_kernel)] = [_own_launches[0], data, plan.t_kernel]
+        return entry[1]
+
     def _launch(self, plan: _Plan, args, prog):
         ctx = plan.t_kernel.make_launch_context()
         for idx, pack in plan.packs:
@@ -191,7 +218,7 @@ class FastKernel:
                     ctx.set_arg_uint(idx, int(v))
         k = self._primal
         try:
-            prog.launch_kernel(plan.compiled, ctx)
+            prog.launch_kernel(self._compiled_data(plan, prog), ctx)
         except Exception as e:  # as Taichi's own launch reports it
             raise handle_exception_from_cpp(e) from None
         ret_dt = k.return_type
