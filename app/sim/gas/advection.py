@@ -8,9 +8,9 @@ trapezoidal rule for the forces along the path; see :mod:`app.sim.gas`).
 """
 import taichi as ti
 
-from ..launch import kernel
+from ..launch import kernel, narrowed
 from .boundary import comp_value
-from .layout import P_H, P_TRACE, SC_UOLD, Grid, Inputs, State, each_face, face_pos, fdims, solved
+from .layout import P_H, P_TRACE, SC_UOLD, EpsInputs, Grid, State, each_face, face_pos, fdims, solved
 from ..tasks import one_task
 
 
@@ -124,8 +124,12 @@ def vel_at_face(g: ti.template(), inp: ti.template(), arr: ti.template(), f, a, 
     return U
 
 
+#: the members of State the advection reads and writes
+AdvectState = narrowed(State, "vel", "vel_old", "vel_adv", "vel_tmp", "vel_lo", "vel_hi", "accel", "gsc")
+
+
 @kernel
-def k_advect(g: Grid, inp: Inputs, st: State, dt: float, serial: ti.template()):
+def k_advect(g: Grid, inp: EpsInputs, st: AdvectState, dt: float, serial: ti.template()):
     """vel_old = vel; vel_adv = back-traced vel (MacCormack-corrected when asked) + dt/2 (a at the
     departure point - a here), a being the last step's weighted acceleration; max|vel_old| into SC_UOLD.
 

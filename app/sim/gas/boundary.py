@@ -8,10 +8,10 @@ a cell outside the last cell centre.
 """
 import taichi as ti
 
-from ..launch import kernel
+from ..launch import kernel, narrowed
 from .config import INLET, MOVING, OUTLET, WALL
-from .layout import (P_H, P_POUT, Grid, Inputs, State, cidx, each_face, eps_at, face_cells, fdecode, fidx, is_boundary,
-                     solved, tangential, wrap)
+from .layout import (P_H, P_POUT, EpsInputs, Grid, State, cidx, each_face, eps_at, face_cells, fdecode, fidx,
+                     is_boundary, solved, tangential, wrap)
 from ..tasks import one_task
 
 
@@ -132,8 +132,12 @@ def face_grad(g: ti.template(), cl: ti.template(), a, I):
     return grad_across(g, cl.pres, False, g.par[P_POUT + 2 * a], g.par[P_POUT + 2 * a + 1], a, I)
 
 
+#: the members of State the boundary preparation reads and writes
+BcState = narrowed(State, "vel", "vel_adv", "dpred")
+
+
 @kernel
-def k_bc_prep(g: Grid, inp: Inputs, st: State, serial: ti.template()):
+def k_bc_prep(g: Grid, inp: EpsInputs, st: BcState, serial: ti.template()):
     """Boundary and closed faces of the advected field; the viscous iterates start from it."""
     one_task(serial, _bc_prep, (g, inp, st, serial))
 

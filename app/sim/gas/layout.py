@@ -12,7 +12,7 @@ two bundles of the same type.
 """
 import taichi as ti
 
-from ..launch import kernel
+from ..launch import kernel, narrowed
 from .config import EPS_MIN
 
 ND1 = ti.types.ndarray(ndim=1)
@@ -36,6 +36,8 @@ Inputs = ti.types.argpack(gas_eps=ND3, gas_deps_dt=ND3, drag_beta=ND3, solid_vel
 #: the gas's outputs as the coupling reads them (cells): gas_p pressure [Pa], gas_u interstitial
 #: velocity [m/s] and gas_gradp pressure gradient [Pa/m] at cell centres (the arrays of :data:`Cells`)
 Outputs = ti.types.argpack(gas_p=ND3, gas_u=ND3, gas_gradp=ND3)
+#: the gas fraction alone, for the kernels that read no other input (Inputs' other arrays are not set at their launches)
+EpsInputs = narrowed(Inputs, "gas_eps")
 #: the cut-cell geometry as the coupling reads it: open_frac (the open volume fraction), active_cell (i32)
 CellGeometry = ti.types.argpack(open_frac=ND3, active_cell=ND3)
 #: face state of a step: vel (the velocity), vel_old (at the step's start), vel_adv (advected), vel_tmp,

@@ -72,6 +72,8 @@ class MGPCG:
         # the outer CG's fused kernels take views of the bundles with only the members they read (vcycle.py)
         self._mg_iter = view(vcycle.IterMultigrid, self.mg)
         self._mg_setup = view(mgm.Hierarchy, self.mg)
+        self._begin_args = (view(pcg.BeginMultigrid, self.mg), view(pcg.BeginKrylov, self.ks))
+        self._finish_args = (view(pcg.FinishMultigrid, self.mg), view(pcg.FinishKrylov, self.ks))
         self._ks_down = view(vcycle.IterDownKrylov, self.ks)
         self._ks_up = view(vcycle.UpFromKrylov, self.ks)
         self.last: SolveInfo | None = None
@@ -165,7 +167,6 @@ class MGPCG:
         written the scale into the solver's scalars (``mg.ctrl[S_SCALE]``)."""
         if not (tol > 0.0):
             raise ValueError(f"tolerance must be > 0, got {tol}")
-        mg, ks = self.mg, self.ks
         self._singular = bool(singular)
         self._max_iter = int(max_iter)
         self._launched = 0
@@ -173,7 +174,7 @@ class MGPCG:
         for l in range(self.nlevels - 1):
             mgm.k_coarsen(self._mg_setup, l, self.serial)
         mode = 2 if device_scale else (0 if scale is None else 1)
-        pcg.k_pcg_begin(mg, ks, int(self._singular), float(tol), mode, float(scale or 0.0), self.serial)
+        pcg.k_pcg_begin(*self._begin_args, int(self._singular), float(tol), mode, float(scale or 0.0), self.serial)
         self._precondition()
 
     def launch(self, iterations: int) -> None:
@@ -181,11 +182,10 @@ class MGPCG:
         solve has converged, stagnated or reached max_iter), then the final zero-mean step (once)."""
         n = max(0, min(int(iterations), self._max_iter - self._launched))
         sg = int(self._singular)
-        mg, ks = self.mg, self.ks
         for _ in range(n):
             self._precondition(iterate=True)
         self._launched += n
-        pcg.k_pcg_finish(mg, ks, sg, self.serial)
+        pcg.k_pcg_finish(*self._finish_args, sg, self.serial)
 
     @property
     def exhausted(self) -> bool:

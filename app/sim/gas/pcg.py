@@ -54,7 +54,7 @@ import dataclasses
 
 import taichi as ti
 
-from ..launch import kernel
+from ..launch import kernel, narrowed
 from . import multigrid as mgm
 from .multigrid import (S_ACTIVE, S_BNORM, S_CNT, S_CONV, S_DONE, S_FIRST, S_IT, S_LAST, S_PAP, S_R0, S_RINF,
                         S_RZ, S_RZN, S_RZO, S_SCALE, S_SUM, S_THR, S_TRUE, Multigrid, decode, on, plan_levels, stencil)
@@ -124,8 +124,15 @@ def _active_sum(mg: ti.template(), values: ti.template(), nc):
             mg.ctrl[S_CNT] += 1.0
 
 
+#: the members the solve's first and last kernels read and write
+BeginMultigrid = narrowed(Multigrid, "lev", "trans", "diag", "bs", "dirichlet", "ctrl", "periodic", "ncell0")
+BeginKrylov = narrowed(Krylov, "sol", "res", "rhs")
+FinishMultigrid = narrowed(Multigrid, "diag", "ctrl", "ncell0")
+FinishKrylov = narrowed(Krylov, "sol")
+
+
 @kernel
-def k_pcg_begin(mg: Multigrid, ks: Krylov, singular: ti.i32, tol: float, scale_mode: ti.i32, scale: float,
+def k_pcg_begin(mg: BeginMultigrid, ks: BeginKrylov, singular: ti.i32, tol: float, scale_mode: ti.i32, scale: float,
                 serial: ti.template()):
     """Project b (singular case), measure max|b|, r = b - A x; the stopping threshold tol * scale with
     scale = max|b| (scale_mode 0), the argument (1) or mg.ctrl[S_SCALE] as a caller's kernel left it (2);
@@ -267,7 +274,7 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.template
 
 
 @kernel
-def k_pcg_finish(mg: Multigrid, ks: Krylov, singular: ti.i32, serial: ti.template()):
+def k_pcg_finish(mg: FinishMultigrid, ks: FinishKrylov, singular: ti.i32, serial: ti.template()):
     """Once the solve has stopped (and only once): the zero-mean solution of a singular system."""
     one_task(serial, _pcg_finish, (mg, ks, singular))
 

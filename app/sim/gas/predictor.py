@@ -43,8 +43,13 @@ def face_beta(g: ti.template(), inp: ti.template(), a, I):
     return e ** m1 * r / ti.max(cnt, 1.0)
 
 
+#: the members k_face_coef reads and writes
+FaceInputs = narrowed(Inputs, "gas_eps", "drag_beta")
+FaceState = narrowed(State, "eps_f", "beta_f")
+
+
 @kernel
-def k_face_coef(g: Grid, inp: Inputs, st: State, serial: ti.template()):
+def k_face_coef(g: Grid, inp: FaceInputs, st: FaceState, serial: ti.template()):
     """Face gas fraction (mean of the two cells) and face drag coefficient, once per step."""
     one_task(serial, _face_coef, (g, inp, st, serial))
 
@@ -214,8 +219,8 @@ ViscCells = narrowed(Cells, "pres")
 
 
 @kernel
-def k_visc(g: Grid, inp: ViscInputs, cl: ViscCells, st: ViscState, dt: float, first: ti.i32, factor: float, bc_speed: float,
-           max_sweeps: ti.i32, serial: ti.template()):
+def k_visc(g: Grid, inp: ViscInputs, cl: ViscCells, st: ViscState, dt: float, first: ti.i32, factor: float,
+           bc_speed: float, max_sweeps: ti.i32, serial: ti.template()):
     """VISCOUS_CHUNK red-black Gauss-Seidel sweeps of the implicit predictor, each only while the
     sweeps go on: they stop (on the device) when the largest change of a face velocity is at most
     factor * max(max|u_old|, bc_speed) or after max_sweeps. ``first`` starts the count and computes the

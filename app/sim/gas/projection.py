@@ -68,8 +68,8 @@ SolKrylov = narrowed(Krylov, "sol")
 
 
 @kernel
-def k_build(g: Grid, inp: RateInputs, cl: PresCells, st: BuildState, mg: BuildMultigrid, ks: BuildKrylov, dt: float, again: ti.i32,
-            serial: ti.template()):
+def k_build(g: Grid, inp: RateInputs, cl: PresCells, st: BuildState, mg: BuildMultigrid, ks: BuildKrylov,
+            dt: float, again: ti.i32, serial: ti.template()):
     """Outlet faces get their predicted velocity (not ``again``: a refinement round projects the
     corrected field once more); the pressure system's T and b into the linear solver's bundles; the
     residual scale of the solve (the gross-flux scale of the predicted field, or the reference scale
@@ -259,8 +259,8 @@ def _outputs_at_in(g: ti.template(), inp: ti.template(), st: ti.template(), cl: 
 
 
 @kernel
-def k_correct(g: Grid, inp: RateInputs, mg: CtrlMultigrid, ks: SolKrylov, st: CorrectState, cl: Cells, dt: float, again: ti.i32,
-              serial: ti.template()):
+def k_correct(g: Grid, inp: RateInputs, mg: CtrlMultigrid, ks: SolKrylov, st: CorrectState, cl: Cells,
+              dt: float, again: ti.i32, serial: ti.template()):
     """u = u* - kappa grad phi, p += phi; periodic copies; cell outputs; (max|div|, scale, max|u|)
     into the scalars. The predictor increment is recorded in the first round only. Runs once the
     pressure solve has finished, once per round (the host launches it without waiting)."""
@@ -301,8 +301,9 @@ def _correct(g: ti.template(), inp: ti.template(), mg: ti.template(), ks: ti.tem
         st.gsc[SC_CORR] = 1.0
 
 
+# the record's f64: fixed at import, maybe before ti.init
 @kernel
-def k_record(st: RecordState, mg: CtrlMultigrid) -> ti.types.vector(12, ti.f64):  # f64: fixed at import, maybe before ti.init
+def k_record(st: RecordState, mg: CtrlMultigrid) -> ti.types.vector(12, ti.f64):
     """The step record, read once per step: max|u_old|, max|u_new|, viscous sweeps, max|div|, the
     corrected field's flux scale, the reference scale, 1 once corrected, then the pressure solve's
     (iterations, max|r|, converged, scale, initial max|r|)."""

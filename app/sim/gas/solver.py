@@ -99,6 +99,9 @@ class FlowSolver(SolverOutputs):
         # the viscous sweeps take views with only the members they read (predictor.py)
         self._visc_args = (view(predictor.ViscInputs, self.inp), view(predictor.ViscCells, self.cl),
                            view(predictor.ViscState, self.st))
+        self._advect_args = (view(layout.EpsInputs, self.inp), view(advection.AdvectState, self.st))
+        self._bc_args = (view(layout.EpsInputs, self.inp), view(boundary.BcState, self.st))
+        self._face_args = (view(predictor.FaceInputs, self.inp), view(predictor.FaceState, self.st))
         m, ks = self.mg.mg, self.mg.ks
         P = projection
         self._build_args = (view(P.RateInputs, self.inp), view(P.PresCells, self.cl), view(P.BuildState, self.st),
@@ -139,7 +142,7 @@ class FlowSolver(SolverOutputs):
 
     def _face_coefficients(self) -> None:
         """Face gas fraction and drag coefficient from the current inputs."""
-        predictor.k_face_coef(self.g, self.inp, self.st, self.serial)
+        predictor.k_face_coef(self.g, *self._face_args, self.serial)
 
     # ------------------------------------------------------------------ host <-> bundle arrays
     @staticmethod
@@ -267,10 +270,10 @@ class FlowSolver(SolverOutputs):
         when the pressure solve needed more iterations than the last step's count and a half
         (:meth:`MGPCG.budget`), or a refinement round is due (float32 at its precision floor)."""
         cfg = self.config
-        g, inp, st, cl = self.g, self.inp, self.st, self.cl
+        g = self.g
         self._face_coefficients()
-        advection.k_advect(g, inp, st, dt, self.serial)
-        boundary.k_bc_prep(g, inp, st, self.serial)
+        advection.k_advect(g, *self._advect_args, dt, self.serial)
+        boundary.k_bc_prep(g, *self._bc_args, self.serial)
         # red-black Gauss-Seidel sweeps until the estimated error, change * r/(1-r) with r the
         # contraction factor at this diffusion number, and the change itself (a first sweep from a
         # poor initial iterate leaves red and black faces with different errors: a checkerboard)
