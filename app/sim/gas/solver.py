@@ -96,7 +96,21 @@ class FlowSolver(SolverOutputs):
         self._div_cell = ti.ndarray(float, shape=cfg.shape)
         self._div_cell.fill(0.0)
         self.cl = layout.Cells(pres=fl.p, u_cell=fl.u_gas, gradp_cell=fl.grad_p, div_cell=self._div_cell)
-        # the viscous sweeps take views with only the members they read (predictor.py)
+        self._make_views()
+        self._load_constants(cfg, cut, kinds, has_walls)
+        # ---- bookkeeping
+        self._ncoupled = sum(1 for a in range(3) if not (per[a] and cfg.shape[a] == 1))
+        self.time = 0.0
+        self.steps = 0
+        self.last: StepInfo | None = None
+        self._s_pred = 0.0
+        self._div = (0.0, 0.0)
+        self._p_init_pending = True
+        self._face_coefficients()
+
+    def _make_views(self) -> None:
+        """Views of the bundles with only the members each step kernel reads (:func:`app.sim.launch.view`:
+        the same arrays, nothing copied; Taichi 1.7.4 sets every ndarray member of a pack at each launch)."""
         self._visc_args = (view(predictor.ViscInputs, self.inp), view(predictor.ViscCells, self.cl),
                            view(predictor.ViscState, self.st))
         self._advect_args = (view(layout.EpsInputs, self.inp), view(advection.AdvectState, self.st))
@@ -109,16 +123,6 @@ class FlowSolver(SolverOutputs):
         self._correct_args = (view(P.RateInputs, self.inp), view(P.CtrlMultigrid, m), view(P.SolKrylov, ks),
                               view(P.CorrectState, self.st), self.cl)
         self._record_args = (view(P.RecordState, self.st), view(P.CtrlMultigrid, m))
-        self._load_constants(cfg, cut, kinds, has_walls)
-        # ---- bookkeeping
-        self._ncoupled = sum(1 for a in range(3) if not (per[a] and cfg.shape[a] == 1))
-        self.time = 0.0
-        self.steps = 0
-        self.last: StepInfo | None = None
-        self._s_pred = 0.0
-        self._div = (0.0, 0.0)
-        self._p_init_pending = True
-        self._face_coefficients()
 
     def _load_constants(self, cfg: FlowConfig, cut, kinds: list, has_walls: bool) -> None:
         """The fixed data of the bundles: parameters, apertures and clearances, boundary velocities."""
