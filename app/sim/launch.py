@@ -34,6 +34,8 @@ from taichi.types.annotations import template
 from taichi.types.utils import is_signed
 from taichi.lang.util import cook_dtype
 
+from . import frontend  # noqa: F401  (the front end's memos: every module with kernels imports this one)
+
 _REAL = (float, int, np.floating, np.integer)
 _INT = (int, np.integer)
 _PRIMITIVE = (bool, int, float, str, type(None))
