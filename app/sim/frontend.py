@@ -22,6 +22,7 @@ from taichi.lang.ast import ast_transformer_utils as _utils
 
 _Context = _utils.ASTTransformerContext
 _BODY_FIRST = ("For", "While", "FunctionDef", "If")  # the kinds whose message stops before their body
+_SOURCE_READERS = ("getsourcelines", "getsourcefile")  # kernel_impl's own names for them
 
 
 def _memo_pos_info(original):
@@ -64,7 +65,7 @@ def install() -> None:
     """Install the memos (once; importing this module does it)."""
     if not hasattr(_Context.get_pos_info, "_fbed_memo"):
         _Context.get_pos_info = _memo_pos_info(_Context.get_pos_info)
-    for name in ("getsourcelines", "getsourcefile"):
+    for name in _SOURCE_READERS:
         fn = getattr(kernel_impl, name)
         if not hasattr(fn, "_fbed_memo"):
             setattr(kernel_impl, name, _memo_per_function(fn))
@@ -74,7 +75,7 @@ def uninstall() -> None:
     """Taichi's own front end again (for A/B benchmarks: ``benchmarks/startup_cost.py``)."""
     if hasattr(_Context.get_pos_info, "_fbed_memo"):
         _Context.get_pos_info = _Context.get_pos_info.__wrapped__
-    for name in ("getsourcelines", "getsourcefile"):
+    for name in _SOURCE_READERS:
         fn = getattr(kernel_impl, name)
         if hasattr(fn, "_fbed_memo"):
             setattr(kernel_impl, name, fn.__wrapped__)

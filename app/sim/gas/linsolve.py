@@ -64,8 +64,7 @@ class MGPCG:
                                 cg_p=_zeros(ncoarse), cg_ap=_zeros(ncoarse), dirichlet=self._dval, ctrl=self._sc,
                                 periodic=ti.Vector([int(p) for p in self.periodic], ti.i32), ncell0=n0,
                                 coarse_iters=self.coarse_iterations)
-        m = self.mg
-        self.vc = mgm.VCycle(lev=m.lev, trans=m.trans, diag=m.diag, xs=m.xs, bs=m.bs, ctrl=m.ctrl, periodic=m.periodic)
+        self.vc = view(mgm.VCycle, self.mg)
         self._x, self._b0 = _zeros(n0), _zeros(n0)
         self.ks = pcg.Krylov(sol=self._x, res=_zeros(n0), prec=_zeros(n0), prec_old=_zeros(n0),
                              dirn=_zeros(n0), a_dirn=_zeros(n0), rhs=self._b0)

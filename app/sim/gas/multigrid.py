@@ -45,8 +45,7 @@ Multigrid = ti.types.argpack(lev=ti.types.ndarray(ndim=2), trans=ND1, diag=ND1, 
 #: the members of :data:`Multigrid` a red-black level of the V-cycle reads (the same arrays): launched
 #: 2L times a cycle, its launch costs less host time with fewer members (Taichi 1.7.4 sets every
 #: member on every launch; CPU: 6 ndarrays and a vector 129 us, the whole Multigrid 190 us, loaded)
-VCycle = ti.types.argpack(lev=ti.types.ndarray(ndim=2), trans=ND1, diag=ND1, xs=ND1, bs=ND1, ctrl=ND1,
-                          periodic=ti.types.vector(3, ti.i32))
+VCycle = narrowed(Multigrid, "lev", "trans", "diag", "xs", "bs", "ctrl", "periodic")
 
 
 def plan_levels(shape, min_coarse_cells=8, max_levels=16):
