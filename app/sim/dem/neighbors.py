@@ -204,16 +204,31 @@ def move_scalars(model: ti.template(), nlist: ti.template(), scratch: ti.templat
 
 
 @ti.func
-def move_rows(model: ti.template(), nlist: ti.template(), scratch: ti.template(), field: ti.template(), k0: ti.template(),
-              k1: ti.template()):
-    """Rows k0..k1-1 (at most three) of a 2-D scalar field into cell order."""
+def each_chunk(serial: ti.template(), chunks: ti.template(), body: ti.template(), args: ti.template()):
+    """``body(c, *args)`` for c in 0..chunks-1. In parallel unrolled at compile time, so each chunk's loops stay
+    top-level (parallel) loops; on one thread (``serial``) a run-time loop: the same moves in the same order,
+    compiled once instead of once per chunk (the sort of a frictional bed with rolling has ~80 chunks)."""
+    if ti.static(serial):
+        for c in range(chunks):
+            body(c, *args)
+    else:
+        for c in ti.static(range(chunks)):
+            body(c, *args)
+
+
+@ti.func
+def move_rows(c, model: ti.template(), nlist: ti.template(), scratch: ti.template(), field: ti.template(),
+              rows: ti.template()):
+    """Rows 3c..3c+2 (those below ``rows``) of a 2-D scalar field into cell order."""
     for p in range(model.n):
         o = nlist.sorted[p]
-        for k in ti.static(range(k0, k1)):
-            scratch[p][k - k0] = ti.cast(field[k, o], float)
+        for t in ti.static(range(3)):
+            if 3 * c + t < rows:
+                scratch[p][t] = ti.cast(field[3 * c + t, o], float)
     for p in range(model.n):
-        for k in ti.static(range(k0, k1)):
-            field[k, p] = ti.cast(scratch[p][k - k0], field.dtype)
+        for t in ti.static(range(3)):
+            if 3 * c + t < rows:
+                field[3 * c + t, p] = ti.cast(scratch[p][t], field.dtype)
 
 
 @ti.func
@@ -230,20 +245,31 @@ def move_vector(model: ti.template(), nlist: ti.template(), scratch: ti.template
 
 
 @ti.func
-def move_partners(model: ti.template(), nlist: ti.template(), scratch: ti.template(), k0: ti.template(),
-                  k1: ti.template()):
-    """Neighbour slots k0..k1-1 (at most two) into cell order, each partner renamed by its new slot, which
-    the scratch's third component holds; the slots past a row's count become -1."""
+def move_vector_row(h, model: ti.template(), nlist: ti.template(), scratch: ti.template(), field: ti.template()):
+    """Row h of a 2-D 3-vector field into cell order."""
+    for p in range(model.n):
+        scratch[p] = field[h, nlist.sorted[p]]
+    for p in range(model.n):
+        field[h, p] = scratch[p]
+
+
+@ti.func
+def move_partners(c, model: ti.template(), nlist: ti.template(), scratch: ti.template()):
+    """Neighbour slots 2c, 2c+1 (those below ``model.slots``) into cell order, each partner renamed by its new
+    slot, which the scratch's third component holds; the slots past a row's count become -1."""
     for p in range(model.n):
         o = nlist.sorted[p]
-        for k in ti.static(range(k0, k1)):
-            moved = -1.0
-            if k < nlist.count[o]:
-                moved = scratch[nlist.partner[k, o]][2]
-            scratch[p][k - k0] = moved
+        for t in ti.static(range(2)):
+            k = 2 * c + t
+            if k < model.slots:
+                moved = -1.0
+                if k < nlist.count[o]:
+                    moved = scratch[nlist.partner[k, o]][2]
+                scratch[p][t] = moved
     for p in range(model.n):
-        for k in ti.static(range(k0, k1)):
-            nlist.partner[k, p] = ti.cast(scratch[p][k - k0], ti.i32)
+        for t in ti.static(range(2)):
+            if 2 * c + t < model.slots:
+                nlist.partner[2 * c + t, p] = ti.cast(scratch[p][t], ti.i32)
 
 
 @kernel
@@ -260,12 +286,11 @@ def sort_parts(model: ti.template(), sizes: ti.template(), state: ti.template(),
     bin_by_cell(model, state, nlist, False)
     for p in range(model.n):  # the new slot of the grain now in slot o
         state.force[nlist.sorted[p]][2] = p
-    for k in ti.static(range(0, model.slots, 2)):
-        move_partners(model, nlist, state.force, k, min(k + 2, model.slots))
+    each_chunk(model.serial, (model.slots + 1) // 2, move_partners, (model, nlist, state.force))
     move_scalars(model, nlist, state.force, ((nlist.count, -1), (state.alive, -1), (sizes.grain_id, -1)))
     if ti.static(model.has_history):
-        for k in ti.static(range(0, model.slots, 3)):
-            move_rows(model, nlist, state.force, nlist.spring_slot, k, min(k + 3, model.slots))
+        each_chunk(model.serial, (model.slots + 2) // 3, move_rows, (model, nlist, state.force, nlist.spring_slot,
+                                                                     model.slots))
         for p in range(model.n):  # the history slots in use are those a neighbour slot names
             used = ti.u32(0)
             for k in range(nlist.count[p]):
@@ -280,15 +305,15 @@ def sort_parts(model: ti.template(), sizes: ti.template(), state: ti.template(),
     if ti.static(model.friction):
         move_vector(model, nlist, state.force, state.omega, -1)
         move_vector(model, nlist, state.force, state.torque, -1)
-        for h in ti.static(range(model.history_slots)):
-            move_vector(model, nlist, state.force, history.tangential, h)
-        for w in ti.static(range(len(model.walls))):
-            move_vector(model, nlist, state.force, history.wall_tangential, w)
+        each_chunk(model.serial, model.history_slots, move_vector_row, (model, nlist, state.force, history.tangential))
+        if ti.static(len(model.walls)):
+            each_chunk(model.serial, len(model.walls), move_vector_row, (model, nlist, state.force,
+                                                                          history.wall_tangential))
     if ti.static(model.rolling == ROLL_EPSD):
-        for h in ti.static(range(model.history_slots)):
-            move_vector(model, nlist, state.force, history.rolling, h)
-        for w in ti.static(range(len(model.walls))):
-            move_vector(model, nlist, state.force, history.wall_rolling, w)
+        each_chunk(model.serial, model.history_slots, move_vector_row, (model, nlist, state.force, history.rolling))
+        if ti.static(len(model.walls)):
+            each_chunk(model.serial, len(model.walls), move_vector_row, (model, nlist, state.force,
+                                                                          history.wall_rolling))
     if ti.static(model.coupled):
         move_scalars(model, nlist, state.force, ((state.drag_coeff, -1),))
         move_vector(model, nlist, state.force, state.gas_velocity, -1)

@@ -67,7 +67,9 @@ def comp_value(g: ti.template(), inp: ti.template(), arr: ti.template(), a, I):
     else:
         J[a] = ti.min(ti.max(J[a], 0), n[a])
     gh = ti.Vector([0, 0, 0])
-    for b in ti.static(range(3)):
+    # run-time loops over the axes: unrolled, the ghost logic was inlined 3x into each of the ~7 interpolations
+    # of the advection kernel, which then took 86 s to compile (43 s with this loop alone run-time)
+    for b in range(3):
         if b != a and (J[b] < 0 or J[b] >= n[b]):
             if g.wrap[b] == 1:
                 J[b] = wrap(J[b], n[b])
@@ -75,7 +77,7 @@ def comp_value(g: ti.template(), inp: ti.template(), arr: ti.template(), a, I):
                 gh[b] = -1 if J[b] < 0 else 1
                 J[b] = ti.min(ti.max(J[b], 0), n[b] - 1)
     v = arr[fidx(g, a, J)]
-    for b in ti.static(range(3)):
+    for b in range(3):
         if gh[b] != 0:
             al, ga = ghost_coef(g, inp, b, (gh[b] + 1) // 2, a, J)
             v = al * v + ga
