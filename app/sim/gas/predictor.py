@@ -236,12 +236,22 @@ def _visc(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.templa
         st.gsc[SC_VACT] = 1.0
         st.gsc[SC_VTHR] = factor * ti.max(ti.max(st.gsc[SC_UOLD], bc_speed), 1e-30)
     _visc_setup(g, inp, cl, st, dt, g.nfaces * first, serial)
-    for _s in ti.static(range(VISCOUS_CHUNK)):
-        nf = g.nfaces * ti.cast(st.gsc[SC_VACT] > 0.0, ti.i32)
-        st.gsc[SC_DV] = 0.0
-        _visc_colour(g, st, 0, nf, serial)
-        _visc_colour(g, st, 1, nf, serial)
-        if nf > 0:
-            st.gsc[SC_NSW] += 1.0
-            if st.gsc[SC_DV] <= st.gsc[SC_VTHR] or st.gsc[SC_NSW] >= ti.cast(max_sweeps, float):
-                st.gsc[SC_VACT] = 0.0
+    if ti.static(serial):  # one thread: a run-time loop, the sweep compiled once (the same sweeps in order)
+        for _s in range(VISCOUS_CHUNK):
+            _visc_sweep(g, st, max_sweeps, serial)
+    else:  # unrolled: each sweep's loops stay top-level (parallel) loops
+        for _s in ti.static(range(VISCOUS_CHUNK)):
+            _visc_sweep(g, st, max_sweeps, serial)
+
+
+@ti.func
+def _visc_sweep(g: ti.template(), st: ti.template(), max_sweeps, serial: ti.template()):
+    """One red-black sweep, unless the sweeps have stopped; then the stopping test."""
+    nf = g.nfaces * ti.cast(st.gsc[SC_VACT] > 0.0, ti.i32)
+    st.gsc[SC_DV] = 0.0
+    _visc_colour(g, st, 0, nf, serial)
+    _visc_colour(g, st, 1, nf, serial)
+    if nf > 0:
+        st.gsc[SC_NSW] += 1.0
+        if st.gsc[SC_DV] <= st.gsc[SC_VTHR] or st.gsc[SC_NSW] >= ti.cast(max_sweeps, float):
+            st.gsc[SC_VACT] = 0.0
