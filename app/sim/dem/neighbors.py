@@ -22,7 +22,7 @@ import taichi as ti
 from ..launch import kernel
 from ..fields import NO_SPRING, ROLL_EPSD, SCAN_BLOCK
 from .grains import grain_id, grain_radius
-from ..tasks import one_task
+from ..tasks import each_chunk, one_task
 
 REBUILD, OVERFLOW, REMOVED, BUILDS, SPRING_OVERFLOW, DEAD = 0, 1, 2, 3, 4, 5  # nlist.counters
 
@@ -174,46 +174,15 @@ def build_row(model: ti.template(), sizes: ti.template(), state: ti.template(), 
 # stays valid and no build is needed.
 
 @ti.func
-def _value(item: ti.template(), o):
-    field, row = ti.static(item[0], item[1])
-    if ti.static(row < 0):
-        return field[o]
-    else:
-        return field[row, o]
-
-
-@ti.func
-def _store(item: ti.template(), p, v):
-    field, row = ti.static(item[0], item[1])
-    if ti.static(row < 0):
-        field[p] = ti.cast(v, field.dtype)
-    else:
-        field[row, p] = ti.cast(v, field.dtype)
-
-
-@ti.func
-def move_scalars(model: ti.template(), nlist: ti.template(), scratch: ti.template(), items: ti.template()):
-    """Up to three scalar rows (``(field, row)``, row -1 for a 1-D field) into cell order."""
+def move_scalars(model: ti.template(), nlist: ti.template(), scratch: ti.template(), fields: ti.template()):
+    """Up to three 1-D scalar fields into cell order."""
     for p in range(model.n):
         o = nlist.sorted[p]
-        for c in ti.static(range(len(items))):
-            scratch[p][c] = ti.cast(_value(items[c], o), float)
+        for c in ti.static(range(len(fields))):
+            scratch[p][c] = ti.cast(fields[c][o], float)
     for p in range(model.n):
-        for c in ti.static(range(len(items))):
-            _store(items[c], p, scratch[p][c])
-
-
-@ti.func
-def each_chunk(serial: ti.template(), chunks: ti.template(), body: ti.template(), args: ti.template()):
-    """``body(c, *args)`` for c in 0..chunks-1. In parallel unrolled at compile time, so each chunk's loops stay
-    top-level (parallel) loops; on one thread (``serial``) a run-time loop: the same moves in the same order,
-    compiled once instead of once per chunk (the sort of a frictional bed with rolling has ~80 chunks)."""
-    if ti.static(serial):
-        for c in range(chunks):
-            body(c, *args)
-    else:
-        for c in ti.static(range(chunks)):
-            body(c, *args)
+        for c in ti.static(range(len(fields))):
+            fields[c][p] = ti.cast(scratch[p][c], fields[c].dtype)
 
 
 @ti.func
@@ -232,16 +201,12 @@ def move_rows(c, model: ti.template(), nlist: ti.template(), scratch: ti.templat
 
 
 @ti.func
-def move_vector(model: ti.template(), nlist: ti.template(), scratch: ti.template(), field: ti.template(),
-                row: ti.template()):
-    """One 3-vector row (row -1: a 1-D field) into cell order."""
+def move_vector(model: ti.template(), nlist: ti.template(), scratch: ti.template(), field: ti.template()):
+    """One 1-D 3-vector field into cell order."""
     for p in range(model.n):
-        scratch[p] = _value((field, row), nlist.sorted[p])
+        scratch[p] = field[nlist.sorted[p]]
     for p in range(model.n):
-        if ti.static(row < 0):
-            field[p] = scratch[p]
-        else:
-            field[row, p] = scratch[p]
+        field[p] = scratch[p]
 
 
 @ti.func
@@ -287,7 +252,7 @@ def sort_parts(model: ti.template(), sizes: ti.template(), state: ti.template(),
     for p in range(model.n):  # the new slot of the grain now in slot o
         state.force[nlist.sorted[p]][2] = p
     each_chunk(model.serial, (model.slots + 1) // 2, move_partners, (model, nlist, state.force))
-    move_scalars(model, nlist, state.force, ((nlist.count, -1), (state.alive, -1), (sizes.grain_id, -1)))
+    move_scalars(model, nlist, state.force, (nlist.count, state.alive, sizes.grain_id))
     if ti.static(model.has_history):
         each_chunk(model.serial, (model.slots + 2) // 3, move_rows, (model, nlist, state.force, nlist.spring_slot,
                                                                      model.slots))
@@ -299,12 +264,12 @@ def sort_parts(model: ti.template(), sizes: ti.template(), state: ti.template(),
                     used |= ti.u32(1) << h
             nlist.springs_used[p] = used
     if ti.static(model.polydisperse):
-        move_scalars(model, nlist, state.force, ((sizes.radius, -1), (sizes.mass, -1)))
+        move_scalars(model, nlist, state.force, (sizes.radius, sizes.mass))
     for field in ti.static((state.x, state.v, nlist.x_ref)):
-        move_vector(model, nlist, state.force, field, -1)
+        move_vector(model, nlist, state.force, field)
     if ti.static(model.friction):
-        move_vector(model, nlist, state.force, state.omega, -1)
-        move_vector(model, nlist, state.force, state.torque, -1)
+        move_vector(model, nlist, state.force, state.omega)
+        move_vector(model, nlist, state.force, state.torque)
         each_chunk(model.serial, model.history_slots, move_vector_row, (model, nlist, state.force, history.tangential))
         if ti.static(len(model.walls)):
             each_chunk(model.serial, len(model.walls), move_vector_row, (model, nlist, state.force,
@@ -315,8 +280,8 @@ def sort_parts(model: ti.template(), sizes: ti.template(), state: ti.template(),
             each_chunk(model.serial, len(model.walls), move_vector_row, (model, nlist, state.force,
                                                                           history.wall_rolling))
     if ti.static(model.coupled):
-        move_scalars(model, nlist, state.force, ((state.drag_coeff, -1),))
-        move_vector(model, nlist, state.force, state.gas_velocity, -1)
-        move_vector(model, nlist, state.force, state.external_force, -1)
+        move_scalars(model, nlist, state.force, (state.drag_coeff,))
+        move_vector(model, nlist, state.force, state.gas_velocity)
+        move_vector(model, nlist, state.force, state.external_force)
     for p in range(model.n):
         state.force[p] = ti.Vector([0.0, 0.0, 0.0])

@@ -17,7 +17,7 @@ from .boundary import face_grad, ghost_coef
 from .layout import (P_G, P_H, P_MU, P_RHO, P_THMIN, SC_DV, SC_NSW, SC_UOLD, SC_VACT, SC_VTHR, Cells, Grid, Inputs,
                      State, each_face, each_face_colour, eps_at, face_cells, face_eps, face_mean_comp, fidx, solved,
                      wrap)
-from ..tasks import one_task
+from ..tasks import each_chunk, one_task
 
 VISCOUS_CHUNK = 4  # red-black sweeps per launch of the viscous predictor (each stops itself on the device;
 # each is a copy of the sweep in the compiled kernel; with the fixed parts computed once per step the
@@ -236,17 +236,13 @@ def _visc(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.templa
         st.gsc[SC_VACT] = 1.0
         st.gsc[SC_VTHR] = factor * ti.max(ti.max(st.gsc[SC_UOLD], bc_speed), 1e-30)
     _visc_setup(g, inp, cl, st, dt, g.nfaces * first, serial)
-    if ti.static(serial):  # one thread: a run-time loop, the sweep compiled once (the same sweeps in order)
-        for _s in range(VISCOUS_CHUNK):
-            _visc_sweep(g, st, max_sweeps, serial)
-    else:  # unrolled: each sweep's loops stay top-level (parallel) loops
-        for _s in ti.static(range(VISCOUS_CHUNK)):
-            _visc_sweep(g, st, max_sweeps, serial)
+    each_chunk(serial, VISCOUS_CHUNK, _visc_sweep, (g, st, max_sweeps, serial))
 
 
 @ti.func
-def _visc_sweep(g: ti.template(), st: ti.template(), max_sweeps, serial: ti.template()):
-    """One red-black sweep, unless the sweeps have stopped; then the stopping test."""
+def _visc_sweep(_sweep, g: ti.template(), st: ti.template(), max_sweeps, serial: ti.template()):
+    """One red-black sweep (of a chunk of ``VISCOUS_CHUNK``), unless the sweeps have stopped; then the stopping
+    test."""
     nf = g.nfaces * ti.cast(st.gsc[SC_VACT] > 0.0, ti.i32)
     st.gsc[SC_DV] = 0.0
     _visc_colour(g, st, 0, nf, serial)
