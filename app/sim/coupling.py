@@ -92,7 +92,7 @@ def _weights(gf: ti.template(), geo: ti.template(), x):
     w = ti.Vector([0.0] * 8)
     cells = ti.Matrix([[0, 0, 0]] * 8, ti.i32)
     total = 0.0
-    for k in ti.static(range(8)):
+    for k in range(8):  # run-time loops over the corners: one compiled copy, not eight (compile time)
         d = ti.Vector([k & 1, (k >> 1) & 1, (k >> 2) & 1])
         c = i0 + d
         wk = 1.0
@@ -114,7 +114,7 @@ def _weights(gf: ti.template(), geo: ti.template(), x):
         w /= total
     else:  # no open cell around (a grain deep in a wall corner): its own cell takes it
         c = gf.cell_of(x)
-        for k in ti.static(range(8)):
+        for k in range(8):
             for a in ti.static(range(3)):
                 cells[k, a] = c[a]
         w[0] = 1.0
@@ -134,7 +134,7 @@ def _deposit_grain(m: ti.template(), g: ti.template(), s: ti.template(), gf: ti.
         r = grain_radius(m, g, i)
         vol = grain_volume_func(r)
         cells, w = _weights(gf, geo, s.x[i])
-        for k in ti.static(range(8)):
+        for k in range(8):
             c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
             ti.atomic_add(cf.solid[c], w[k] * vol)
 
@@ -154,11 +154,12 @@ def _smooth_cell(gf: ti.template(), geo: ti.template(), f: ti.template(), tmp: t
     if geo.active_cell[I]:
         pI = ti.max(geo.open_frac[I], 1e-12)
         cI = f[I] / pI
-        for a in ti.static(range(3)):
+        shape = ti.Vector(gf.shape)
+        for a in range(3):  # a run-time loop: the stencil compiled once, not per axis (compile time)
             for sgn in ti.static((-1, 1)):
                 J = I
                 J[a] += sgn
-                if 0 <= J[a] < gf.shape[a]:
+                if 0 <= J[a] < shape[a]:
                     if geo.active_cell[J]:
                         pJ = ti.max(geo.open_frac[J], 1e-12)
                         acc += SMOOTH_ALPHA * ti.min(pI, pJ) * (f[J] / pJ - cI)
@@ -226,7 +227,7 @@ def _exchange_grain(cm: ti.template(), m: ti.template(), g: ti.template(), s: ti
         eps = 0.0
         ug = ti.Vector([0.0, 0.0, 0.0])
         gp = ti.Vector([0.0, 0.0, 0.0])
-        for k in ti.static(range(8)):
+        for k in range(8):
             c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
             eps += w[k] * gin.gas_eps[c]
             ug += w[k] * gout.gas_u[c]
@@ -242,7 +243,7 @@ def _exchange_grain(cm: ti.template(), m: ti.template(), g: ti.template(), s: ti
             s.external_force[i] = buoyancy
             # its reaction on the gas, so momentum is conserved and the gas column weighs rho_g g
             # everywhere (as in Model A): both forms then give the same pressure drop
-            for k in ti.static(range(8)):
+            for k in range(8):
                 c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
                 vc = gf.h * gf.h * gf.h * ti.max(geo.open_frac[c], 1e-12)
                 ti.atomic_add(gin.ext_force[c], -w[k] * buoyancy / vc)
@@ -250,7 +251,7 @@ def _exchange_grain(cm: ti.template(), m: ti.template(), g: ti.template(), s: ti
             s.external_force[i] = -vol * gp
         s.drag_coeff[i] = kp
         s.gas_velocity[i] = ug
-        for k in ti.static(range(8)):
+        for k in range(8):
             c = ti.Vector([cells[k, 0], cells[k, 1], cells[k, 2]])
             ti.atomic_add(cf.k_sum[c], w[k] * kp)
             ti.atomic_add(cf.k_v[c], w[k] * kp * v)
