@@ -92,11 +92,6 @@ class DemModel:
         return self.sort_interval > 0 and self.n >= self.sort_min_grains
 
     @property
-    def wall_count(self) -> int:
-        """The walls' count, as a compile-time value in a kernel (Taichi warns at ``len`` called there)."""
-        return len(self.walls)
-
-    @property
     def n_cells(self) -> int:
         return self.cells[0] * self.cells[1] * self.cells[2]
 

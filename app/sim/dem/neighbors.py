@@ -271,14 +271,14 @@ def sort_parts(model: ti.template(), sizes: ti.template(), state: ti.template(),
         move_vector(model, nlist, state.force, state.omega)
         move_vector(model, nlist, state.force, state.torque)
         each_chunk(model.serial, model.history_slots, move_vector_row, (model, nlist, state.force, history.tangential))
-        if ti.static(model.wall_count):
-            each_chunk(model.serial, model.wall_count, move_vector_row, (model, nlist, state.force,
-                                                                          history.wall_tangential))
+        if ti.static(len(model.walls)):
+            each_chunk(model.serial, ti.static(len(model.walls)), move_vector_row,
+                       (model, nlist, state.force, history.wall_tangential))
     if ti.static(model.rolling == ROLL_EPSD):
         each_chunk(model.serial, model.history_slots, move_vector_row, (model, nlist, state.force, history.rolling))
-        if ti.static(model.wall_count):
-            each_chunk(model.serial, model.wall_count, move_vector_row, (model, nlist, state.force,
-                                                                          history.wall_rolling))
+        if ti.static(len(model.walls)):
+            each_chunk(model.serial, ti.static(len(model.walls)), move_vector_row,
+                       (model, nlist, state.force, history.wall_rolling))
     if ti.static(model.coupled):
         move_scalars(model, nlist, state.force, (state.drag_coeff,))
         move_vector(model, nlist, state.force, state.gas_velocity)
