@@ -36,29 +36,21 @@ runtime.init("cpu", "float32", 1)
 import taichi as ti
 from taichi.lang import kernel_impl
 times = {}
-launch = kernel_impl.Kernel.launch_kernel
-def timed(self, t_kernel, *a):
-    t0 = time.perf_counter()
-    try:
-        return launch(self, t_kernel, *a)
-    finally:
-        dt = time.perf_counter() - t0
-        if dt > 0.3:
-            name = self.func.__qualname__
-            times[name] = times.get(name, 0.0) + dt
-kernel_impl.Kernel.launch_kernel = timed
-try:  # a kernel's later template instances compile in the plan's fetch (app.sim.launch), not in Taichi's launch
-    from app.sim import launch as _launch
-    fetch = _launch.FastKernel._compiled_data
-    def timed_fetch(self, plan, prog):
+def timing(fn, name_of):
+    # fn, recording under name_of(self) every call of 0.3 s or more
+    def timed(self, *a):
         t0 = time.perf_counter()
         try:
-            return fetch(self, plan, prog)
+            return fn(self, *a)
         finally:
             dt = time.perf_counter() - t0
             if dt > 0.3:
-                times[self.__name__] = times.get(self.__name__, 0.0) + dt
-    _launch.FastKernel._compiled_data = timed_fetch
+                times[name_of(self)] = times.get(name_of(self), 0.0) + dt
+    return timed
+kernel_impl.Kernel.launch_kernel = timing(kernel_impl.Kernel.launch_kernel, lambda k: k.func.__qualname__)
+try:  # a kernel's later template instances compile in the plan's fetch (app.sim.launch), not in Taichi's launch
+    from app.sim import launch as _launch
+    _launch.FastKernel._compiled_data = timing(_launch.FastKernel._compiled_data, lambda k: k.__name__)
 except (ImportError, AttributeError):
     pass
 t0 = time.perf_counter()

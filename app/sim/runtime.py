@@ -58,10 +58,10 @@ def _keep_survivors() -> None:
 
 
 #: Taichi's offline cache of compiled kernels may hold this many bytes before it evicts the least recently used
-#: quarter. Taichi's default, 100 MiB, is less than fbed's kernels for a handful of scenes (a scene's DEM,
-#: coupling and gas kernels are 5-30 MiB; the test suite writes ~130 MiB), so past it every dump evicted kernels
-#: that the next run compiled again (measured 2026-12-03: the suite with a warm cache took as long as from an
-#: empty one, 16 min 51 s against 17 min 13 s). ``TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES`` overrides it.
+#: quarter. Taichi's default, 100 MiB, is soon outgrown by fbed's kernels (measured 2026-12-03: six presets' smoke
+#: runs left 29 MiB; the test suite 191 MiB), so past it every dump evicted kernels that the next run compiled
+#: again (the suite with a warm cache took as long as from an empty one, 16 min 51 s against 17 min 13 s).
+#: ``TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES`` overrides it.
 OFFLINE_CACHE_BYTES = 1 << 30
 
 #: a Taichi offline-cache lock older than this is stale (s): the lock is held only while the cache's index is read
