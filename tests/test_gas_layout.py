@@ -57,7 +57,7 @@ def test_step_kernels_compile_once_for_two_grids():
         s.set_eps(np.full(shape, 0.8))
         info = s.step(1e-3)
         assert info.converged, info
-    for k in (advection.k_advect, boundary.k_bc_prep, predictor.k_visc, predictor.k_face_coef, projection.k_build,
-              projection.k_correct, projection.k_record, vcycle.k_down, vcycle.k_up, vcycle.k_iter_down,
-              vcycle.k_down_coarse, vcycle.k_up_from):
+    for k in (advection.k_advect, advection.k_advect_finish, boundary.k_bc_prep, predictor.k_visc, predictor.k_face_coef,
+              projection.k_build, projection.k_correct, projection.k_record, vcycle.k_down, vcycle.k_up,
+              vcycle.k_iter_down, vcycle.k_down_coarse, vcycle.k_up_from):
         assert len(k._primal.compiled_kernels) == 1, k._primal.func.__name__

@@ -130,16 +130,27 @@ AdvectState = narrowed(State, "vel", "vel_old", "vel_adv", "vel_tmp", "vel_lo", 
 
 @kernel
 def k_advect(g: Grid, inp: EpsInputs, st: AdvectState, dt: float, serial: ti.template()):
-    """vel_old = vel; vel_adv = back-traced vel (MacCormack-corrected when asked) + dt/2 (a at the
-    departure point - a here), a being the last step's weighted acceleration; max|vel_old| into SC_UOLD.
+    """vel_old = vel; vel_adv = back-traced vel + dt/2 (a at the departure point - a here), a being the last
+    step's weighted acceleration, with the interpolation stencil's clamps; max|vel_old| into SC_UOLD. Then
+    :func:`k_advect_finish` applies the MacCormack correction when asked.
 
     The acceleration's share is carried by the plain semi-Lagrangian trace, outside the
     MacCormack correction: corrected together with the velocity (u + dt/2 a traced as one field),
     the pair fed back on itself through the next step's a and grew without bound (a gas-only
     cylinder with gusty inflow reached 200 m/s in 380 steps; either piece alone stays bounded).
-    Scratch: vel_tmp holds dt/2 (a_departure - a_arrival) per face; the MacCormack result overwrites
-    the face's own lower clamp vel_lo once used. ``serial``: every loop nested in one serial loop."""
+    Scratch: vel_tmp holds dt/2 (a_departure - a_arrival) per face. ``serial``: every loop nested in one
+    serial loop.
+
+    Two kernels, not one, to halve the cold compile: the back trace (4 interpolations inlined) and the
+    correction (3) compiled as one kernel took 35 s on one core, the trace alone 13 s (benchmarks/compile_cost.py)."""
     one_task(serial, _advect, (g, inp, st, dt, serial))
+
+
+@kernel
+def k_advect_finish(g: Grid, inp: EpsInputs, st: AdvectState, dt: float, serial: ti.template()):
+    """After :func:`k_advect`: the MacCormack pass (forward trace of the result, half the error back, clamped;
+    its result overwrites the face's own lower clamp vel_lo once used), then vel_adv += vel_tmp."""
+    one_task(serial, _advect_finish, (g, inp, st, dt, serial))
 
 
 @ti.func
@@ -210,6 +221,12 @@ def _advect(g: ti.template(), inp: ti.template(), st: ti.template(), dt, serial:
         st.vel_old[f] = u
         ti.atomic_max(st.gsc[SC_UOLD], ti.abs(u))
     each_face(g, nf, _trace, (g, inp, st, dt, cdt), serial)
+
+
+@ti.func
+def _advect_finish(g: ti.template(), inp: ti.template(), st: ti.template(), dt, serial: ti.template()):
+    nf = g.nfaces
+    cdt = dt / g.par[P_H]
     n2 = 0
     if g.scheme == 2:
         n2 = nf

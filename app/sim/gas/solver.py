@@ -277,6 +277,7 @@ class FlowSolver(SolverOutputs):
         g = self.g
         self._face_coefficients()
         advection.k_advect(g, *self._advect_args, dt, self.serial)
+        advection.k_advect_finish(g, *self._advect_args, dt, self.serial)
         boundary.k_bc_prep(g, *self._bc_args, self.serial)
         # red-black Gauss-Seidel sweeps until the estimated error, change * r/(1-r) with r the
         # contraction factor at this diffusion number, and the change itself (a first sweep from a
