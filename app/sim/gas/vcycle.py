@@ -24,7 +24,7 @@ from ..launch import kernel, narrowed
 from .pcg import Krylov, pcg_from, pcg_iter
 from .multigrid import (JACOBI_WEIGHT, L_CO, L_NCELL, POST_SWEEPS, PRE_SWEEPS, Multigrid, VCycle, _ncell, _ratio,
                         decode, dims, face_offsets, local, on, stencil)
-from ..tasks import one_task
+from ..tasks import each_chunk, one_task
 
 
 @ti.func
@@ -62,7 +62,7 @@ def _gs_cell(mg: ti.template(), n, fo, co, I, c):
 
 
 @ti.func
-def _colour_sweep(mg: ti.template(), l, colour: ti.template(), act, serial: ti.template()):
+def _colour_sweep(mg: ti.template(), l, colour, act, serial: ti.template()):
     """Gauss-Seidel update of the cells of one colour (parity of i+j+k), visiting only those (``serial``:
     nested loops over i, j and every other k, no index decoding by division)."""
     n = dims(mg, l)
@@ -167,13 +167,20 @@ def _zero_x(mg: ti.template(), l):
         mg.xs[co + c] = 0.0
 
 
+@ti.func
+def _black_first(s, mg: ti.template(), l, act, serial: ti.template()):
+    """Sweep s of a series that starts black (colour 1) and alternates. Through :func:`~..tasks.each_chunk`:
+    unrolled in parallel (each sweep its own parallel loops), a run-time loop on one thread, where the
+    stencil is compiled once instead of once per sweep."""
+    _colour_sweep(mg, l, (s + 1) % 2, act, serial)
+
+
 # ============================================================================ kernels
 @ti.func
 def _down(mg: ti.template(), l, serial: ti.template()):
     act = on(mg)
     _first_red(mg, l, act, serial)
-    for s in ti.static(range(2 * PRE_SWEEPS - 1)):
-        _colour_sweep(mg, l, (s + 1) % 2, act, serial)
+    each_chunk(serial, 2 * PRE_SWEEPS - 1, _black_first, (mg, l, act, serial))  # black, red, black
     _restrict_residual(mg, l, act)
 
 
@@ -219,8 +226,7 @@ def k_down_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32, serial: ti.templat
 def _up(mg: ti.template(), l, serial: ti.template()):
     act = on(mg)
     _prolong(mg, l, act, serial)
-    for s in ti.static(range(2 * POST_SWEEPS)):
-        _colour_sweep(mg, l, (s + 1) % 2, act, serial)
+    each_chunk(serial, 2 * POST_SWEEPS, _black_first, (mg, l, act, serial))  # black, red, black, red
 
 
 @kernel
