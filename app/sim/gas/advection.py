@@ -141,8 +141,8 @@ def k_advect(g: Grid, inp: EpsInputs, st: AdvectState, dt: float, serial: ti.tem
     Scratch: vel_tmp holds dt/2 (a_departure - a_arrival) per face. ``serial``: every loop nested in one
     serial loop.
 
-    Two kernels, not one, to halve the cold compile: the back trace (4 interpolations inlined) and the
-    correction (3) compiled as one kernel took 35 s on one core, the trace alone 13 s (benchmarks/compile_cost.py)."""
+    Two kernels, not one, for the cold compile: the back trace (4 interpolations inlined) and the correction
+    (3) as one kernel took 37.0 s on one EPYC core, as two 9.2 s and 6.0 s (2026-12-04, benchmarks/RESULTS.md)."""
     one_task(serial, _advect, (g, inp, st, dt, serial))
 
 
