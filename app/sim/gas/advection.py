@@ -71,20 +71,11 @@ def interp(g: ti.template(), inp: ti.template(), arr: ti.template(), a, X):
 
 
 @ti.func
-def vel_at(g: ti.template(), inp: ti.template(), arr: ti.template(), X):
-    U = ti.Vector([0.0, 0.0, 0.0])
-    for a in range(3):
-        v, _, _ = interp(g, inp, arr, a, X)
-        U[a] = v
-    return U
-
-
-@ti.func
-def _at_face_centre(g: ti.template(), inp: ti.template(), arr: ti.template(), b, a, I, X):
-    """:func:`interp`'s value of component b (!= a) at the centre X of a-face I. There b's trilinear weights are
-    1/4 on the four b-faces J[b] in {I[b], I[b]+1}, J[a] in {I[a]-1, I[a]}, J[c] = I[c] (fraction 0 along the
-    third axis c) and 0 elsewhere: where :func:`interp`'s stencil is interior, those four are read and summed
-    in its corner order (the same float sum), else :func:`interp` itself is called."""
+def _face_centre(g: ti.template(), arr: ti.template(), b, a, I):
+    """(inside, value): :func:`interp`'s value of component b (!= a) at the centre of a-face I, read directly where
+    its stencil is interior. There b's trilinear weights are 1/4 on the four b-faces J[b] in {I[b], I[b]+1},
+    J[a] in {I[a]-1, I[a]}, J[c] = I[c] (fraction 0 along the third axis c) and 0 elsewhere: those four are summed
+    in :func:`interp`'s corner order (the same float sum). Not inside: the caller interpolates."""
     n = g.dims
     d = fdims(g, b)
     J0 = I
@@ -105,23 +96,45 @@ def _at_face_centre(g: ti.template(), inp: ti.template(), arr: ti.template(), b,
         sp = stride[p]
         sr = stride[r]
         val = 0.25 * (((arr[b0] + arr[b0 + sp]) + arr[b0 + sr]) + arr[b0 + sp + sr])
-    else:
-        val, _, _ = interp(g, inp, arr, b, X)
-    return val
+    return inside, val
 
 
 @ti.func
-def vel_at_face(g: ti.template(), inp: ti.template(), arr: ti.template(), f, a, I, X):
-    """:func:`vel_at` at the position X of face f (axis a, index I): the trilinear weights of component a
-    there are 1 on the face itself and 0 elsewhere, so that component is read, not interpolated; the
-    other two are means of four faces (:func:`_at_face_centre`)."""
-    U = ti.Vector([0.0, 0.0, 0.0])
-    for b in range(3):
-        v = arr[f]
-        if b != a:
-            v = _at_face_centre(g, inp, arr, b, a, I, X)
-        U[b] = v
-    return U
+def rk2_path(g: ti.template(), inp: ti.template(), arr: ti.template(), f, a, I, X, c, to_end: ti.template()):
+    """The RK2 midpoint trajectory from face f (axis a, index I, at X) over c = -dt/h (back) or +dt/h (forward)
+    in the velocity arr: U1 = u(X), U2 = u(X + c/2 U1), and the end point X + c U2; when ``to_end``, also
+    component a of arr there with its stencil's clamps (lo, hi). At X, component a is the face's own value and
+    the other two are :func:`_face_centre`'s (interp's weights there are 1 and 0, or 1/4: the same values).
+    The evaluations run as a run-time loop over one inlined :func:`interp`: each interpolation inlined once per
+    kernel is what its cold compile pays for (see :func:`k_advect`)."""
+    U1 = ti.Vector([0.0, 0.0, 0.0])
+    U2 = ti.Vector([0.0, 0.0, 0.0])
+    P = X
+    val, lo, hi = 0.0, 0.0, 0.0
+    for s in range(ti.static(3 if to_end else 2)):  # at X, at the midpoint, [at the end]
+        V = ti.Vector([0.0, 0.0, 0.0])
+        for b in range(3):
+            if s < 2 or b == a:
+                v = 0.0
+                direct = False
+                if s == 0:
+                    if b == a:
+                        direct = True
+                        v = arr[f]
+                    else:
+                        direct, v = _face_centre(g, arr, b, a, I)
+                if not direct:
+                    v, lo, hi = interp(g, inp, arr, b, P)
+                V[b] = v
+        if s == 0:
+            U1 = V
+            P = X + 0.5 * c * U1
+        elif s == 1:
+            U2 = V
+            P = X + c * U2
+        else:
+            val = V[a]
+    return P, val, lo, hi
 
 
 #: the members of State the advection reads and writes
@@ -142,7 +155,8 @@ def k_advect(g: Grid, inp: EpsInputs, st: AdvectState, dt: float, serial: ti.tem
     serial loop.
 
     Two kernels, not one, for the cold compile: the back trace (4 interpolations inlined) and the correction
-    (3) as one kernel took 37.0 s on one EPYC core, as two 9.2 s and 6.0 s (2026-12-04, benchmarks/RESULTS.md)."""
+    (3) as one kernel took 37.0 s on one EPYC core, as two 9.2 s and 6.0 s; with :func:`rk2_path`'s run-time
+    loop (2 interpolations inlined in each) 3.8 s and 3.4 s (2026-12-04, benchmarks/RESULTS.md)."""
     one_task(serial, _advect, (g, inp, st, dt, serial))
 
 
@@ -165,13 +179,10 @@ def _trace_at(g: ti.template(), inp: ti.template(), st: ti.template(), dt, cdt, 
     inc = 0.0
     if solved(g, f, a, I):
         if g.scheme > 0:
-            X = face_pos(a, I)
-            U1 = vel_at_face(g, inp, st.vel_old, f, a, I, X)
-            U2 = vel_at(g, inp, st.vel_old, X - 0.5 * cdt * U1)
-            val, lo, hi = interp(g, inp, st.vel_old, a, X - cdt * U2)
+            dep, val, lo, hi = rk2_path(g, inp, st.vel_old, f, a, I, face_pos(a, I), -cdt, True)
             v = val
             if g.par[P_TRACE] > 0.0:  # a is all zero with gas.trace_forces off: skip its trace
-                adep, _, _ = interp(g, inp, st.accel, a, X - cdt * U2)
+                adep, _, _ = interp(g, inp, st.accel, a, dep)
                 inc = 0.5 * dt * (adep - st.accel[f])
             if g.scheme == 2:
                 st.vel_lo[f] = lo
@@ -189,10 +200,8 @@ def _correct(c: ti.template(), f, a, I):
 @ti.func
 def _correct_at(g: ti.template(), inp: ti.template(), st: ti.template(), dt, cdt, f, a, I):
     if solved(g, f, a, I):
-        X = face_pos(a, I)
-        U1 = vel_at_face(g, inp, st.vel_old, f, a, I, X)
-        U2 = vel_at(g, inp, st.vel_old, X + 0.5 * cdt * U1)
-        back, _, _ = interp(g, inp, st.vel_adv, a, X + cdt * U2)
+        end, _, _, _ = rk2_path(g, inp, st.vel_old, f, a, I, face_pos(a, I), cdt, False)
+        back, _, _ = interp(g, inp, st.vel_adv, a, end)
         v = st.vel_adv[f] + 0.5 * (st.vel_old[f] - back)
         st.vel_lo[f] = ti.min(ti.max(v, st.vel_lo[f]), st.vel_hi[f])
 
