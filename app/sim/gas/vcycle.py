@@ -161,6 +161,12 @@ def _jacobi_sweep(mg: ti.template(), l):
 
 
 @ti.func
+def _jacobi_step(s, mg: ti.template(), l):
+    """Sweep s of a damped-Jacobi series, through :func:`~..tasks.each_chunk` as :func:`_black_first`."""
+    _jacobi_sweep(mg, l)
+
+
+@ti.func
 def _zero_x(mg: ti.template(), l):
     co = mg.lev[l, L_CO]
     for c in range(_ncell(mg, l)):
@@ -250,8 +256,7 @@ def k_up_from(mg: IterMultigrid, ks: UpFromKrylov, singular: ti.i32, serial: ti.
 @ti.func
 def _down_j(mg: ti.template(), l, serial: ti.template()):
     _zero_x(mg, l)
-    for _s in ti.static(range(PRE_SWEEPS)):
-        _jacobi_sweep(mg, l)
+    each_chunk(serial, PRE_SWEEPS, _jacobi_step, (mg, l))
     _restrict_residual(mg, l, on(mg))
 
 
@@ -263,8 +268,7 @@ def k_down_j(mg: Multigrid, l: ti.i32, serial: ti.template()):
 @ti.func
 def _up_j(mg: ti.template(), l, serial: ti.template()):
     _prolong(mg, l, on(mg), serial)
-    for _s in ti.static(range(POST_SWEEPS)):
-        _jacobi_sweep(mg, l)
+    each_chunk(serial, POST_SWEEPS, _jacobi_step, (mg, l))
 
 
 @kernel
