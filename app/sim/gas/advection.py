@@ -107,8 +107,6 @@ def rk2_path(g: ti.template(), inp: ti.template(), arr: ti.template(), f, a, I, 
     the other two are :func:`_face_centre`'s (interp's weights there are 1 and 0, or 1/4: the same values).
     The evaluations run as a run-time loop over one inlined :func:`interp`: each interpolation inlined once per
     kernel is what its cold compile pays for (see :func:`k_advect`)."""
-    U1 = ti.Vector([0.0, 0.0, 0.0])
-    U2 = ti.Vector([0.0, 0.0, 0.0])
     P = X
     val, lo, hi = 0.0, 0.0, 0.0
     for s in range(ti.static(3 if to_end else 2)):  # at X, at the midpoint, [at the end]
@@ -126,12 +124,10 @@ def rk2_path(g: ti.template(), inp: ti.template(), arr: ti.template(), f, a, I, 
                 if not direct:
                     v, lo, hi = interp(g, inp, arr, b, P)
                 V[b] = v
-        if s == 0:
-            U1 = V
-            P = X + 0.5 * c * U1
-        elif s == 1:
-            U2 = V
-            P = X + c * U2
+        if s == 0:  # V = U1
+            P = X + 0.5 * c * V
+        elif s == 1:  # V = U2
+            P = X + c * V
         else:
             val = V[a]
     return P, val, lo, hi

@@ -151,19 +151,14 @@ def _residual(mg: ti.template(), l):
 
 
 @ti.func
-def _jacobi_sweep(mg: ti.template(), l):
+def _jacobi_sweep(s, mg: ti.template(), l):
+    """Sweep s of a damped-Jacobi series (every sweep alike), the body :func:`~..tasks.each_chunk` runs."""
     _residual(mg, l)
     co = mg.lev[l, L_CO]
     for c in range(_ncell(mg, l)):
         dg = mg.diag[co + c]
         if dg > 0.0:
             mg.xs[co + c] += JACOBI_WEIGHT * mg.rs[co + c] / dg
-
-
-@ti.func
-def _jacobi_step(s, mg: ti.template(), l):
-    """Sweep s of a damped-Jacobi series, through :func:`~..tasks.each_chunk` as :func:`_black_first`."""
-    _jacobi_sweep(mg, l)
 
 
 @ti.func
@@ -256,7 +251,7 @@ def k_up_from(mg: IterMultigrid, ks: UpFromKrylov, singular: ti.i32, serial: ti.
 @ti.func
 def _down_j(mg: ti.template(), l, serial: ti.template()):
     _zero_x(mg, l)
-    each_chunk(serial, PRE_SWEEPS, _jacobi_step, (mg, l))
+    each_chunk(serial, PRE_SWEEPS, _jacobi_sweep, (mg, l))
     _restrict_residual(mg, l, on(mg))
 
 
@@ -268,7 +263,7 @@ def k_down_j(mg: Multigrid, l: ti.i32, serial: ti.template()):
 @ti.func
 def _up_j(mg: ti.template(), l, serial: ti.template()):
     _prolong(mg, l, on(mg), serial)
-    each_chunk(serial, POST_SWEEPS, _jacobi_step, (mg, l))
+    each_chunk(serial, POST_SWEEPS, _jacobi_sweep, (mg, l))
 
 
 @kernel
