@@ -127,7 +127,7 @@ def build_row(model: ti.template(), sizes: ti.template(), state: ti.template(), 
     Nearest first: the pair loop's touching test is a branch, and in a row in cell order its outcomes follow
     no pattern (about 2.5 touching among 6.5 partners in a settled bed) that a CPU's branch predictor could
     learn. Sorted by d^2 - (r_i + r_j)^2 (by distance, for equal grains), the touching pairs lead and the
-    outcome changes about once a row: a settled 125k-grain substep ran 1.11x faster in float32 and 1.06x in
+    outcome changes about once a row: a settled 125k-grain substep ran 1.11x faster in float32 and 1.05x in
     float64 (benchmarks/RESULTS.md, 2026-12-04). A sort by cell keeps each row's order."""
     cnt = 0
     new = ti.Vector([-1] * model.slots, ti.i32)
@@ -156,7 +156,7 @@ def build_row(model: ti.template(), sizes: ti.template(), state: ti.template(), 
                                 ti.atomic_max(nlist.counters[OVERFLOW], cnt + 1)
         # nearest first: each partner's rank is the number of those nearer (ties by the order found), counted
         # without a branch (an insertion sort's shifts stop at unpredictable places: its builds took 1.13x as
-        # long as in cell order, these 1.03x)
+        # long as in cell order, these 1.05x)
         for k in range(cnt):
             rank = 0
             for q in range(cnt):  # integer arithmetic: Taichi's `or` / `and` compile to branches here
