@@ -1,0 +1,155 @@
+"""benchmarks/device_run.sh, checked on the CPU before a GPU is lent.
+
+A GPU comes for 15 minutes in all, one prepared call: a flag a benchmark no longer takes, or a preset key that was
+renamed, would cost that call. Here every stage of the script runs with `python3` replaced by a recorder (and
+`nvidia-smi`, `sleep`, `pkill`, `pgrep` by stubs), so the shell logic itself runs as on the device; then each
+recorded command is checked as its program would check it: a benchmark's own argument parser, the `fbed` parser,
+and every preset with its `--set` overrides (and the preparation preset it starts from) loaded and derived.
+Nothing is simulated.
+"""
+import argparse
+import importlib.util
+import os
+import pathlib
+import subprocess
+
+import pytest
+
+from app.cli import build_parser
+from app.config import derived, loader
+from app.sweep import cases
+
+pytestmark = pytest.mark.bench
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "benchmarks" / "device_run.sh"
+RECORDER = 'printf \'%s\\0\' "$@" >> "$FAKE_LOG"; printf \'\\n\' >> "$FAKE_LOG"\n'
+STUBS = {"python3": RECORDER, "nvidia-smi": "exit 0\n", "sleep": "exit 0\n", "pkill": "exit 0\n",
+         "pgrep": "exit 1\n"}
+
+
+def stages() -> list[str]:
+    """The stage names of the script's `case` (its own list, so a stage added later is checked too)."""
+    text = SCRIPT.read_text()
+    body = text[text.index('case "$stage" in'):text.index("esac")]
+    names = []
+    for line in body.splitlines():
+        head = line.strip().split(")")[0]
+        if line.startswith("    ") and not line.startswith("     ") and ")" in line and " " not in head:
+            names += head.split("|")
+    return names
+
+
+def record(tmp_path: pathlib.Path, names: list[str], env_extra: dict, bed: bool) -> list[list[str]]:
+    """Run the script's stages with the stubs first on PATH, in a folder that links the project's code; return
+    the argv of every python3 call."""
+    bin_dir, work, out = tmp_path / "bin", tmp_path / "work", tmp_path / "out"
+    for d in (bin_dir, work, out):
+        d.mkdir()
+    for name, body in STUBS.items():
+        (bin_dir / name).write_text("#!/bin/bash\n" + body)
+        (bin_dir / name).chmod(0o755)
+    for d in ("app", "benchmarks", "presets", "validation"):
+        (work / d).symlink_to(ROOT / d)
+    if bed:
+        (work / "runs").mkdir()
+        (work / "runs" / "mri_bed.h5").write_bytes(b"")
+    log = tmp_path / "calls"
+    env = dict(os.environ, PATH=f"{bin_dir}{os.pathsep}{os.environ['PATH']}", FAKE_LOG=str(log), OUT=str(out),
+               **env_extra)
+    r = subprocess.run(["bash", str(SCRIPT), *names], cwd=work, env=env, capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr
+    return [c.split("\0") for c in log.read_text().split("\0\n") if c]  # each call: its args, each ended by NUL
+
+
+class _Parsed(Exception):
+    pass
+
+
+def check_benchmark(argv: list[str], monkeypatch) -> None:
+    """The script's main() up to its parse_args, with the device's arguments: an unknown flag or a bad value
+    stops it there (SystemExit), as it would on the device."""
+    path = ROOT / argv[0]
+    assert path.is_file(), f"{argv[0]} does not exist"
+    spec = importlib.util.spec_from_file_location(f"_device_{path.stem}", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    original = argparse.ArgumentParser.parse_args
+
+    def parse_then_stop(self, args=None, namespace=None):
+        raise _Parsed(original(self, args, namespace))
+
+    with monkeypatch.context() as m:
+        m.setattr(argparse.ArgumentParser, "parse_args", parse_then_stop)
+        with pytest.raises(_Parsed) as parsed:
+            mod.main(argv[1:])
+    ns = vars(parsed.value.args[0])
+    if ns.get("preset"):  # series_reads.py: a preset and its overrides
+        check_preset(ns["preset"], ns.get("overrides") or ns.get("set") or [])
+
+
+def check_preset(preset: str, overrides: list[str]) -> None:
+    cfg = loader.load(ROOT / preset, overrides)
+    derived.derive(cfg, preset)
+    if cfg.run.start_from:  # the preparation it runs first on a fresh machine
+        prep = loader.resolve_path(cfg, cfg.run.start_from)
+        derived.derive(loader.load(prep), str(prep))
+
+
+def check_fbed(argv: list[str]) -> str:
+    args = build_parser().parse_args(argv)
+    if args.command == "run" and args.preset:
+        check_preset(args.preset, list(args.overrides) + (["video.enabled=true"] if args.video is not None else []))
+    elif args.command == "sweep":
+        keys, combos = cases(args.sets)
+        for values in combos:
+            check_preset(args.preset, [f"{k}={v}" for k, v in zip(keys, values)])
+    elif args.command == "bench" and args.kind == "accuracy" and args.cases:
+        from app.bench.accuracy import all_cases
+
+        assert set(args.cases) <= {c.name for c in all_cases()}
+    return args.command
+
+
+def check_all(calls, monkeypatch) -> set[str]:
+    seen = set()
+    for argv in calls:
+        if argv[:2] == ["-m", "app"]:
+            seen.add("fbed " + check_fbed(argv[2:]))
+        else:
+            if argv[0].startswith("benchmarks/"):
+                check_benchmark(argv, monkeypatch)
+            assert (ROOT / argv[0]).is_file(), argv
+            seen.add(argv[0])
+    return seen
+
+
+def test_every_stage_of_the_device_script_calls_what_exists_with_arguments_it_takes(tmp_path, monkeypatch):
+    names = stages()
+    assert {"dem", "gas", "verma_start", "mri_law", "mri_prepare"} <= set(names), names
+    calls = record(tmp_path, names, {}, bed=False)
+    seen = check_all(calls, monkeypatch)
+    # every kind of call was reached: the stubs did not short-circuit the stages
+    assert {"fbed run", "fbed sweep", "fbed analyze", "fbed bench", "benchmarks/dem_substep.py",
+            "benchmarks/flow_throughput.py", "validation/mri/pack_bed.py"} <= seen, seen
+
+
+def test_the_mri_stages_from_a_carried_bed_with_extra_overrides(tmp_path, monkeypatch):
+    calls = record(tmp_path, ["mri_law", "mri_sweep_start"],
+                   {"MRI_LAW": "gidaspow", "MRI_SET": "--set run.duration=0.6"}, bed=True)
+    assert len(calls) == 2
+    run = calls[0]
+    assert "coupling.drag=gidaspow" in run and "run.duration=0.6" in run and 'run.start_from=""' in run
+    assert any(a.startswith("particles.initial_state=") and a.endswith('mri_bed.h5"') for a in run), run
+    check_all(calls, monkeypatch)
+
+
+def test_a_renamed_flag_or_key_is_caught(monkeypatch):
+    """The checks can fail: the device's own commands with one flag or key misspelt."""
+    with pytest.raises(SystemExit):
+        check_all([["benchmarks/dem_substep.py", "--arch", "cuda", "--sizez", "1000000"]], monkeypatch)
+    with pytest.raises(Exception, match="duratoin"):
+        check_all([["-m", "app", "run", "presets/verma.toml", "--set", "run.duratoin=0.05"]], monkeypatch)
+    with pytest.raises(Exception, match="drag"):
+        check_all([["-m", "app", "sweep", "presets/mri_poppy.toml", "--set", "coupling.drag=koch_hill,koch_hil"]],
+                  monkeypatch)
