@@ -133,8 +133,10 @@ def rk2_path(g: ti.template(), inp: ti.template(), arr: ti.template(), f, a, I, 
     return P, val, lo, hi
 
 
-#: the members of State the advection reads and writes
+#: the members of State the back trace (:func:`k_advect`) reads and writes
 AdvectState = narrowed(State, "vel", "vel_old", "vel_adv", "vel_tmp", "vel_lo", "vel_hi", "accel", "gsc")
+#: those the MacCormack correction (:func:`k_advect_finish`) reads and writes
+CorrectionState = narrowed(State, "vel_old", "vel_adv", "vel_tmp", "vel_lo", "vel_hi")
 
 
 @kernel
@@ -157,7 +159,7 @@ def k_advect(g: Grid, inp: EpsInputs, st: AdvectState, dt: float, serial: ti.tem
 
 
 @kernel
-def k_advect_finish(g: Grid, inp: EpsInputs, st: AdvectState, dt: float, serial: ti.template()):
+def k_advect_finish(g: Grid, inp: EpsInputs, st: CorrectionState, dt: float, serial: ti.template()):
     """After :func:`k_advect`: the MacCormack pass (forward trace of the result, half the error back, clamped;
     its result overwrites the face's own lower clamp vel_lo once used), then vel_adv += vel_tmp."""
     one_task(serial, _advect_finish, (g, inp, st, dt, serial))

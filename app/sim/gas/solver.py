@@ -114,6 +114,7 @@ class FlowSolver(SolverOutputs):
         self._visc_args = (view(predictor.ViscInputs, self.inp), view(predictor.ViscCells, self.cl),
                            view(predictor.ViscState, self.st))
         self._advect_args = (view(layout.EpsInputs, self.inp), view(advection.AdvectState, self.st))
+        self._finish_args = (view(layout.EpsInputs, self.inp), view(advection.CorrectionState, self.st))
         self._bc_args = (view(layout.EpsInputs, self.inp), view(boundary.BcState, self.st))
         self._face_args = (view(predictor.FaceInputs, self.inp), view(predictor.FaceState, self.st))
         m, ks = self.mg.mg, self.mg.ks
@@ -277,7 +278,7 @@ class FlowSolver(SolverOutputs):
         g = self.g
         self._face_coefficients()
         advection.k_advect(g, *self._advect_args, dt, self.serial)
-        advection.k_advect_finish(g, *self._advect_args, dt, self.serial)
+        advection.k_advect_finish(g, *self._finish_args, dt, self.serial)
         boundary.k_bc_prep(g, *self._bc_args, self.serial)
         # red-black Gauss-Seidel sweeps until the estimated error, change * r/(1-r) with r the
         # contraction factor at this diffusion number, and the change itself (a first sweep from a
