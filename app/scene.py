@@ -18,7 +18,7 @@ import pathlib
 import numpy as np
 
 from .config import ConfigError, resolve_path
-from .config.derived import Derived, derive
+from .config.derived import Derived, derive, periodic_axes
 from .config.schema import Config
 from .io import store
 from .schedule import InletSchedule
@@ -44,8 +44,9 @@ def build_walls(cfg: Config) -> list:
         return walls
     if v.shape == "cylinder":
         walls.append(geometry.CylinderWall(tuple(v.center), v.radius, name="cylinder"))
-    elif v.shape == "box":
-        walls += geometry.box_walls(d.lo, d.hi, faces=("x-", "x+", "y-", "y+"))
+    elif v.shape == "box":  # side walls on the faces that are not periodic
+        walls += geometry.box_walls(d.lo, d.hi, faces=tuple(ax + s for ax, p in zip("xy", periodic_axes(cfg))
+                                                             if not p for s in "-+"))
     elif v.shape == "sampled":
         path = resolve_path(cfg, v.sdf_file)
         try:
@@ -155,7 +156,9 @@ def dem_model(cfg: Config, der: Derived, n: int, walls: list, coupled: bool = Fa
     lo, hi = tuple(d.lo), tuple(d.hi)
     volume = float(np.prod([hi[a] - lo[a] for a in range(3)]))
     cut = max(2 * der.radius_max + der.skin, (volume / (CELLS_PER_GRAIN * max(n, 1024))) ** (1 / 3))
-    cells = tuple(max(1, int((hi[a] - lo[a]) // cut)) for a in range(3))
+    # along a periodic axis at least 3 cells (``derive`` checks that 3 cut-offs fit in the period), so the
+    # 27 cells around a grain are distinct
+    cells = tuple(max(3 if der.periodic[a] else 1, int((hi[a] - lo[a]) // cut)) for a in range(3))
     cell = tuple((hi[a] - lo[a]) / cells[a] for a in range(3))
     slots = cfg.dem.max_neighbors
     # springs per grain: the kissing number (contacts with grains at least its size), or one per
@@ -172,7 +175,7 @@ def dem_model(cfg: Config, der: Derived, n: int, walls: list, coupled: bool = Fa
         e_star=pc.e_star, g_star=pc.g_star, kn=pc.kn, kt=pc.kt, damping=pc.damping, mu=pc.friction,
         mu_roll=pc.rolling_friction, w_e_star=wc.e_star, w_g_star=wc.g_star, w_damping=wc.damping, w_mu=wc.friction,
         w_mu_roll=wc.rolling_friction, walls=tuple(walls), gravity=tuple(d.gravity), dt=der.dt, skin=der.skin,
-        lo=lo, hi=hi, cell=cell, cells=cells, coupled=coupled, serial=serial,
+        lo=lo, hi=hi, cell=cell, cells=cells, periodic=der.periodic, coupled=coupled, serial=serial,
         history_slots=history, roll_damping=pc.rolling_damping, w_roll_damping=wc.rolling_damping)
 
 

@@ -135,6 +135,7 @@ class Derived:
     skin: float                         # [m] Verlet skin
     friction: bool                      # any tangential force (grain or wall)
     rolling: str                        # 'none' | 'constant_torque' | 'epsd'
+    periodic: tuple = (False, False, False)  # axes whose [boundary] faces are periodic (grains wrap there too)
 
     @staticmethod
     def volume(d):
@@ -144,6 +145,14 @@ class Derived:
     def mass(self, d):
         """Mass [kg] of grains of diameter d [m] (a number or an array): ``grain_mass`` of d / 2."""
         return grain_mass(np.asarray(d, float) / 2.0, self.density)
+
+
+def periodic_axes(cfg: Config) -> tuple[bool, bool, bool]:
+    """Whether each axis has periodic faces: both of its [boundary] faces of kind 'periodic' (the rules check
+    that they come in pairs). Grains and gas wrap there alike."""
+    faces = dict(cfg.boundary)
+    return tuple(all(faces.get(ax + s) is not None and faces[ax + s].kind == "periodic" for s in "-+")
+                 for ax in "xyz")
 
 
 def size_distribution(cfg: Config) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -207,8 +216,19 @@ def derive(cfg: Config, file: str = "<preset>") -> Derived:
     dt = cfg.run.step / substeps
     skin = cfg.dem.skin if cfg.dem.skin > 0 else 0.15 * 2 * rmax
     friction = c.friction > 0 or wall_mu > 0
+    periodic = periodic_axes(cfg)
+    cut = 2 * rmax + skin
+    for a, ax in enumerate("xyz"):
+        period = cfg.domain.hi[a] - cfg.domain.lo[a]
+        if periodic[a] and period < 3 * cut * (1 - 1e-9):
+            # the cell list needs 3 cells of at least one cut-off across a period, so the 27 cells around a
+            # grain are distinct and a pair meets only its nearest image
+            raise ConfigError(f"the periodic {ax} extent ({period:g} m) is under 3 contact cut-offs "
+                              f"(3 x (largest diameter + skin) = {3 * cut:g} m)", file, "domain.hi",
+                              hint=f"widen the domain along {ax} to at least {3 * cut:g} m, or close the {ax} faces")
     return Derived(diameters=diam, number_fractions=frac, density=p.density, polydisperse=len(diam) > 1,
                    radius_min=rmin, radius_max=rmax, mass_min=mmin, pair=pair, wall=wall,
                    collision_time=tc, wall_collision_time=tcw, rayleigh_time=t_r, dt=dt, dt_limit=limit,
                    substeps=substeps, skin=skin, friction=friction,
-                   rolling=c.rolling_model if (c.rolling_friction > 0 or wall_mur > 0) else "none")
+                   rolling=c.rolling_model if (c.rolling_friction > 0 or wall_mur > 0) else "none",
+                   periodic=periodic)

@@ -70,16 +70,24 @@ def _gas_and_boundaries(cfg: Config, fail) -> None:
             if abs(n - round(n)) > 1e-6 * max(1.0, n) or round(n) < 1:
                 fail("gas", "cell_size", f"the domain's {'xyz'[a]} extent {d.hi[a] - d.lo[a]:g} m is not a whole "
                      f"number of {g.cell_size:g} m cells ({n:.4g})", "adjust gas.cell_size or domain.lo / domain.hi")
-        faces = dict(cfg.boundary)
-        for ax in "xyz":
-            lo_p = faces.get(ax + "-") is not None and faces[ax + "-"].kind == "periodic"
-            hi_p = faces.get(ax + "+") is not None and faces[ax + "+"].kind == "periodic"
-            if lo_p != hi_p:
-                fail("boundary", ax + "-", f"periodic boundaries come in pairs: set both {ax}- and {ax}+ periodic")
-        for face, b in faces.items():
+        _periodic_pairs(cfg, fail)
+        for face, b in dict(cfg.boundary).items():
             _boundary_face(face, b, fail)
-    elif cfg.boundary:
-        fail("boundary", cfg.boundary[0][0], "boundary conditions need a [gas] section")
+    else:
+        for face, b in cfg.boundary:  # without gas only periodic faces mean something (the grains wrap)
+            if b.kind != "periodic":
+                fail("boundary", face, f"a {b.kind} boundary needs a [gas] section",
+                     "add [gas], or keep only periodic faces (they wrap the grains)")
+        _periodic_pairs(cfg, fail)
+
+
+def _periodic_pairs(cfg: Config, fail) -> None:
+    faces = dict(cfg.boundary)
+    for ax in "xyz":
+        lo_p = faces.get(ax + "-") is not None and faces[ax + "-"].kind == "periodic"
+        hi_p = faces.get(ax + "+") is not None and faces[ax + "+"].kind == "periodic"
+        if lo_p != hi_p:
+            fail("boundary", ax + "-", f"periodic boundaries come in pairs: set both {ax}- and {ax}+ periodic")
 
 
 def _boundary_face(face: str, b, fail) -> None:
@@ -135,6 +143,14 @@ def _particles_and_contact(cfg: Config, fail) -> None:
         fail("particles", "count", "say how many grains: count, bed_height (m) or initial_state (a bed.h5)")
     if sources > 1:
         fail("particles", "count", "give only one of count, bed_height and initial_state")
+    periodic = [ax for ax in "xyz" if any(f == ax + "-" and b.kind == "periodic" for f, b in cfg.boundary)]
+    if "z" in periodic:
+        fail("boundary", "z-", "grains cannot wrap vertically: the floor holds the bed up",
+             "close z- / z+ (e.g. a velocity_inlet below and a pressure_outlet on top)")
+    if periodic and cfg.vessel.shape not in ("box", "none"):
+        fail("vessel", "shape", f"a periodic {periodic[0]} axis needs vessel.shape = 'box' (walls on the closed "
+             f"faces only) or 'none', not '{cfg.vessel.shape}'", "set vessel.shape = 'box', or close the "
+             f"{periodic[0]} faces")
     c = cfg.contact
     if c.model == "linear" and c.normal_stiffness <= 0:
         fail("contact", "normal_stiffness", "the linear model needs normal_stiffness > 0 N/m")

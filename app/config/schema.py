@@ -49,7 +49,8 @@ class DomainConfig:
 
 @dataclass(frozen=True)
 class VesselConfig:
-    shape: str = spec("cylinder", doc="vessel walls: a vertical cylinder, the domain box, a sampled SDF, or none",
+    shape: str = spec("cylinder", doc="vessel walls: a vertical cylinder, the domain box (side walls on its faces "
+                      "that are not periodic), a sampled SDF, or none",
                       choices=("cylinder", "box", "sampled", "none"))
     radius: float = spec(0.0, unit="m", doc="cylinder radius", lo=0.0)
     center: tuple[float, float] = spec((0.0, 0.0), unit="m", doc="cylinder axis position (x, y)", length=2)
@@ -263,7 +264,8 @@ class CouplingConfig:
 
 @dataclass(frozen=True)
 class BoundarySpec:
-    kind: str = spec("wall", doc="boundary condition of a domain face",
+    kind: str = spec("wall", doc="boundary condition of a domain face; periodic faces come in pairs (x-/x+, y-/y+) "
+                     "and wrap the grains too (a grains-only scene may have those alone)",
                      choices=("wall", "moving_wall", "free_slip", "velocity_inlet", "pressure_outlet", "periodic"))
     velocity: tuple[float, float, float] = spec((0.0, 0.0, 0.0), unit="m/s", doc="inlet superficial velocity, or "
                                                 "the tangential velocity of a moving wall", length=3)

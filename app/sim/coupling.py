@@ -9,7 +9,8 @@ writes their coupling inputs; it never prints or writes files.
 
 Weights. A grain at x spreads over the 8 cells around it with trilinear weights w_c
 (cell centres as nodes), each multiplied by the cell's open volume fraction (0 inside the
-wall) and renormalised to sum 1. The same w_c interpolate eps, u_gas and grad p to the
+wall) and renormalised to sum 1; across a periodic face the corner cells are those at the
+other end of the grid (and the smoothing's neighbours too). The same w_c interpolate eps, u_gas and grad p to the
 grain, and carry the grain's drag reaction back to the gas; so the deposited volume
 equals the grains' volume and the drag on the grains equals minus the drag on the gas,
 both to rounding.
@@ -99,9 +100,12 @@ def _weights(gf: ti.template(), geo: ti.template(), x):
         inside = True
         for a in ti.static(range(3)):
             wk *= fr[a] if d[a] == 1 else 1.0 - fr[a]
-            if c[a] < 0 or c[a] >= gf.shape[a]:
-                inside = False
-            c[a] = ti.min(ti.max(c[a], 0), gf.shape[a] - 1)
+            if ti.static(gf.periodic[a]):  # the corner beyond a periodic face is the first/last cell
+                c[a] = (c[a] + gf.shape[a]) % gf.shape[a]
+            else:
+                if c[a] < 0 or c[a] >= gf.shape[a]:
+                    inside = False
+                c[a] = ti.min(ti.max(c[a], 0), gf.shape[a] - 1)
         if inside:
             wk *= geo.open_frac[c]
         else:
@@ -155,10 +159,13 @@ def _smooth_cell(gf: ti.template(), geo: ti.template(), f: ti.template(), tmp: t
         pI = ti.max(geo.open_frac[I], 1e-12)
         cI = f[I] / pI
         shape = ti.Vector(gf.shape)
+        periodic = ti.Vector(gf.periodic)
         for a in range(3):  # a run-time loop: the stencil compiled once, not per axis (compile time)
             for sgn in ti.static((-1, 1)):
                 J = I
                 J[a] += sgn
+                if periodic[a] == 1:  # across a periodic face: the cell at the other end
+                    J[a] = (J[a] + shape[a]) % shape[a]
                 if 0 <= J[a] < shape[a]:
                     if geo.active_cell[J]:
                         pJ = ti.max(geo.open_frac[J], 1e-12)

@@ -69,6 +69,8 @@ class DemModel:
     hi: tuple
     cell: tuple                 # [m] cell-list cell size per axis (>= largest cut-off)
     cells: tuple                # cell counts per axis
+    periodic: tuple = (False, False, False)  # axes whose faces are periodic: grains leave by one face and enter by
+    #                             the other, contacts and the list reach across (minimum image); >= 3 cells there
     coupled: bool = False       # gas drag: per-grain drag coefficient, gas velocity and explicit force
     serial: bool = False        # one CPU thread: serial loops, atomics demoted to plain adds
     history_slots: int = 12     # springs per grain (contacts it owns); see ContactHistory

@@ -1,5 +1,5 @@
-"""Per-grain constants read inside the DEM kernels, the grain id of a memory slot, and the scatter that adds
-to another grain.
+"""Per-grain constants read inside the DEM kernels, the grain id of a memory slot, the scatter that adds
+to another grain, and the periodic images.
 
 Monodisperse scenes store no radius or mass per grain: the kernels read the model's
 compile-time constants instead (``ti.static`` on ``model.polydisperse``)."""
@@ -40,3 +40,29 @@ def grain_id(model: ti.template(), sizes: ti.template(), i):
     if ti.static(model.sorts):
         g = sizes.grain_id[i]
     return g
+
+
+@ti.func
+def min_image(model: ti.template(), d):
+    """The separation d = x_j - x_i [m] to the nearest periodic image of x_j: shifted by a whole period
+    along each periodic axis (``model.periodic``), so |d_a| <= L_a / 2 there. Nothing is compiled for the
+    other axes: a scene without periodic faces pays nothing."""
+    for a in ti.static(range(3)):
+        if ti.static(model.periodic[a]):
+            period = ti.static(model.hi[a] - model.lo[a])
+            d[a] -= period * ti.round(d[a] * ti.static(1.0 / period))
+    return d
+
+
+@ti.func
+def wrap_position(model: ti.template(), x):
+    """x [m] brought back into [lo, hi) along each periodic axis (a grain that left by one face enters by
+    the other); returned unchanged along the others."""
+    for a in ti.static(range(3)):
+        if ti.static(model.periodic[a]):
+            period = ti.static(model.hi[a] - model.lo[a])
+            if x[a] < model.lo[a]:
+                x[a] += period
+            elif x[a] >= model.hi[a]:
+                x[a] -= period
+    return x

@@ -21,7 +21,7 @@ import taichi as ti
 
 from ..launch import kernel
 from ..fields import NO_SPRING, ROLL_EPSD, SCAN_BLOCK
-from .grains import grain_id, grain_radius
+from .grains import grain_id, grain_radius, min_image
 from ..tasks import each_chunk, one_task
 
 REBUILD, OVERFLOW, REMOVED, BUILDS, SPRING_OVERFLOW, DEAD = 0, 1, 2, 3, 4, 5  # nlist.counters
@@ -29,11 +29,30 @@ REBUILD, OVERFLOW, REMOVED, BUILDS, SPRING_OVERFLOW, DEAD = 0, 1, 2, 3, 4, 5  # 
 
 @ti.func
 def cell_of(model: ti.template(), p):
+    """The cell holding point p: clamped to the grid, wrapped along a periodic axis (whose cells tile the
+    period exactly)."""
     c = ti.Vector([0, 0, 0])
     for a in ti.static(range(3)):
-        c[a] = ti.min(ti.max(ti.cast(ti.floor((p[a] - model.lo[a]) / model.cell[a]), ti.i32), 0),
-                      model.cells[a] - 1)
+        k = ti.cast(ti.floor((p[a] - model.lo[a]) / model.cell[a]), ti.i32)
+        if ti.static(model.periodic[a]):
+            c[a] = k % model.cells[a]  # Taichi's % on integers is Python's: never negative here
+        else:
+            c[a] = ti.min(ti.max(k, 0), model.cells[a] - 1)
     return c
+
+
+@ti.func
+def neighbor_cell(model: ti.template(), c, offset):
+    """Cell c + offset, wrapped along periodic axes, and whether it lies in the grid (along a periodic axis
+    always: with at least 3 cells there, the 27 cells around c are distinct)."""
+    q = c + offset
+    inside = True
+    for a in ti.static(range(3)):
+        if ti.static(model.periodic[a]):
+            q[a] = (q[a] + model.cells[a]) % model.cells[a]
+        elif q[a] < 0 or q[a] >= model.cells[a]:
+            inside = False
+    return q, inside
 
 
 @ti.func
@@ -138,14 +157,14 @@ def build_row(model: ti.template(), sizes: ti.template(), state: ti.template(), 
         ri = grain_radius(model, sizes, i)
         c = cell_of(model, xi)
         for dz, dy, dx in ti.ndrange((-1, 2), (-1, 2), (-1, 2)):
-            q = c + ti.Vector([dx, dy, dz])
-            if 0 <= q[0] < model.cells[0] and 0 <= q[1] < model.cells[1] and 0 <= q[2] < model.cells[2]:
+            q, inside = neighbor_cell(model, c, ti.Vector([dx, dy, dz]))
+            if inside:
                 ci = cell_index(model, q)
                 for p in range(nlist.cell_start[ci], nlist.cell_start[ci + 1]):
                     j = nlist.sorted[p]
                     if owns(model, sizes, i, ri, j):
                         rs = ri + grain_radius(model, sizes, j)
-                        d = state.x[j] - xi
+                        d = min_image(model, state.x[j] - xi)
                         dd = d.dot(d)
                         if dd < (rs + model.skin) ** 2:
                             if cnt < model.slots:

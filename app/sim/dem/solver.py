@@ -74,6 +74,17 @@ class DemSolver:
         """Id order -> memory order along the grain axis (``order``: the id of each memory slot)."""
         return values if order is None else np.take(values, order, axis=axis)
 
+    def _wrapped(self, position):
+        """Positions brought into [lo, hi) along the periodic axes (as ``integrate`` keeps them)."""
+        if not any(self.m.periodic):
+            return position
+        x = np.array(position, dtype=float, copy=True)
+        for a, p in enumerate(self.m.periodic):
+            if p and x.ndim == 2:
+                lo, period = self.m.lo[a], self.m.hi[a] - self.m.lo[a]
+                x[:, a] = lo + np.mod(x[:, a] - lo, period)
+        return x
+
     def set_grains(self, position, velocity=None, radius=None, omega=None, alive=None):
         """Place the grains (arrays in grain-id order); every contact spring restarts from zero."""
         self._upload(None, position, velocity, radius, omega, alive)
@@ -81,7 +92,7 @@ class DemSolver:
     def _upload(self, order, position, velocity=None, radius=None, omega=None, alive=None):
         """``set_grains`` with the grains laid out in memory as ``order`` says (None: id order)."""
         n = self.m.n
-        position = self._f(position)
+        position = self._f(self._wrapped(position))
         if position.shape != (n, 3):
             raise ValueError(f"positions must be ({n}, 3), got {position.shape}")
         mem = lambda a: self._to_memory(a, order)  # noqa: E731

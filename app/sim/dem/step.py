@@ -6,7 +6,7 @@ One substep (``substep``, a single kernel whose top-level loops run in order):
    law of ``contact.py``
 -> symplectic Euler integration (v += a dt; x += v dt; omega += T/I dt, the gas drag
    taken implicitly), which also zeroes the accumulators, removes grains that left the
-   domain and raises the rebuild flag.
+   domain (a grain that crosses a periodic face re-enters by the other) and raises the rebuild flag.
 On one CPU thread (``model.serial``) a substep is one serial task, and ``advance`` runs all its
 substeps in one launch (``dem_substeps``): a task's start-up (~13 us on the CPU) and a launch's host
 cost are paid once per ``advance``, not per loop and substep; the steps run in the same order, to the
@@ -22,7 +22,7 @@ from ..launch import kernel
 from ..fields import NO_SPRING, ROLL_EPSD
 from ..geometry import wall_clearance_normal
 from .contact import contact
-from .grains import grain_mass, grain_radius, scatter_add
+from .grains import grain_mass, grain_radius, min_image, scatter_add, wrap_position
 from .neighbors import REBUILD, REMOVED, SPRING_OVERFLOW, rebuild_if_flagged
 from ..tasks import one_task
 
@@ -175,7 +175,7 @@ def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template()
             torque_i = ti.Vector([0.0, 0.0, 0.0])
             for k in range(nlist.count[i]):
                 j = nlist.partner[k, i]
-                dx = state.x[j] - xi
+                dx = min_image(model, state.x[j] - xi)
                 rj = grain_radius(model, sizes, j)
                 d2 = dx.dot(dx)
                 rs = ri + rj
@@ -208,7 +208,7 @@ def integrate(model: ti.template(), sizes: ti.template(), state: ti.template(), 
                 v = (v + (f / mass + ti.Vector(model.gravity)) * model.dt + kdt * state.gas_velocity[i]) / (1.0 + kdt)
             else:
                 v = v + (f / mass + ti.Vector(model.gravity)) * model.dt
-            x = state.x[i] + v * model.dt
+            x = wrap_position(model, state.x[i] + v * model.dt)
             state.v[i] = v
             state.x[i] = x
             state.force[i] = ti.Vector([0.0, 0.0, 0.0])
@@ -218,14 +218,15 @@ def integrate(model: ti.template(), sizes: ti.template(), state: ti.template(), 
                 state.torque[i] = ti.Vector([0.0, 0.0, 0.0])
             inside = True
             for a in ti.static(range(3)):
-                if not (model.lo[a] <= x[a] <= model.hi[a]):
-                    inside = False
+                if ti.static(not model.periodic[a]):
+                    if not (model.lo[a] <= x[a] <= model.hi[a]):
+                        inside = False
             if not inside:
                 state.alive[i] = ti.cast(0, ti.u8)
                 state.v[i] = ti.Vector([0.0, 0.0, 0.0])
                 ti.atomic_add(nlist.counters[REMOVED], 1)
             else:
-                d = x - nlist.x_ref[i]
+                d = min_image(model, x - nlist.x_ref[i])  # a grain that wrapped has not moved a period
                 if d.dot(d) > half_skin2:
                     nlist.counters[REBUILD] = 1  # every writer stores the same value
 
@@ -322,7 +323,7 @@ def measure_parts(model: ti.template(), sizes: ti.template(), state: ti.template
                 j = nlist.partner[k, i]
                 if state.alive[j]:
                     rj = grain_radius(model, sizes, j)
-                    d = (state.x[j] - x).norm()
+                    d = min_image(model, state.x[j] - x).norm()
                     ti.atomic_max(out[2], (ri + rj - d) / (2.0 * ti.min(ri, rj)))
                     if d < ri + rj:
                         touching += 1

@@ -73,12 +73,14 @@ class GasFields:
       ``grad_p``   pressure gradient at cell centres (vec3) [Pa/m] (mean of the open faces;
                    Model A grains feel -V_p grad_p)
     Geometry (constant; :attr:`geometry`): ``vol_frac`` open volume fraction [-]; ``active`` (i32) 1 for
-    gas cells. Python attributes: ``shape``, ``h`` [m], ``origin`` [m] (compile-time constants of a
-    kernel that takes this object as ``ti.template()`` for :meth:`cell_of`).
+    gas cells. Python attributes: ``shape``, ``h`` [m], ``origin`` [m], ``periodic`` (1 or 0 per axis: 1 where
+    the last cell's neighbour is the first) (compile-time constants of a kernel that takes this object as
+    ``ti.template()`` for :meth:`cell_of`).
     """
 
-    def __init__(self, grid: MacGrid, cut: CutCells):
+    def __init__(self, grid: MacGrid, cut: CutCells, periodic=(False, False, False)):
         self.shape = tuple(grid.shape)
+        self.periodic = tuple(int(bool(p)) for p in periodic)
         self.h = float(grid.h)
         self.origin = tuple(grid.origin)
         sh = self.shape

@@ -44,7 +44,7 @@ class FlowSolver(SolverOutputs):
         self.h = float(cfg.h)
         per = cfg.periodic
         self.cut = cut = cut_cells(grid, cfg.walls, int(cfg.aperture_samples), per, float(cfg.min_open_fraction))
-        self.fields = GasFields(grid, cut)
+        self.fields = GasFields(grid, cut, per)
         self._reduced = _zeros(6)  # device-side reductions (diagnostics, end-layer pressures)
         # compile-time choice of every step kernel: its loops nested in one serial loop when Taichi runs on
         # one CPU thread (each top-level loop is then a task of ~70 us), parallel top-level loops otherwise
