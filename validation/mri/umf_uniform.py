@@ -1,6 +1,7 @@
 """Each drag law's U_mf for a uniform bed of the poppy seeds, at the packing fbed settles them into.
 
     python3 validation/mri/umf_uniform.py runs/prepared/mri_umf_prepare-*/bed.h5 [--radius 0.012]
+    python3 validation/mri/umf_uniform.py runs/prepared/mri_umf_periodic_prepare-*/bed.h5 --box 0.024
 
 Reads a settled bed (bed.h5): the bulk gas fraction between 0.2 and 0.8 of its height (the 95th percentile of
 the grain heights) over the whole cross-section, the same in the annulus within one Sauter diameter of the wall
@@ -9,6 +10,8 @@ of its grains. For each law, U_mf is the superficial velocity at which the drag 
 fraction carries the buoyant weight: beta(eps, U / eps) U / eps^2 = (1 - eps)(rho_p - rho_g) g (the Sauter
 diameter standing for the mixture, as in Ergun's equation). This is the law's own answer without the walls,
 the grid and the bed's non-uniformity, to set beside the fluidization curve of presets/mri_umf.toml.
+``--box W``: the bed of a laterally periodic box W wide (presets/mri_umf_periodic.toml), which has no wall:
+its bulk over the whole section only.
 Prints a markdown table. Imports app.sim.drag (Taichi), hence a script, not an analysis.
 """
 from __future__ import annotations
@@ -48,6 +51,7 @@ def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("bed")
     ap.add_argument("--radius", type=float, default=0.012, help="column radius [m]")
+    ap.add_argument("--box", type=float, default=0.0, help="width [m] of a laterally periodic box (no wall)")
     a = ap.parse_args()
     with h5py.File(a.bed) as f:
         x = f["grains/position"][...].astype(float)
@@ -57,6 +61,15 @@ def main() -> int:
     d32 = float(np.sum(r ** 3) / np.sum(r ** 2) * 2.0)
     h95 = float(np.quantile(x[:, 2], 0.95))
     z = (0.2 * h95, 0.8 * h95)
+    if a.box > 0:
+        sel = (x[:, 2] >= z[0]) & (x[:, 2] < z[1])
+        eps = 1.0 - np.sum(grain_volume(r[sel])) / (a.box ** 2 * (z[1] - z[0]))
+        print(f"grains {len(r)}, Sauter diameter {1e3 * d32:.4g} mm, bed height (z95) {1e3 * h95:.4g} mm, "
+              f"gas fraction: bulk {eps:.4f} (periodic box, no wall)\n")
+        print("| law | U_mf uniform bed at the bulk gas fraction [m/s] |\n|---|---|")
+        for law in LAWS:
+            print(f"| {law} | {umf(law, eps, d32):.4f} |")
+        return 0
     R = a.radius
     eps = band_voidage(x, r, 0.0, R, *z)
     wall = band_voidage(x, r, R - d32, R, *z)
