@@ -94,6 +94,11 @@ class DemModel:
         return self.sort_interval > 0 and self.n >= self.sort_min_grains
 
     @property
+    def wraps(self) -> bool:
+        """Some axis is periodic (kernels call the periodic image functions only then)."""
+        return any(self.periodic)
+
+    @property
     def n_cells(self) -> int:
         return self.cells[0] * self.cells[1] * self.cells[2]
 

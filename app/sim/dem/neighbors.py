@@ -33,26 +33,22 @@ def cell_of(model: ti.template(), p):
     period exactly)."""
     c = ti.Vector([0, 0, 0])
     for a in ti.static(range(3)):
-        k = ti.cast(ti.floor((p[a] - model.lo[a]) / model.cell[a]), ti.i32)
-        if ti.static(model.periodic[a]):
-            c[a] = k % model.cells[a]  # Taichi's % on integers is Python's: never negative here
+        if ti.static(model.periodic[a]):  # Taichi's % on integers is Python's: never negative here
+            c[a] = ti.cast(ti.floor((p[a] - model.lo[a]) / model.cell[a]), ti.i32) % model.cells[a]
         else:
-            c[a] = ti.min(ti.max(k, 0), model.cells[a] - 1)
+            c[a] = ti.min(ti.max(ti.cast(ti.floor((p[a] - model.lo[a]) / model.cell[a]), ti.i32), 0),
+                          model.cells[a] - 1)
     return c
 
 
 @ti.func
-def neighbor_cell(model: ti.template(), c, offset):
-    """Cell c + offset, wrapped along periodic axes, and whether it lies in the grid (along a periodic axis
-    always: with at least 3 cells there, the 27 cells around c are distinct)."""
-    q = c + offset
-    inside = True
+def wrap_cell(model: ti.template(), q):
+    """Cell index q (at most one cell outside the grid) wrapped along the periodic axes. With at least 3 cells
+    there, the 27 cells around a cell are distinct."""
     for a in ti.static(range(3)):
         if ti.static(model.periodic[a]):
             q[a] = (q[a] + model.cells[a]) % model.cells[a]
-        elif q[a] < 0 or q[a] >= model.cells[a]:
-            inside = False
-    return q, inside
+    return q
 
 
 @ti.func
@@ -157,14 +153,18 @@ def build_row(model: ti.template(), sizes: ti.template(), state: ti.template(), 
         ri = grain_radius(model, sizes, i)
         c = cell_of(model, xi)
         for dz, dy, dx in ti.ndrange((-1, 2), (-1, 2), (-1, 2)):
-            q, inside = neighbor_cell(model, c, ti.Vector([dx, dy, dz]))
-            if inside:
+            q = c + ti.Vector([dx, dy, dz])
+            if ti.static(model.wraps):  # (without periodic axes the loop is compiled as it always was: a
+                q = wrap_cell(model, q)  # helper here made substeps 3% slower on one CPU thread, measured)
+            if 0 <= q[0] < model.cells[0] and 0 <= q[1] < model.cells[1] and 0 <= q[2] < model.cells[2]:
                 ci = cell_index(model, q)
                 for p in range(nlist.cell_start[ci], nlist.cell_start[ci + 1]):
                     j = nlist.sorted[p]
                     if owns(model, sizes, i, ri, j):
                         rs = ri + grain_radius(model, sizes, j)
-                        d = min_image(model, state.x[j] - xi)
+                        d = state.x[j] - xi
+                        if ti.static(model.wraps):
+                            d = min_image(model, d)
                         dd = d.dot(d)
                         if dd < (rs + model.skin) ** 2:
                             if cnt < model.slots:
