@@ -7,9 +7,11 @@ series' ``pressure_drop`` over the hold's second half (the first half lets the b
 the classical graphical reading: the fixed-bed branch, dp = a U + b U^2 (Ergun's form, through the
 origin) fitted to the holds whose pressure drop is below FIXED_BED of the bed's buoyant weight per area
 (clearly off the plateau), meets the weight per area W. The branch is the contiguous run of such holds up
-from the lowest velocity: in a narrow column with rough walls a fluidized, slugging bed can also read below
-0.8 W (the walls carry part of its weight: measured in presets/mri_umf.toml at 0.5 and 0.6 m/s), and those
-holds are not a fixed bed. Plain numpy/matplotlib, no Taichi.
+from the lowest velocity: a fluidized, slugging bed can also read below 0.8 W over a hold's short window (in
+presets/mri_umf.toml and mri_umf_periodic.toml at 0.5 and 0.6 m/s), and those holds are not a fixed bed. Each
+wall's share of the weight (its mean vertical force on the grains over the same window, from run.h5's
+``wall_force_z_<wall>``) is written beside the pressure drop's: for a bed at rest the shares sum to 1.
+Plain numpy/matplotlib, no Taichi.
 """
 from __future__ import annotations
 
@@ -33,14 +35,16 @@ def holds(schedule: list, speed: float) -> list[tuple[float, float, float]]:
     return out
 
 
-def curve(time: np.ndarray, dp: np.ndarray, stretches) -> list[dict]:
-    """Mean and standard deviation of the pressure drop over each hold's second half."""
+def curve(time: np.ndarray, dp: np.ndarray, stretches, walls: dict | None = None) -> list[dict]:
+    """Mean and standard deviation of the pressure drop over each hold's second half; with ``walls`` (name ->
+    series of a wall's vertical force on the grains [N]) each wall's mean over the same stretch too."""
     rows = []
     for t0, t1, u in stretches:
         sel = (time >= 0.5 * (t0 + t1)) & (time <= t1 + 1e-12)
         if sel.any():
             rows.append(dict(velocity=u, start=t0, end=t1, pressure_drop=float(np.mean(dp[sel])),
-                             pressure_drop_std=float(np.std(dp[sel])), samples=int(sel.sum())))
+                             pressure_drop_std=float(np.std(dp[sel])), samples=int(sel.sum()),
+                             walls={k: float(np.mean(v[sel])) for k, v in (walls or {}).items()}))
     return rows
 
 
@@ -84,17 +88,22 @@ def summarize(run_dir) -> dict:
     series = store.read_series(run_dir / "run.h5")
     summary = json.loads((run_dir / "summary.json").read_text())
     weight = float(summary["bed_weight_per_area"])
-    rows = curve(series["time"], series["pressure_drop"], holds(inlet[0].schedule, speed))
+    # each wall's vertical force on the grains, as a share of the bed's buoyant weight (weight per area x the
+    # open cross-section): with the pressure drop's share it sums to 1 for a bed at rest (Model A and B alike)
+    area = summary.get("bed_area")
+    walls = {k[len("wall_force_z_"):]: v for k, v in series.items() if k.startswith("wall_force_z_")} if area else {}
+    rows = curve(series["time"], series["pressure_drop"], holds(inlet[0].schedule, speed), walls)
     fit = umf(rows, weight)
     out = run_dir / "analysis"
     out.mkdir(exist_ok=True)
     with open(out / "umf.csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["velocity [m/s]", "pressure_drop [Pa]", "pressure_drop_std [Pa]", "dp_over_weight [-]",
-                    "start [s]", "end [s]"])
+                    "start [s]", "end [s]"] + [f"{k}_over_weight [-]" for k in walls])
         for r in rows:
             w.writerow([f"{r['velocity']:.6g}", f"{r['pressure_drop']:.6g}", f"{r['pressure_drop_std']:.6g}",
-                        f"{r['pressure_drop'] / weight:.6g}", f"{r['start']:.6g}", f"{r['end']:.6g}"])
+                        f"{r['pressure_drop'] / weight:.6g}", f"{r['start']:.6g}", f"{r['end']:.6g}"]
+                       + [f"{r['walls'][k] / (weight * area):.6g}" for k in walls])
     figures = {"umf_simulated": fit.get("umf", math.nan), "umf_weight_per_area": weight,
                "umf_fixed_bed_points": fit["fixed_bed_points"]}
     (out / "umf.json").write_text(json.dumps({**figures, **fit, "drag": cfg.coupling.drag,

@@ -48,7 +48,7 @@ class BedMeasures:
         t0 = cfg.output.average_from if cfg.output.average_from >= 0 else 0.5 * t[-1]
         sel = t >= t0 - 1e-12
         wpa = self.weight_per_area
-        out = {"bed_weight_per_area": wpa, "average_from": float(t0)}
+        out = {"bed_weight_per_area": wpa, "bed_area": self.area, "average_from": float(t0)}
         if sel.any():
             dp = float(np.nanmean(series["pressure_drop"][sel]))
             out.update(mean_pressure_drop=dp, mean_bed_height=float(np.nanmean(series["bed_height"][sel])),

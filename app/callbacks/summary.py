@@ -10,6 +10,7 @@ from .writers import DEM_SERIES, GAS_SERIES, write_xdmf
 UNITS = {"time": "s", "wall_time": "s", "dem_dt": "s", "collision_time": "s", "rayleigh_time": "s",
          "bed_height": "m", "kinetic_energy": "J", "particle_substeps_per_s": "1/s", "bytes_per_grain": "B",
          "gas_cell_size": "m", "gas_max_speed": "m/s", "steps_per_s": "1/s", "bed_weight_per_area": "Pa",
+         "bed_area": "m^2",
          "mean_pressure_drop": "Pa", "mean_bed_height": "m", "pressure_drop_over_weight": "1", "average_from": "s",
          "render_time": "s", "render_share": "1"}
 

@@ -63,6 +63,7 @@ class Series:
             d["pressure_drop"] = self.bed.pressure_drop_of(*d["end_layer_pressures"])
         row = {"time": d["time"]}
         row.update({k: d[k] for k in DEM_SERIES + GAS_SERIES if k in d})
+        row.update({k: v for k, v in d.items() if k.startswith("wall_force_z_")})
         row["wall_time"] = d["wall_time"]
         self.runfile.append(row)
 

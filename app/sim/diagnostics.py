@@ -12,7 +12,6 @@ import numpy as np
 import taichi as ti
 
 from .launch import kernel
-from .dem.step import DIAG_COLUMNS
 from .gas.outputs import GAS_DIAG_COLUMNS
 
 
@@ -24,7 +23,7 @@ def _k_store_count(count: ti.template(), ring: ti.types.ndarray(), row: ti.i32, 
 class DiagnosticsRing:
     def __init__(self, dem, flow, coupler, rows: int):
         self.dem, self.flow, self.coupler, self.rows = dem, flow, coupler, int(rows)
-        self.gas_col = len(DIAG_COLUMNS) if dem is not None else 0
+        self.gas_col = len(dem.diag_columns) if dem is not None else 0
         self.clip_col = self.gas_col + (len(GAS_DIAG_COLUMNS) if flow is not None else 0)
         cols = self.clip_col + (1 if coupler is not None else 0)
         self.ring = ti.ndarray(ti.f64, shape=(self.rows, max(cols, 1)))

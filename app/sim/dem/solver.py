@@ -31,7 +31,7 @@ class DemSolver:
         self.history = ContactHistory(model)
         self.nlist = NeighborList(model)
         self.walls = WallData(model)
-        self._diag = ti.field(float, 7)
+        self._diag = ti.field(float, 7 + len(model.walls))
         self._hist = ti.field(ti.i32, 1024)
         self._diag_row = None  # diagnostics()' one-row ring
         self.substeps_done = 0
@@ -313,12 +313,19 @@ class DemSolver:
     def record_diagnostics(self, ring, row: int, col: int = 0) -> None:
         """This step's diagnostics (``step.DIAG_COLUMNS``) into ``ring[row, col:]``, a float64 ti.ndarray, on the
         device: nothing is read back (``diagnostics_of`` turns a copied row into figures)."""
-        measure(self.m, self.fixed, self.state, self.nlist, self.walls, self._diag, self._hist, ring, row, col)
+        measure(self.m, self.fixed, self.state, self.history, self.nlist, self.walls, self._diag, self._hist, ring,
+                row, col)
+
+    @property
+    def diag_columns(self) -> tuple:
+        """The columns ``record_diagnostics`` writes: ``step.DIAG_COLUMNS``, then each wall's vertical force on
+        the grains [N] (``wall_force_z_<wall name>``)."""
+        return DIAG_COLUMNS + tuple(f"wall_force_z_{w.name}" for w in self.m.walls)
 
     def diagnostics_of(self, values: np.ndarray) -> dict:
         """Kinetic energy [J], max overlap / diameter, max speed [m/s], grains alive and removed, non-finite
-        values, touching grain pairs, and the bed height (95th percentile of grain heights) [m], from one
-        recorded row (``values``: its DIAG_COLUMNS, host numpy)."""
+        values, touching grain pairs, the bed height (95th percentile of grain heights) [m] and each wall's
+        vertical force on the grains [N], from one recorded row (``values``: its ``diag_columns``, host numpy)."""
         d = self._f(values[:4])  # the kernels' float type: the energies sum as they were reduced
         alive, bad, contacts, removed, b, below, in_bin = (int(v) for v in values[4:11])
         z95 = float("nan")
@@ -326,13 +333,16 @@ class DemSolver:
             frac = (0.95 * alive - below) / max(in_bin, 1)
             width = (self.m.hi[2] - self.m.lo[2]) / self._hist.shape[0]
             z95 = self.m.lo[2] + (b + frac) * width
-        return {"kinetic_energy": float(d[0] + d[1]), "kinetic_energy_rotational": float(d[1]),
-                "max_overlap": float(max(d[2], 0.0)), "max_speed": float(d[3]), "grains_alive": alive,
-                "grains_removed": removed, "non_finite": bad, "contacts": contacts, "bed_height": z95}
+        out = {"kinetic_energy": float(d[0] + d[1]), "kinetic_energy_rotational": float(d[1]),
+               "max_overlap": float(max(d[2], 0.0)), "max_speed": float(d[3]), "grains_alive": alive,
+               "grains_removed": removed, "non_finite": bad, "contacts": contacts, "bed_height": z95}
+        n = len(DIAG_COLUMNS)
+        out.update({name: float(v) for name, v in zip(self.diag_columns[n:], values[n:])})
+        return out
 
     def diagnostics(self) -> dict:
         """This step's ``diagnostics_of``, recorded and read at once (one host read)."""
         if self._diag_row is None:
-            self._diag_row = ti.ndarray(ti.f64, shape=(1, len(DIAG_COLUMNS)))
+            self._diag_row = ti.ndarray(ti.f64, shape=(1, len(self.diag_columns)))
         self.record_diagnostics(self._diag_row, 0)
         return self.diagnostics_of(self._diag_row.to_numpy()[0])

@@ -121,6 +121,26 @@ def pair_contact(model: ti.template(), sizes: ti.template(), state: ti.template(
 
 
 @ti.func
+def wall_contact(model: ti.template(), history: ti.template(), w: ti.template(), i, vi, wi, ri, mi, nrm, delta):
+    """Grain i touching wall w (overlap ``delta`` > 0, the wall's normal ``nrm`` into the open side): the force
+    on i, its tangential part, the rolling torque, the updated springs (not stored), the normal towards the wall
+    and the lever arm."""
+    zero = ti.Vector([0.0, 0.0, 0.0])
+    n = -nrm  # from the grain towards the wall
+    arm = ri - 0.5 * delta
+    vrel = vi
+    spring, roll_spring = zero, zero
+    if ti.static(model.friction):
+        vrel += (wi * arm).cross(n)
+        spring = history.wall_tangential[w, i]
+    if ti.static(model.rolling == ROLL_EPSD):
+        roll_spring = history.wall_rolling[w, i]
+    f, ft, tr, spring, roll_spring = contact(model, True, n, delta, vrel, wi, ri, mi, 1.4 ** 0.5 * ri,
+                                             spring, roll_spring)  # sqrt(I_r / m*), I_r = 1.4 m r^2
+    return f, ft, tr, spring, roll_spring, n, arm
+
+
+@ti.func
 def wall_contacts(model: ti.template(), history: ti.template(), walls: ti.template(), i, xi, vi, wi, ri, mi, fi,
                   torque_i):
     """Grain i's force and torque ``fi``, ``torque_i`` with every wall's added (unrolled at compile time,
@@ -130,17 +150,7 @@ def wall_contacts(model: ti.template(), history: ti.template(), walls: ti.templa
         clearance, nrm = wall_clearance_normal(model.walls[w], walls.sampled[w], xi)
         delta = ri - clearance
         if delta > 0:
-            n = -nrm  # from the grain towards the wall
-            arm = ri - 0.5 * delta
-            vrel = vi
-            spring, roll_spring = zero, zero
-            if ti.static(model.friction):
-                vrel += (wi * arm).cross(n)
-                spring = history.wall_tangential[w, i]
-            if ti.static(model.rolling == ROLL_EPSD):
-                roll_spring = history.wall_rolling[w, i]
-            f, ft, tr, spring, roll_spring = contact(model, True, n, delta, vrel, wi, ri, mi, 1.4 ** 0.5 * ri,
-                                                     spring, roll_spring)  # sqrt(I_r / m*), I_r = 1.4 m r^2
+            f, ft, tr, spring, roll_spring, n, arm = wall_contact(model, history, w, i, vi, wi, ri, mi, nrm, delta)
             if ti.static(model.friction):
                 history.wall_tangential[w, i] = spring
                 torque_i += arm * n.cross(ft) + tr
@@ -279,27 +289,31 @@ def substep_parts(model: ti.template(), sizes: ti.template(), state: ti.template
 #: the translational and rotational kinetic energy [J], the largest overlap over a diameter, the largest speed
 #: [m/s], then counts: grains alive, grains with a non-finite position or velocity, touching pairs, grains
 #: removed, and the bin of the grain-height histogram holding the 95th percentile, the grains below that bin
-#: and in it (the host interpolates the bed height from these, as from the histogram itself)
+#: and in it (the host interpolates the bed height from these, as from the histogram itself); then, one column
+#: per wall (``DemSolver.diag_columns``), the vertical force the wall exerts on the grains [N]
 DIAG_COLUMNS = ("kinetic_energy_translational", "kinetic_energy_rotational", "max_overlap", "max_speed",
                 "grains_alive", "non_finite", "contacts", "grains_removed", "height_bin", "height_below",
                 "height_in_bin")
 
 
 @kernel
-def measure(model: ti.template(), sizes: ti.template(), state: ti.template(), nlist: ti.template(),
-            walls: ti.template(), out: ti.template(), hist: ti.template(), ring: ti.types.ndarray(), row: ti.i32,
-            col: ti.i32):
+def measure(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+            nlist: ti.template(), walls: ti.template(), out: ti.template(), hist: ti.template(),
+            ring: ti.types.ndarray(), row: ti.i32, col: ti.i32):
     """Fill ``out`` with [KE_trans, KE_rot, max overlap/diameter, max speed, alive, bad values, touching
-    pairs] and ``hist`` with a height histogram of alive grains, then write the step's record (DIAG_COLUMNS)
-    into ``ring[row, col:]`` (float64): nothing is returned, so the host waits for nothing. On one CPU
-    thread (``model.serial``) one serial task (the loops nested in one loop, in the same order)."""
-    one_task(model.serial, measure_parts, (model, sizes, state, nlist, walls, out, hist, ring, row, col))
+    pairs, then each wall's vertical force on the grains] and ``hist`` with a height histogram of alive grains,
+    then write the step's record (``DemSolver.diag_columns``) into ``ring[row, col:]`` (float64): nothing is
+    returned, so the host waits for nothing. The wall forces are the contact law's at this instant, with the
+    springs as they stand (read, not stepped). On one CPU thread (``model.serial``) one serial task (the loops
+    nested in one loop, in the same order)."""
+    one_task(model.serial, measure_parts, (model, sizes, state, history, nlist, walls, out, hist, ring, row, col))
 
 
 @ti.func
-def measure_parts(model: ti.template(), sizes: ti.template(), state: ti.template(), nlist: ti.template(),
-                  walls: ti.template(), out: ti.template(), hist: ti.template(), ring: ti.template(), row, col):
-    for k in range(7):
+def measure_parts(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+                  nlist: ti.template(), walls: ti.template(), out: ti.template(), hist: ti.template(),
+                  ring: ti.template(), row, col):
+    for k in range(7 + ti.static(len(model.walls))):
         out[k] = 0.0
     for b in range(hist.shape[0]):
         hist[b] = 0
@@ -337,9 +351,16 @@ def measure_parts(model: ti.template(), sizes: ti.template(), state: ti.template
                     if d < ri + rj:
                         touching += 1
             ti.atomic_add(out[6], touching)
+            wi = ti.Vector([0.0, 0.0, 0.0])
+            if ti.static(model.friction):
+                wi = state.omega[i]
             for w in ti.static(range(len(model.walls))):
                 clearance, nrm = wall_clearance_normal(model.walls[w], walls.sampled[w], x)
                 ti.atomic_max(out[2], (ri - clearance) / (2.0 * ri))
+                delta = ri - clearance
+                if delta > 0:
+                    f, _ft, _tr, _s, _r, _n, _a = wall_contact(model, history, w, i, v, wi, ri, mass, nrm, delta)
+                    ti.atomic_add(out[7 + w], f[2])  # the force on the grain, from the wall
     out[4] = alive
     ti.loop_config(serialize=True)
     for _ in range(1):  # one thread: the record, and the first bin where the cumulative count reaches 95%
@@ -359,3 +380,5 @@ def measure_parts(model: ti.template(), sizes: ti.template(), state: ti.template
                 ring[row, col + 9] = ti.cast(cum, ti.f64)
                 ring[row, col + 10] = ti.cast(hist[b], ti.f64)
             cum += hist[b]
+        for w in ti.static(range(len(model.walls))):
+            ring[row, col + 11 + w] = ti.cast(out[7 + w], ti.f64)
