@@ -75,14 +75,16 @@ class DemSolver:
         return values if order is None else np.take(values, order, axis=axis)
 
     def _wrapped(self, position):
-        """Positions brought into [lo, hi) along the periodic axes (as ``integrate`` keeps them)."""
-        if not any(self.m.periodic):
+        """Positions brought into [lo, hi) along the periodic axes (as ``integrate`` keeps them); those inside
+        keep their bits (a checkpoint resumes exactly)."""
+        if not self.m.wraps:
             return position
         x = np.array(position, dtype=float, copy=True)
         for a, p in enumerate(self.m.periodic):
             if p and x.ndim == 2:
-                lo, period = self.m.lo[a], self.m.hi[a] - self.m.lo[a]
-                x[:, a] = lo + np.mod(x[:, a] - lo, period)
+                lo, hi = self.m.lo[a], self.m.hi[a]
+                out = (x[:, a] < lo) | (x[:, a] >= hi)
+                x[out, a] = lo + np.mod(x[out, a] - lo, hi - lo)
         return x
 
     def set_grains(self, position, velocity=None, radius=None, omega=None, alive=None):
