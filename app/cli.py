@@ -145,6 +145,8 @@ def _add_rcfd(sub) -> None:
     rc.add_argument("--t1", type=float, help="validate: end of the database, start of the continuations [s]")
     rc.add_argument("--t2", type=float, help="validate: end of the continuations [s]")
     rc.add_argument("--continuations", type=int, default=3, help="validate: perturbed full continuations")
+    rc.add_argument("--sensitivity", action="store_true", help="validate: the extrapolation again with the frame "
+                    "interval doubled and with the mean sequence halved, each against the full runs' tolerance")
     rc.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="validate: override a preset key of the runs")
     rc.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto")

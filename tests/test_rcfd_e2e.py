@@ -141,3 +141,27 @@ def test_a_run_resumed_on_a_frame_boundary_records_the_same_frames(recorded, tmp
             assert np.array_equal(a[name][...], b[name][...]), name
         assert np.allclose(a["shift/w"][...], b["shift/w"][...], rtol=1e-12)
         assert np.allclose(a["boundary/eps"][...], b["boundary/eps"][...], atol=1e-6)
+
+
+def test_the_sensitivity_check_reruns_the_paths_with_frames_doubled_and_sequences_halved(recorded, tmp_path):
+    """`fbed rcfd validate --sensitivity`'s part after the full runs: each variant's paths are built as named
+    (a frame spanning two recorded frames; half the mean sequence) and checked against the full runs' curves
+    on both indices (here two made-up full curves: the plumbing, not rCFD's accuracy, is tested)."""
+    from app.rcfd import commands
+    from app.rcfd.database import load
+    from app.rcfd.validate import sensitivity_checks
+
+    t = np.linspace(0.0, 0.3, 61)
+    conts = [{"t": t, "M": 1 - np.exp(-t / tau), "L": 1 - np.exp(-t / tau)} for tau in (0.10, 0.12)]
+    eng = commands.Engine(load(recorded, 1))
+    checks = sensitivity_checks(recorded, tmp_path, conts, 0.3, 3, 3, 1, eng, "auto", "auto", log=lambda *a: None)
+    names = {f"sensitivity_{v}_{c}" for v in ("frames_doubled", "sequences_halved")
+             for c in ("mean_mixing_index", "t50", "t90", "mean_lacey_index", "t50_lacey", "t90_lacey")}
+    assert set(checks) == names
+    assert all(isinstance(c["pass"], bool) for c in checks.values())
+    assert "lag 2" in checks["sensitivity_frames_doubled_t50"]["tests"]
+    assert f"mean sequence {max(eng.params.l_min + 1, eng.params.l_mean // 2)} frames" in \
+        checks["sensitivity_sequences_halved_t50"]["tests"]
+    doubled = np.loadtxt(tmp_path / "rcfd_paths_frames_doubled" / "mixing.csv", delimiter=",", skiprows=1)
+    halved = np.loadtxt(tmp_path / "rcfd_paths_sequences_halved" / "mixing.csv", delimiter=",", skiprows=1)
+    assert np.diff(doubled[:, 0])[0] == pytest.approx(2 * np.diff(halved[:, 0])[0])  # 10 ms frames against 5 ms

@@ -74,4 +74,4 @@ def main(args) -> int:
     if not (0 <= args.t0 < args.t1 < args.t2):
         raise ConfigError(f"need 0 <= t0 < t1 < t2 (got {args.t0:g}, {args.t1:g}, {args.t2:g})", "", "--t1")
     return validate(args.target, args.t0, args.t1, args.t2, args.out, args.paths, args.seed, args.continuations,
-                    args.overrides, args.arch, log=log, lag=args.lag)
+                    args.overrides, args.arch, log=log, lag=args.lag, sensitivity=args.sensitivity)

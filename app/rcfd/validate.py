@@ -228,6 +228,34 @@ def bed_checks(conts: list, summ: dict, horizon: float, dt: float) -> dict:
             "radial_void_profile_rms": {"tests": rep, "rms_difference": rms, "tolerance": 0.02, "pass": rms <= 0.02}}
 
 
+def sensitivity_checks(A: pathlib.Path, od: pathlib.Path, conts: list, horizon: float, n_paths: int, seed: int,
+                       lag: int, eng, jump_grid: str, jump: str, log=print) -> dict:
+    """The design note's sensitivity check: the extrapolation again with the frame interval doubled (each frame
+    spans twice the recorded frames) and with the mean sequence halved; each must stay within the extrapolation
+    tolerance of the full runs (the mean index, t50 and t90, on the cell index and on Lacey's). The other
+    settings are the main run's; each variant's paths go to ``od / rcfd_paths_<variant>``."""
+    variants = {"frames_doubled": (2 * lag, None),
+                "sequences_halved": (lag, max(eng.params.l_min + 1, eng.params.l_mean // 2))}
+    out = {}
+    for name, (v_lag, v_mean) in variants.items():
+        db = load(A, v_lag)
+        e = commands.Engine(db, jump_grid=jump_grid, jump=jump)
+        if v_mean is not None:
+            e = commands.Engine(db, e.st, dataclasses.replace(e.params, l_mean=v_mean), jump_grid=jump_grid,
+                                jump=jump)
+        log(f"fbed: rcfd validate: sensitivity, {name} (lag {v_lag}, mean sequence {e.params.l_mean} frames)")
+        pd = od / f"rcfd_paths_{name}"
+        commands.run_paths(str(A), horizon, n_paths, seed, None, out=str(pd), engine=e, log=log)
+        for key, fname, label in (("M", "mixing.csv", "mixing_index"), ("L", "lacey.csv", "lacey_index")):
+            data = np.loadtxt(pd / fname, delimiter=",", skiprows=1)
+            t_r, paths = data[:, 0], data[:, 1:1 + n_paths].T
+            checks, _ = mixing_checks(conts, t_r, paths, key, label)
+            for k, c in checks.items():
+                c["tests"] = f"sensitivity: {name} (lag {v_lag}, mean sequence {e.params.l_mean} frames)"
+                out[f"sensitivity_{name}_{k}"] = c
+    return out
+
+
 def cost_checks(conts: list, summ: dict) -> dict:
     c_full = float(np.nanmean([c["wall_per_s"] for c in conts]))
     c_r = summ["cost"]["rcfd_wall_per_simulated_second_per_path"]
@@ -241,10 +269,11 @@ def cost_checks(conts: list, summ: dict) -> dict:
 
 def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_paths: int, seed: int,
              n_cont: int, overrides: list, arch: str, log=print, lag: int = 1, l_mean: int | None = None,
-             jump_grid: str = "auto", jump: str = "auto") -> int:
+             jump_grid: str = "auto", jump: str = "auto", sensitivity: bool = False) -> int:
     """The protocol above; ``l_mean`` [frames] overrides the paths' mean sequence length (default N/10);
     ``jump_grid`` 'cells' locates the grain tracer's jumps on the cells instead of half cells; ``jump`` 'stitch'
-    stitches cell volumes at the jumps instead of matching grains (Engine)."""
+    stitches cell volumes at the jumps instead of matching grains (Engine); ``sensitivity``: the design note's
+    last check too (:func:`sensitivity_checks`)."""
     od = pathlib.Path(out) if out else pathlib.Path("runs") / f"rcfd-validate-{pathlib.Path(preset).stem}"
     od.mkdir(parents=True, exist_ok=True)
     rc, conts = full_runs(od, preset, overrides, t0, t1, t2, n_cont, arch, log)
@@ -270,6 +299,8 @@ def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_pa
     checks.update(mix_L)
     checks.update(bed_checks(conts, summ, horizon, db.frame_interval / lag))
     checks.update(cost_checks(conts, summ))
+    if sensitivity:
+        checks.update(sensitivity_checks(A, od, conts, horizon, n_paths, seed, lag, eng, jump_grid, jump, log))
     c_full = checks["marginal_speedup"]["full_wall_per_simulated_second"]
     c_r = checks["marginal_speedup"]["rcfd_wall_per_simulated_second"]
     total = c_full * horizon / (c_full * (t1 - t0) + summ["cost"]["prep_seconds"] + n_paths * c_r * horizon)
