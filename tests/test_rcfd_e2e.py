@@ -160,8 +160,8 @@ def test_the_sensitivity_check_reruns_the_paths_with_frames_doubled_and_sequence
     assert set(checks) == names
     assert all(isinstance(c["pass"], bool) for c in checks.values())
     assert "lag 2" in checks["sensitivity_frames_doubled_t50"]["tests"]
-    assert f"mean sequence {max(eng.params.l_min + 1, eng.params.l_mean // 2)} frames" in \
-        checks["sensitivity_sequences_halved_t50"]["tests"]
+    half = f"mean sequence {max(eng.params.l_min + 1, eng.params.l_mean // 2)} frames"
+    assert half in checks["sensitivity_sequences_halved_t50"]["tests"]
     doubled = np.loadtxt(tmp_path / "rcfd_paths_frames_doubled" / "mixing.csv", delimiter=",", skiprows=1)
     halved = np.loadtxt(tmp_path / "rcfd_paths_sequences_halved" / "mixing.csv", delimiter=",", skiprows=1)
     assert np.diff(doubled[:, 0])[0] == pytest.approx(2 * np.diff(halved[:, 0])[0])  # 10 ms frames against 5 ms
