@@ -112,6 +112,9 @@ def announce(sim, scene, name: str, arch: str, out_dir) -> None:
     cfg, der, what = scene.cfg, scene.derived, []
     if sim.dem is not None:
         what.append(f"{scene.n} grains, DEM step {der.dt:.3g} s x {der.substeps} per {cfg.run.step:g} s step")
+        wrapped = [a for a, p in zip("xyz", der.periodic) if p]
+        if wrapped:
+            what[-1] += f", periodic in {' and '.join(wrapped)}"
     if sim.flow is not None:
         what.append(f"gas on {'x'.join(map(str, scene.flow.shape))} cells of {cfg.gas.cell_size:g} m, "
                     f"fluid step {cfg.run.step:g} s")
