@@ -10,9 +10,10 @@ set -e
 cd "$(dirname "$0")/../.."
 OUT=${OUT:-runs}
 V="$OUT/rcfd-validate-bubbling"
-val() {  # val DIR L_MEAN JUMP NAME: one validate on DIR's runs (T0, T1, T2), its report copied to DIR/NAME_*
+val() {  # val DIR L_MEAN JUMP NAME [SENS]: one validate on DIR's runs (T0, T1, T2), its report copied to DIR/NAME_*;
+        # SENS=True adds the sensitivity check (frames doubled, sequences halved)
     python3 -c "import sys; from app.rcfd.validate import validate; sys.exit(validate('presets/rcfd_bubbling.toml', \
-$T0, $T1, $T2, '$1', 20, 1, 3, [], 'cpu', l_mean=$2, jump='$3'))" || true
+$T0, $T1, $T2, '$1', 20, 1, 3, [], 'cpu', l_mean=$2, jump='$3', sensitivity=${5:-False}))" || true
     for f in REPORT.md validation.json mixing_validation.png; do cp "$1/$f" "$1/$4_$f"; done
     cp "$1/rcfd_paths/summary.json" "$1/$4_paths_summary.json"
 }
@@ -30,6 +31,8 @@ T0=0.5 T1=1.5 T2=2.5
 for J in match stitch; do
     for L in 20 100; do val "$V" $L $J "${J}_lmean$L"; done
 done
+# 1a. the design note's sensitivity check on the matched jumps (validation/rcfd/README.md, section 00)
+val "$V" 100 match sensitivity_lmean100 True
 # 1b. the same database with 3 s continuations (t50 and t90 of Lacey's index need more than 1 s)
 if [ "${H3:-0}" = 1 ]; then
     extend "$V" "$V-3s" 4.5
