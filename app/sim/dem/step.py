@@ -186,7 +186,7 @@ def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template()
             for k in range(nlist.count[i]):
                 j = nlist.partner[k, i]
                 dx = state.x[j] - xi
-                if ti.static(model.wraps):  # no call at all without periodic faces (measured: 2% slower)
+                if ti.static(model.wraps):  # nothing compiled without periodic faces
                     dx = min_image(model, dx)
                 rj = grain_radius(model, sizes, j)
                 d2 = dx.dot(dx)
