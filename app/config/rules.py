@@ -1,6 +1,7 @@
 """Rules that involve more than one key (each names the key to change)."""
 from __future__ import annotations
 
+from .derived import periodic_axes
 from .errors import ConfigError, find_line
 from .schema import Config
 
@@ -143,7 +144,7 @@ def _particles_and_contact(cfg: Config, fail) -> None:
         fail("particles", "count", "say how many grains: count, bed_height (m) or initial_state (a bed.h5)")
     if sources > 1:
         fail("particles", "count", "give only one of count, bed_height and initial_state")
-    periodic = [ax for ax in "xyz" if any(f == ax + "-" and b.kind == "periodic" for f, b in cfg.boundary)]
+    periodic = [ax for ax, p in zip("xyz", periodic_axes(cfg)) if p]  # pairs checked above (_periodic_pairs)
     if "z" in periodic:
         fail("boundary", "z-", "grains cannot wrap vertically: the floor holds the bed up",
              "close z- / z+ (e.g. a velocity_inlet below and a pressure_outlet on top)")
