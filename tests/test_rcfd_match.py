@@ -93,13 +93,15 @@ def test_matching_sends_the_excess_to_the_nearest_deficit():
 def test_sequence_indices_from_movers_equal_the_direct_sums():
     rng = np.random.default_rng(2)
     cells, n = _states(rng, B=9)
+    cells = np.insert(cells, 5, cells[4], axis=0)  # state 5 repeats 4: a transition without movers (a settled bed)
     vol = rng.uniform(0.5, 1.5, cells.shape[1])
     seq = SequenceIndex(cells, vol, n)
     w = vol * (rng.random(cells.shape[1]) < 0.4)
-    for s_prev, states in ((0, np.arange(1, 9)), (3, np.arange(4, 7)), (2, np.array([5, 1, 7]))):
+    for s_prev, states in ((0, np.arange(1, 10)), (3, np.arange(4, 7)), (4, np.array([5])), (2, np.array([5, 1, 7]))):
         m = seq.volumes(w, s_prev, states)
         direct = np.stack([np.bincount(cells[b], weights=w, minlength=n) for b in states])
         assert np.allclose(m, direct, rtol=0, atol=1e-12 * w.sum())
+        assert np.array_equal(seq.sequence(w, s_prev, states)[0], seq.tagged(w, s_prev))
         M, L = seq.indices(m, states)
         b = np.stack([np.bincount(cells[s], weights=vol, minlength=n) for s in states])
         cnt = np.stack([np.bincount(cells[s], minlength=n) for s in states])

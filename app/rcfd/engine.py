@@ -246,41 +246,38 @@ class Engine:
 
     def _transport_grains(self, path: pathmod.Path, c0, tau0, jumps: dict, first: int) -> dict:
         """The grain tracer along ``path``: the tagged volume per cell of each sequence from its movers
-        (sequence.SequenceIndex), a match or stitch at each jump, then the indices of every row in one call; per
-        jump, its change of the cell index and the share of the tagged volume that changed (index) cell."""
+        (sequence.SequenceIndex) and its indices, a match or stitch at each jump; per jump, its change of the cell
+        index and the share of the tagged volume that changed (index) cell."""
         db, seq = self.db, self.seq
         tr = GrainTracer(db.grain_volume, c0[db.cells[first]] if tau0 is None else tau0, db.n_cells)
-        rows, states, after = [seq.tagged(tr.vol * tr.tau, first)[None]], [np.array([first])], []
+        Ms, Ls, infos, last = [], [], [], None  # last: the tagged volume per cell at the latest state
         cuts = sorted(jumps) + [len(path.frames)]
-        infos, t_stitch = [], 0.0
+        t_stitch = 0.0
         t = wallclock.perf_counter()
         start, s_prev = 0, first
-        for end in cuts:
+        for end in cuts:  # every piece has frames: no jump at 0 (see transport), positions distinct and < end
+            info = None
             if start in jumps:
                 s_from, s_prev = jumps[start]
                 info, dt_s = self._grain_jump(tr, s_from, s_prev)
                 t_stitch += dt_s
-                infos.append(info)
-                after.append((len(states), seq.tagged(tr.vol * tr.tau, s_prev), s_prev))
-            if end > start:
-                st = db.b1[path.frames[start:end]]
-                rows.append(seq.volumes(tr.vol * tr.tau, s_prev, st))
-                states.append(st)
-                s_prev = int(st[-1])
-            start = end
-        n = len(path.frames) + 1
-        m = np.concatenate(rows + [a[1][None] for a in after])
-        M, Lc = seq.indices(m, np.concatenate(states + [np.array([a[2]]) for a in after]))
+            st = db.b1[path.frames[start:end]]
+            m = seq.sequence(tr.vol * tr.tau, s_prev, st)  # row 0: at s_prev, after the jump if there is one
+            M, Lc = seq.indices(m, np.concatenate([[s_prev], st]))
+            if info is None:  # the path's first state
+                Ms.append(M[:1])
+                Ls.append(Lc[:1])
+            else:
+                infos.append({**info, "dM": float(M[0] - Ms[-1][-1]),
+                              "tag_moved_share": 0.5 * float(np.abs(m[0] - last).sum()) / max(last.sum(), 1e-300)})
+            Ms.append(M[1:])
+            Ls.append(Lc[1:])
+            last, s_prev, start = m[-1], int(st[-1]), end
         wall = wallclock.perf_counter() - t - t_stitch
         self.stitch_seconds += t_stitch
-        last = np.cumsum([r.shape[0] for r in rows]) - 1  # the row of each sequence's last state
-        for i, (k, m_after, _) in zip(range(len(after)), after):
-            before = last[k - 1]
-            infos[i] = {**infos[i], "dM": float(M[n + i] - M[before]),
-                        "tag_moved_share": 0.5 * float(np.abs(m_after - m[before]).sum()) / max(m[before].sum(), 1e-300)}
         mm, u = tr.volumes(db.cells[s_prev])
         c = np.divide(mm, mm + u, out=np.zeros_like(mm), where=mm + u > 0)
-        return {"M": M[:n], "lacey": Lc[:n], "moved": [i["moved_share"] for i in infos],
+        return {"M": np.concatenate(Ms), "lacey": np.concatenate(Ls), "moved": [i["moved_share"] for i in infos],
                 "jump_dM": [i["dM"] for i in infos], "tag_moved": [i["tag_moved_share"] for i in infos],
                 "drift": tr.drift(), "c_min": float(c.min()), "c_max": float(c.max()),
                 "m_min": float(min(tr.tau.min(), 1.0 - tr.tau.max())), "wall": wall}

@@ -32,8 +32,10 @@ class SequenceIndex:
         ch = cells[1:] != cells[:-1]
         t, g = np.nonzero(ch)  # row-major: sorted by transition
         self.mv_off = np.concatenate([[0], np.cumsum(ch.sum(1))]).astype(np.int64)
-        self.mv_t, self.mv_g = t.astype(np.int64), g.astype(np.int64)
-        self.mv_from, self.mv_to = cells[t, g], cells[t + 1, g]
+        self.mv_g = g.astype(np.int64)
+        # each move's cell as a flat index into (transitions, cells): transition t's row t (offset per sequence)
+        self.mv_from = t.astype(np.int64) * self.n + cells[t, g]
+        self.mv_to = t.astype(np.int64) * self.n + cells[t + 1, g]
         idx = (cells + self.n * np.arange(B)[:, None]).ravel()
         counts = np.bincount(idx, minlength=B * self.n).reshape(B, self.n).astype(np.float64)
         b = solid if solid is not None else \
@@ -52,26 +54,45 @@ class SequenceIndex:
     def volumes(self, w: np.ndarray, s_prev: int, states: np.ndarray) -> np.ndarray:
         """(L, n) tagged volume per cell at ``states`` (the boundaries after each frame of a sequence that starts at
         boundary ``s_prev``) for per-grain tagged volumes w, which do not change along the sequence."""
-        L = states.size
+        return self.sequence(w, s_prev, states)[1:]
+
+    def sequence(self, w: np.ndarray, s_prev: int, states: np.ndarray) -> np.ndarray:
+        """(L + 1, n): the tagged volume per cell at ``s_prev`` (row 0) and at each of ``states`` (as ``volumes``)."""
+        L, n = states.size, self.n
         if L and states[0] == s_prev + 1 and np.array_equal(states, s_prev + 1 + np.arange(L)):
             lo, hi = self.mv_off[s_prev], self.mv_off[s_prev + L]
-            f = (self.mv_t[lo:hi] - s_prev) * self.n
+            off = (s_prev - 1) * n  # transition s_prev + t lands in row t + 1
             wm = w[self.mv_g[lo:hi]]
-            d = np.bincount(f + self.mv_to[lo:hi], weights=wm, minlength=L * self.n) \
-                - np.bincount(f + self.mv_from[lo:hi], weights=wm, minlength=L * self.n)
-            return self.tagged(w, s_prev) + np.cumsum(d.reshape(L, self.n), 0)
-        idx = (self.cells[states] + self.n * np.arange(L)[:, None]).ravel()
-        return np.bincount(idx, weights=np.tile(w, L), minlength=L * self.n).reshape(L, self.n)
+            # (astype: bincount of no moves returns integers, which would truncate the volumes set below)
+            m = np.bincount(self.mv_to[lo:hi] - off, weights=wm, minlength=(L + 1) * n).astype(np.float64, copy=False)
+            m -= np.bincount(self.mv_from[lo:hi] - off, weights=wm, minlength=(L + 1) * n)
+            m = m.reshape(L + 1, n)  # row t + 1: the arrivals less the departures of transition s_prev + t
+            m[0] = self.tagged(w, s_prev)
+            for i in range(1, L + 1):  # the running sum down the rows, row by row: 2x np.cumsum(m, 0) here
+                np.add(m[i], m[i - 1], out=m[i])
+            return m
+        idx = (self.cells[np.concatenate([[s_prev], states])] + n * np.arange(L + 1)[:, None]).ravel()
+        return np.bincount(idx, weights=np.tile(w, L + 1), minlength=(L + 1) * n).reshape(L + 1, n)
 
     def indices(self, m: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(cell index M, Lacey index) at each row of m (L, n), the tagged volume per cell at ``states``."""
-        btot, N, K = self.btot[states], self.N[states], self.K[states]
+        L = states.size
+        if L > 1 and states[-1] - states[0] == L - 1 and np.array_equal(states, states[0] + np.arange(L)):
+            rows = slice(int(states[0]), int(states[0]) + L)  # consecutive states: views, not copies
+        else:
+            rows = states
+        b, wq, wl = self.b[rows], self.wq[rows], self.wl[rows]
+        btot, N, K = self.btot[rows], self.N[rows], self.K[rows]
         p = m.sum(1) / btot
         ok = (p > 0) & (p < 1)
+        t = np.multiply(b, p[:, None])  # one scratch array for |m - p b| and then m^2
+        np.subtract(m, t, out=t)
+        np.abs(t, out=t)
+        dev = t.sum(1)
+        np.multiply(m, m, out=t)
         with np.errstate(invalid="ignore", divide="ignore"):
-            M = 1.0 - np.abs(m - p[:, None] * self.b[states]).sum(1) / (2.0 * p * (1.0 - p) * btot)
-            s2 = (np.einsum("ij,ij->i", self.wq[states], m * m) - 2.0 * p * np.einsum("ij,ij->i", self.wl[states], m)
-                  + p * p * N) / N
+            M = 1.0 - dev / (2.0 * p * (1.0 - p) * btot)
+            s2 = (np.einsum("ij,ij->i", wq, t) - 2.0 * p * np.einsum("ij,ij->i", wl, m) + p * p * N) / N
             s0 = p * (1.0 - p)
             lacey = (s0 - s2) / (s0 - s0 * (K - 1) / (N - 1))
         return np.where(ok, M, np.nan), np.where(ok & (K > 1), lacey, np.nan)
