@@ -5,8 +5,8 @@
 RUN_DIR: a run that recorded rcfd.h5 with grain cells (validate's A). Variants, timed in turn in every round
 (A B C D A B C D ...) with their operators built and cached first, so only the transport is timed, as in
 `fbed rcfd run`'s marginal cost:
-- before:  app/rcfd/engine.py at COMMIT (default: the branch's base), half-cell stitches, the index summed over
-           every grain at every state;
+- before:  app/rcfd/engine.py and sequence.py at COMMIT (default: the branch's base; at fb52dd6, half-cell
+           stitches and the index summed over every grain at every state);
 - stitch:  this tree's engine with the stitch at jumps (the movers' index, and Lacey's as well);
 - direct:  this tree, matched jumps, the index summed over every grain at every state (SequenceIndex's fallback);
 - after:   this tree as `fbed rcfd run` runs it (matched jumps, the movers' index).
@@ -37,11 +37,21 @@ from app.rcfd.engine import Engine  # noqa: E402
 
 
 def engine_at(commit: str):
-    """The Engine class of app/rcfd/engine.py at ``commit`` (its relative imports on this tree's modules)."""
-    src = subprocess.run(["git", "show", f"{commit}:app/rcfd/engine.py"], cwd=ROOT, capture_output=True, text=True,
-                         check=True).stdout
-    src = src.replace("from . import", "from app.rcfd import").replace("from .", "from app.rcfd.")
-    path = pathlib.Path(tempfile.mkdtemp()) / "engine_before.py"
+    """The Engine class of app/rcfd/engine.py at ``commit``, with app/rcfd/sequence.py at the same commit (its other
+    relative imports on this tree's modules)."""
+    def source(name: str, required: bool = True) -> str:
+        src = subprocess.run(["git", "show", f"{commit}:app/rcfd/{name}.py"], cwd=ROOT, capture_output=True,
+                             text=True, check=required).stdout
+        return src.replace("from . import", "from app.rcfd import").replace("from .", "from app.rcfd.")
+
+    tmp = pathlib.Path(tempfile.mkdtemp())
+    seq = source("sequence", required=False)
+    src = source("engine")
+    if seq:  # a commit before sequence.py has none to pin
+        (tmp / "sequence_before.py").write_text(seq)
+        src = src.replace("from app.rcfd.sequence import", "from sequence_before import")
+        sys.path.insert(0, str(tmp))
+    path = tmp / "engine_before.py"
     path.write_text(src)
     spec = importlib.util.spec_from_file_location("engine_before", path)
     mod = importlib.util.module_from_spec(spec)
@@ -64,10 +74,11 @@ def main() -> None:
                "stitch": Engine(db, after.st, params, jump="stitch"),
                "direct": Engine(db, after.st, params),
                "after": Engine(db, after.st, params)}
-    engines["direct"].seq.volumes = lambda w, s_prev, states, f=engines["direct"].seq.volumes: f(w, -2, states)
+    q = engines["direct"].seq
+    q.sequence = lambda w, s_prev, states: np.stack([q.tagged(w, b) for b in np.concatenate([[s_prev], states])])
     s = db.n_states - 1
     n = int(round(1.0 / db.frame_interval))  # 1 s paths
-    ps = [after.path(n, s, (1, i)) for i in range(a.paths)]
+    ps = [engines["after"].path(n, s, (1, i)) for i in range(a.paths)]  # with --l-mean's sequences
     c0 = commands.initial_concentration(db, s, None)
     for e in engines.values():  # operators built and cached
         for p in ps:
