@@ -136,8 +136,8 @@ def _add_rcfd(sub) -> None:
     rc.add_argument("--jump", choices=("match", "stitch"), default=None,
                     help="run: how the grain tracer crosses a jump: match (each grain takes the tag of one grain of "
                          "the state left, paired by position; stored in RUN_DIR/rcfd/matchings.h5 for later runs; the "
-                         "default) or stitch (cell volumes stitched, each grain takes its cell's mean tag); a database "
-                         "without grain cells always stitches")
+                         "default up to 10,000 grains) or stitch (cell volumes stitched, each grain takes its cell's "
+                         "mean tag; the default above); a database without grain cells always stitches")
     rc.add_argument("--lag", type=int, default=1, help="run, validate: a frame spans LAG recorded frames, its shift "
                                                        "built from each grain's cell at its ends (motion that "
                                                        "reverses within it is no dispersion)")

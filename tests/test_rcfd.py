@@ -7,7 +7,8 @@ import scipy.sparse as sp
 from app.rcfd import paths as pm
 from app.rcfd import recurrence as rec
 from app.rcfd.database import parse_tag, shift_operator, tag_mask
-from app.rcfd.transport import SolidsTracer, Stitcher, mixing_index, shift_diffusivity
+from app.rcfd.stitch import Stitcher
+from app.rcfd.transport import SolidsTracer, mixing_index, shift_diffusivity
 
 pytestmark = pytest.mark.unit
 
@@ -122,11 +123,12 @@ def random_shift(rng, n, grains=2000):
     return c0, c1, rng.uniform(0.5e-9, 2e-9, grains)
 
 
-def test_tracer_is_conserved_and_bounded_through_shifts_and_stitches():
+@pytest.mark.parametrize("flow", ["lp", "potential"])
+def test_tracer_is_conserved_and_bounded_through_shifts_and_stitches(flow):
     rng = np.random.default_rng(4)
     shape = (4, 4, 6)
     n = int(np.prod(shape))
-    st = Stitcher(shape, np.ones(shape, bool), 5e-3)
+    st = Stitcher(shape, np.ones(shape, bool), 5e-3, flow)
     c0, c1, w = random_shift(rng, n)
     P, a = shift_operator(c0, c1, w, n)
     tr = SolidsTracer(a * (np.arange(n) < n // 2), a)
@@ -169,19 +171,60 @@ def test_shift_numerical_diffusion_matches_its_formula():
         assert mean - x[50] == pytest.approx(steps * f * dx, rel=1e-9)  # and it drifts f cells per frame
 
 
-def test_stitch_moves_the_least_volume_and_carries_composition():
+def dense(S, n: int) -> np.ndarray:
+    """A stitch operator as a matrix (column j: S applied to the unit volume in cell j)."""
+    return np.stack([S @ e for e in np.eye(n)], 1)
+
+
+@pytest.mark.parametrize("flow", ["lp", "potential"])
+def test_stitch_moves_the_least_volume_and_carries_composition(flow):
     shape = (1, 1, 5)
-    st = Stitcher(shape, np.ones(shape, bool), 1.0)
+    st = Stitcher(shape, np.ones(shape, bool), 1.0, flow)
     a_from = np.array([2.0, 1.0, 1.0, 1.0, 0.0])
     a_to = np.array([1.0, 1.0, 1.0, 1.0, 1.0])
     S, info = st.operator(a_from, a_to)
     assert np.allclose(S @ a_from, a_to, atol=1e-12)
     assert info["moved_volume"] == pytest.approx(1.0)
     assert info["volume_distance"] == pytest.approx(4.0)  # one unit over four faces: the least there is
-    assert np.allclose(np.asarray(S.sum(0)).ravel(), 1.0)
+    assert np.allclose(dense(S, 5).sum(0), 1.0, rtol=0, atol=1e-14)
     tr = SolidsTracer(np.array([2.0, 0, 0, 0, 0]), a_from)  # cell 0 tagged
     tr.apply(S)
     assert tr.m.sum() == pytest.approx(2.0) and tr.concentration.max() <= 1.0
+
+
+def test_potential_stitch_is_a_flow_operator_no_shorter_than_the_least_and_lp_for_small_graphs():
+    """The potential flow (app.rcfd.stitch) on a 3-D grid with a closed corner: S is non-negative and
+    column-stochastic, turns a_from into a_to to the solver's tolerance, and moves at least the min-cost flow's
+    volume x distance (that one is the least there is); its flow is the same as the min-cost one's where the graph
+    is a chain (the only flow). 'auto' takes the min-cost flow up to LP_MAX_CELLS cells."""
+    from app.rcfd.stitch import LP_MAX_CELLS
+    rng = np.random.default_rng(8)
+    shape = (5, 4, 6)
+    n = int(np.prod(shape))
+    cells = np.ones(shape, bool)
+    cells[:2, :2, :2] = False  # closed cells: no volume, no flow
+    a_from, a_to = (np.where(cells.ravel(), rng.uniform(0.2, 2.0, n), 0.0) for _ in range(2))
+    a_to[cells.ravel()] *= np.where(np.arange(cells.sum()) < 20, 3.0, 1.0)  # one corner gains, the rest lose
+    lp, pot = Stitcher(shape, cells, 1.0, "lp"), Stitcher(shape, cells, 1.0, "potential")
+    S_lp, i_lp = lp.operator(a_from, a_to)
+    S, info = pot.operator(a_from, a_to)
+    D = dense(S, n)
+    target = a_to * a_from.sum() / a_to.sum()
+    assert D.min() >= 0.0 and np.allclose(D.sum(0), 1.0, rtol=0, atol=1e-13)
+    assert np.allclose(S @ a_from, target, rtol=0, atol=1e-11 * target.max()) and info["fit_error"] <= 1e-11
+    assert info["moved_volume"] == pytest.approx(i_lp["moved_volume"], rel=1e-12)
+    assert info["volume_distance"] >= i_lp["volume_distance"] * (1 - 1e-9)
+    chain = (1, 1, 7)
+    a, b = rng.uniform(0.5, 1.5, 7), rng.uniform(0.5, 1.5, 7)
+    ops = [Stitcher(chain, np.ones(chain, bool), 1.0, f).operator(a, b)[0] for f in ("lp", "potential")]
+    assert np.allclose(dense(ops[0], 7), dense(ops[1], 7), rtol=0, atol=1e-12)
+    assert lp.flow == Stitcher(shape, cells, 1.0).flow == "lp"
+    big = (LP_MAX_CELLS // 400 + 1, 20, 20)
+    assert Stitcher(big, np.ones(big, bool), 1.0).flow == "potential"
+    two = np.ones((1, 1, 5), bool)
+    two[0, 0, 2] = False  # two parts that cannot exchange volume
+    with pytest.raises(ValueError, match="not joined"):
+        Stitcher((1, 1, 5), two, 1.0, "potential").operator(np.array([1.0, 1, 0, 1, 1]), np.array([2.0, 1, 0, 0, 1]))
 
 
 def test_mixing_index_ends():
@@ -236,7 +279,8 @@ def test_face_void_fraction_is_the_two_cells_mean_and_the_cell_on_domain_faces()
         assert np.array_equal(np.take(f, [eps.shape[a]], axis=a), np.take(eps, [eps.shape[a] - 1], axis=a))
 
 
-def test_grain_tracer_rides_on_the_grains_and_is_conserved_and_bounded_at_jumps():
+@pytest.mark.parametrize("flow", ["lp", "potential"])
+def test_grain_tracer_rides_on_the_grains_and_is_conserved_and_bounded_at_jumps(flow):
     """Along the recorded order the grain tracer is the real tracer (no operator); a jump (the stitch, then each
     grain of the new state takes its cell's concentration) keeps the tagged volume to 1e-12 and tau in [0, 1]."""
     from app.rcfd.transport import GrainTracer
@@ -252,7 +296,7 @@ def test_grain_tracer_rides_on_the_grains_and_is_conserved_and_bounded_at_jumps(
         m, u = tr.volumes(cells[b])
         assert np.array_equal(m, np.bincount(cells[b], weights=vol * tagged, minlength=n))
         assert mixing_index(m, u) == tr.mixing_index(cells[b])
-    st = Stitcher(shape, np.ones(shape, bool), 1.0)
+    st = Stitcher(shape, np.ones(shape, bool), 1.0, flow)
     a = [np.bincount(cells[b], weights=vol, minlength=n) for b in range(6)]
     for s_from, s_to in ((0, 3), (3, 1), (1, 5)):
         S, _ = st.operator(a[s_from], a[s_to])

@@ -23,8 +23,12 @@ from . import recurrence as rec
 from .database import Database
 from .matching import GrainMatcher, grid_centres
 from .sequence import SequenceIndex
-from .transport import GasTracer, GrainTracer, SolidsTracer, Stitcher, lacey_index
+from .stitch import Stitcher
+from .transport import GasTracer, GrainTracer, SolidsTracer, lacey_index
 
+# 'auto' matches grains up to here and stitches above: the matching's dense assignment grows as the cube of the grains
+# that change half cell (0.08-1.3 s a jump at 3,400 grains, 800-1,900 of them; validation/rcfd/README.md, 0a)
+MATCH_MAX_GRAINS = 10_000
 BED_EPS = 0.99  # cells whose time-mean void fraction is below this are the bed's (they enter R)
 
 
@@ -87,11 +91,13 @@ class Engine:
     """Everything a set of paths shares: the operators, R, the jump targets, the stitches."""
 
     def __init__(self, db: Database, st: dict | None = None, params: pathmod.PathParams | None = None,
-                 solids: str = "auto", jump_grid: str = "auto", jump: str = "auto", matchings="auto"):
+                 solids: str = "auto", jump_grid: str = "auto", jump: str = "auto", matchings="auto",
+                 stitch_flow: str = "auto"):
         """``matchings``: the HDF5 store of the matched jumps (matching.GrainMatcher.load/save), 'auto' for
         RUN_DIR/rcfd/matchings.h5 beside the database, None for none; ``jump``: how the grain tracer crosses a jump, 'match' (grains matched one to one by position,
-        app.rcfd.matching; the default) or 'stitch' (cell volumes stitched, then each grain takes its cell's mean
-        tag); ``jump_grid``: 'cells' locates the grains on the cells even where octants give the half cells."""
+        app.rcfd.matching; the default up to MATCH_MAX_GRAINS grains) or 'stitch' (cell volumes stitched, then each
+        grain takes its cell's mean tag); ``jump_grid``: 'cells' locates the grains on the cells even where octants
+        give the half cells; ``stitch_flow``: the stitch's flow (app.rcfd.stitch.FLOWS)."""
         t = wallclock.perf_counter()
         self.db = db
         if solids == "auto":
@@ -103,7 +109,7 @@ class Engine:
             raise ValueError(f"--solids must be 'grains' or 'cells', got {solids!r}")
         self.solids = solids
         if jump == "auto":
-            jump = "match" if solids == "grains" else "stitch"
+            jump = "match" if solids == "grains" and db.cells.shape[1] <= MATCH_MAX_GRAINS else "stitch"
         if jump not in ("match", "stitch") or (jump == "match" and solids != "grains"):
             raise ValueError(f"jump must be 'match' (grain tracer only) or 'stitch', got {jump!r}")
         self.jump = jump
@@ -121,7 +127,7 @@ class Engine:
         self.params = params
         self.targets = pathmod.jump_targets(self.st["R"], db.b0, self.successor, self.params)
         cells = (db.open_volume > 0) | (self.a.max(0) > 0).reshape(db.shape)
-        self.stitcher = Stitcher(db.shape, cells, db.h)
+        self.stitcher = Stitcher(db.shape, cells, db.h, stitch_flow)
         # the grain tracer's jumps on half cells where the octants are recorded (a jump averages over its cells)
         self.half = self.solids == "grains" and db.octant is not None and jump_grid != "cells"
         grains = int(db.attrs.get("grains", 0)) or 1
@@ -144,7 +150,7 @@ class Engine:
             self.a_fine = np.bincount(idx, weights=np.tile(db.grain_volume, db.n_states),
                                       minlength=nf * db.n_states).reshape(db.n_states, nf)
             fine_mask = cells.repeat(2, 0).repeat(2, 1).repeat(2, 2)
-            self.fine_stitcher = Stitcher(fs, fine_mask, 0.5 * db.h)
+            self.fine_stitcher = Stitcher(fs, fine_mask, 0.5 * db.h, stitch_flow)
         self.prep_seconds = wallclock.perf_counter() - t + self.st["R_seconds"]
         self.stitch_seconds = 0.0
 

@@ -13,17 +13,13 @@ c0 to c1 over the frame, over the volume in c0): a cell's grains all carry its m
 a cell per frame that is D = f (1 - f) dx^2 / (2 dt) (``shift_diffusivity``).
 
 At a jump from state s to state j the carried volume (the grains' distribution a_s) must become
-a_j, the distribution P_j was recorded from. The stitch moves the least volume x distance that
-does it: a min-cost flow between face neighbours (scipy's HiGHS), whose optimal basic solution is a
-forest, applied cell by cell in topological order, each outflow carrying its cell's current
-composition. It is column-stochastic too: the stitch keeps m and u and the bounds; the volume it
-moves is reported.
+a_j, the distribution P_j was recorded from: the stitch (app.rcfd.stitch.Stitcher), column-stochastic
+too, so it keeps m and u and the bounds; the volume it moves is reported.
 """
 from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import linprog
 
 
 def mixing_index(m: np.ndarray, u: np.ndarray) -> float:
@@ -82,115 +78,6 @@ def mixing_index_real(tagged: np.ndarray, solid: np.ndarray) -> float:
 def shift_diffusivity(f: float, dx: float, dt: float) -> float:
     """Numerical diffusivity [m^2/s] of a shift moving a fraction f of each cell one cell on per step dt."""
     return f * (1.0 - f) * dx * dx / (2.0 * dt)
-
-
-def face_edges(shape: tuple, cells: np.ndarray) -> np.ndarray:
-    """(E, 2) flat-index pairs of face-neighbouring cells that are both in ``cells`` (bool, shape)."""
-    idx = np.arange(int(np.prod(shape))).reshape(shape)
-    out = []
-    for a in range(3):
-        lo = [slice(None)] * 3
-        hi = [slice(None)] * 3
-        lo[a], hi[a] = slice(0, -1), slice(1, None)
-        ok = cells[tuple(lo)] & cells[tuple(hi)]
-        out.append(np.stack([idx[tuple(lo)][ok], idx[tuple(hi)][ok]], 1))
-    return np.concatenate(out)
-
-
-class Stitcher:
-    """Stitch operators between grain-volume distributions over the cells of a graph (cached by key)."""
-
-    def __init__(self, shape: tuple, cells: np.ndarray, h: float):
-        self.n = int(np.prod(shape))
-        self.edges = face_edges(shape, cells)
-        self.h = h
-        E = self.edges.shape[0]
-        # node-edge incidence: flow f_e >= 0 along (a -> b) and g_e >= 0 along (b -> a); net inflow = A [f, g]
-        rows = np.concatenate([self.edges[:, 1], self.edges[:, 0], self.edges[:, 0], self.edges[:, 1]])
-        cols = np.concatenate([np.arange(E), np.arange(E), E + np.arange(E), E + np.arange(E)])
-        vals = np.concatenate([np.ones(E), -np.ones(E), np.ones(E), -np.ones(E)])
-        self.A = sp.csr_matrix((vals, (rows, cols)), shape=(self.n, 2 * E))
-        self.cache: dict = {}
-
-    def operator(self, a_from: np.ndarray, a_to: np.ndarray, key=None) -> tuple[sp.csr_matrix, dict]:
-        """(S, info): S a_from = a_to (to round-off), S column-stochastic; info: moved volume [m^3] and its
-        share of the total, volume x distance [m^4]."""
-        if key is not None and key in self.cache:
-            return self.cache[key]
-        a_from = np.asarray(a_from, np.float64)
-        a_to = np.asarray(a_to, np.float64) * (a_from.sum() / a_to.sum())  # same total to round-off
-        d = a_to - a_from
-        scale = max(float(np.abs(d).max()), 1e-300)
-        moved = 0.5 * float(np.abs(d).sum())
-        E = self.edges.shape[0]
-        if moved <= 1e-14 * a_from.sum():
-            S, flows = sp.identity(self.n, format="csr"), np.zeros(2 * E)
-        else:
-            nodes = np.nonzero(np.abs(self.A).sum(1).A1 > 0)[0]
-            if np.abs(d[np.setdiff1d(np.arange(self.n), nodes)]).max(initial=0.0) > 0:
-                raise ValueError("grain volume in a cell outside the stitch graph")
-            bd = d[nodes] / scale
-            bd[np.argmax(np.abs(bd))] -= bd.sum()
-            res = linprog(np.ones(2 * E), A_eq=self.A[nodes], b_eq=bd, bounds=(0, None), method="highs-ds")
-            if res.status != 0:
-                raise ValueError(f"the stitch's flow problem failed: {res.message}")
-            flows = np.where(res.x > 1e-12, res.x, 0.0) * scale
-            S = self._apply(a_from, flows)
-        info = {"moved_volume": moved, "moved_share": moved / float(a_from.sum()),
-                "volume_distance": float(flows.sum()) * self.h}
-        if key is not None:
-            self.cache[key] = (S, info)
-        return S, info
-
-    def _apply(self, a_from: np.ndarray, flows: np.ndarray) -> sp.csr_matrix:
-        """The operator that moves the flows cell by cell in topological order, each outflow taking its cell's
-        current mixture of origins."""
-        E = self.edges.shape[0]
-        f, g = flows[:E], flows[E:]
-        src = np.concatenate([self.edges[f > 0, 0], self.edges[g > 0, 1]])
-        dst = np.concatenate([self.edges[f > 0, 1], self.edges[g > 0, 0]])
-        vol = np.concatenate([f[f > 0], g[g > 0]])
-        out_edges: dict[int, list] = {}
-        indeg: dict[int, int] = {}
-        for s_, t_, v_ in zip(src.tolist(), dst.tolist(), vol.tolist()):
-            out_edges.setdefault(s_, []).append((t_, v_))
-            indeg[t_] = indeg.get(t_, 0) + 1
-            indeg.setdefault(s_, 0)
-        content = {c: {c: a_from[c]} for c in indeg}  # cell -> {origin: volume}
-        ready = [c for c, k in indeg.items() if k == 0]
-        done = 0
-        while ready:
-            c = ready.pop()
-            done += 1
-            mix = content[c]
-            total = sum(mix.values())
-            for t_, v_ in out_edges.get(c, []):
-                share = min(v_ / total, 1.0) if total > 0 else 0.0
-                tgt = content[t_]
-                for o, x in mix.items():
-                    tgt[o] = tgt.get(o, 0.0) + share * x
-                indeg[t_] -= 1
-                if indeg[t_] == 0:
-                    ready.append(t_)
-            out_share = min(sum(v for _, v in out_edges.get(c, [])) / total, 1.0) if total > 0 else 0.0
-            content[c] = {o: x * (1.0 - out_share) for o, x in mix.items()}
-        if done != len(indeg):
-            raise ValueError("the stitch's flow has a cycle")
-        rows, cols, vals = [], [], []
-        for c, mix in content.items():
-            for o, x in mix.items():
-                if x > 0 and a_from[o] > 0:
-                    rows.append(c), cols.append(o), vals.append(x / a_from[o])
-        touched = set(content)
-        rest = [c for c in range(self.n) if c not in touched or a_from[c] <= 0]
-        rows += rest
-        cols += rest
-        vals += [1.0] * len(rest)
-        S = sp.csr_matrix((vals, (rows, cols)), shape=(self.n, self.n))
-        # columns of cells that gave everything away to round-off: renormalise to exactly one
-        colsum = np.asarray(S.sum(0)).ravel()
-        S = S @ sp.diags(1.0 / np.where(colsum > 0, colsum, 1.0))
-        return S.tocsr()
 
 
 class SolidsTracer:
