@@ -21,7 +21,10 @@
 # MRI_LAW=koch_hill|di_felice|gidaspow|beetstra, from runs/mri_bed.h5 when present; MRI_SET adds --set overrides,
 # e.g. "--set run.duration=0.6" for a cost measurement), mri_sweep_start (the four laws in the background, like
 # verma_start; poll with mri_wait), mri_compare (fbed analyze of the sweep: the laws side by side), mri_umf (the
-# U_mf curves of the four laws in the 24 mm column). Estimated (not measured) on one H200: 240-400 s per simulated
+# U_mf curves of the four laws in the 24 mm column), mri_rcfd (issue 20: `fbed rcfd analyze` and a 10 s `rcfd run`
+# of RCFD_PATHS paths, default 5, on runs/mri_$MRI_LAW, which must have recorded rCFD frames: give mri_law e.g.
+# MRI_SET="--set probes.rcfd_from=1.6 --set probes.rcfd_z_max=0.25 --set probes.rcfd_tag=z<0.065"; a million
+# grains stitch on cells with the potential flow, ~0.5 s a jump target; validation/rcfd/README.md, 00b). Estimated (not measured) on one H200: 240-400 s per simulated
 # second of the 1e6-grain bed, so mri_prepare 2-4 min and a 0.3 s mri_law cost probe 2-3 min fit one command
 # together; a full law (3.1 s) is 13-21 min and fits no 10-minute command: cut it with MRI_SET (run.duration,
 # output.average_from) to (LIMIT - 60 s) / measured cost; validation/mri/README.md has the table.
@@ -109,6 +112,10 @@ for stage in "$@"; do
       end=$(( $(date +%s) + lim - 15 ))
       while kill -0 "$(cat runs/mri.pid)" 2>/dev/null && [ "$(date +%s)" -lt "$end" ]; do sleep 5; done
       tail -5 runs/mri_poppy-sweep/case-*/log.txt ;;
+    mri_rcfd)
+      R=runs/mri_${MRI_LAW:-koch_hill}
+      $T bash -c "python3 -m app rcfd analyze $R && python3 -m app rcfd run $R --horizon 10 --paths ${RCFD_PATHS:-5} \
+        --seed 1 --name poppy_T10" ;;
     mri_compare)
       $T python3 -m app analyze runs/mri_poppy-sweep ;;
     mri_umf)

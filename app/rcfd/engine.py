@@ -23,7 +23,7 @@ from . import recurrence as rec
 from .database import Database
 from .matching import GrainMatcher, grid_centres
 from .sequence import SequenceIndex
-from .stitch import Stitcher
+from .stitch import LP_MAX_CELLS, Stitcher
 from .transport import GasTracer, GrainTracer, SolidsTracer, lacey_index
 
 # 'auto' matches grains up to here and stitches above: the matching's dense assignment grows as the cube of the grains
@@ -97,7 +97,7 @@ class Engine:
         RUN_DIR/rcfd/matchings.h5 beside the database, None for none; ``jump``: how the grain tracer crosses a jump, 'match' (grains matched one to one by position,
         app.rcfd.matching; the default up to MATCH_MAX_GRAINS grains) or 'stitch' (cell volumes stitched, then each
         grain takes its cell's mean tag); ``jump_grid``: 'cells' locates the grains on the cells even where octants
-        give the half cells; ``stitch_flow``: the stitch's flow (app.rcfd.stitch.FLOWS)."""
+        give the half cells, 'half' on the half cells even for a stitch too large for the min-cost flow; ``stitch_flow``: the stitch's flow (app.rcfd.stitch.FLOWS)."""
         t = wallclock.perf_counter()
         self.db = db
         if solids == "auto":
@@ -129,7 +129,10 @@ class Engine:
         cells = (db.open_volume > 0) | (self.a.max(0) > 0).reshape(db.shape)
         self.stitcher = Stitcher(db.shape, cells, db.h, stitch_flow)
         # the grain tracer's jumps on half cells where the octants are recorded (a jump averages over its cells)
-        self.half = self.solids == "grains" and db.octant is not None and jump_grid != "cells"
+        # where the octants are recorded; a stitch only where its half-cell grid is small enough for the min-cost
+        # flow (validated there), else on the cells (a million grains: 86,016 cells, not 688,128 half cells)
+        self.half = self.solids == "grains" and db.octant is not None and jump_grid != "cells" and \
+            (jump == "match" or jump_grid == "half" or 8 * db.n_cells <= LP_MAX_CELLS)
         grains = int(db.attrs.get("grains", 0)) or 1
         self.grain_volume_mean = float(np.mean(db.grain_volume)) if db.grain_volume is not None else \
             float(self.a[0].sum()) / grains  # [m^3]: the cell tracer's grains per cell for Lacey's index
