@@ -94,10 +94,11 @@ class Engine:
                  solids: str = "auto", jump_grid: str = "auto", jump: str = "auto", matchings="auto",
                  stitch_flow: str = "auto"):
         """``matchings``: the HDF5 store of the matched jumps (matching.GrainMatcher.load/save), 'auto' for
-        RUN_DIR/rcfd/matchings.h5 beside the database, None for none; ``jump``: how the grain tracer crosses a jump, 'match' (grains matched one to one by position,
-        app.rcfd.matching; the default up to MATCH_MAX_GRAINS grains) or 'stitch' (cell volumes stitched, then each
-        grain takes its cell's mean tag); ``jump_grid``: 'cells' locates the grains on the cells even where octants
-        give the half cells, 'half' on the half cells even for a stitch too large for the min-cost flow; ``stitch_flow``: the stitch's flow (app.rcfd.stitch.FLOWS)."""
+        RUN_DIR/rcfd/matchings.h5 beside the database, None for none; ``jump``: how the grain tracer crosses a jump,
+        'match' (grains matched one to one by position, app.rcfd.matching; the default up to MATCH_MAX_GRAINS grains)
+        or 'stitch' (cell volumes stitched, then each grain takes its cell's mean tag); ``jump_grid``: 'cells'
+        locates the grains on the cells even where octants give the half cells, 'half' on the half cells even for a
+        stitch too large for the min-cost flow; ``stitch_flow``: the stitch's flow (app.rcfd.stitch.FLOWS)."""
         t = wallclock.perf_counter()
         self.db = db
         if solids == "auto":
