@@ -369,8 +369,7 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
                                 "used": len({(j[1], j[2]) for p in ps for j in p.jumps if j[0] > 0}),
                                 "seconds": eng.stitch_seconds}
     else:
-        st = eng.fine_stitcher if eng.half else eng.stitcher
-        summary["stitch_flow"] = st.flow
+        summary["stitch_flow"] = eng.jump_stitcher.flow
     if gas:
         summary["gas_tracer"] = _gas_paths(eng, ps, od, time, horizon)
     _json(od / "summary.json", summary)

@@ -231,10 +231,16 @@ class Engine:
         return {"M": M, "lacey": Lc, "moved": moved, "drift": tr.drift(), "c_min": float(c.min()),
                 "c_max": float(c.max()), "m_min": float(min(tr.m.min(), tr.u.min())), "wall": wall}
 
-    def _stitch(self, s_from: int, s_to: int, half: bool = False):
-        """(S, info, seconds spent building it: 0 when cached), on the cells or on the half cells."""
+    @property
+    def jump_stitcher(self) -> Stitcher:
+        """The stitcher stitched jumps use: on the half cells where ``half`` (the grain tracer only), else on the
+        cells (a matching Engine with ``half`` builds none)."""
+        return self.fine_stitcher if self.half else self.stitcher
+
+    def _stitch(self, s_from: int, s_to: int):
+        """(S, info, seconds spent building it: 0 when cached), with ``jump_stitcher``."""
         t = wallclock.perf_counter()
-        st, a = (self.fine_stitcher, self.a_fine) if half else (self.stitcher, self.a)
+        st, a = self.jump_stitcher, (self.a_fine if self.half else self.a)
         fresh = (s_from, s_to) not in st.cache
         S, info = st.operator(a[s_from], a[s_to], key=(s_from, s_to))
         return S, info, (wallclock.perf_counter() - t) if fresh else 0.0
@@ -249,7 +255,7 @@ class Engine:
             dt_s = (wallclock.perf_counter() - t) if fresh else 0.0
             tr.permute(perm)
         else:
-            S, info, dt_s = self._stitch(s_from, s_to, self.half)
+            S, info, dt_s = self._stitch(s_from, s_to)
             grid = self.fine if self.half else self.db.cells
             tr.jump(grid[s_from], grid[s_to], S)
         return info, dt_s

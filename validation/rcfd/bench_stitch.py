@@ -88,7 +88,7 @@ def database(run: str, n_paths: int, l_mean: int) -> dict:
         e = Engine(db, base.st, params, jump="stitch", stitch_flow=flow)
         ps = [e.path(n, s, (1, i)) for i in range(n_paths)]
         res = [e.transport(p, c0, s) for p in ps]
-        st = e.fine_stitcher if e.half else e.stitcher
+        st = e.jump_stitcher
         infos = [v[1] for v in st.cache.values()]
         out[flow] = {"flow": st.flow, "grid_cells": st.n, "stitches": len(infos), "build_s_total": e.stitch_seconds,
                      "moved_share_mean": float(np.mean([i["moved_share"] for i in infos])),

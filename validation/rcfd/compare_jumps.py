@@ -51,7 +51,7 @@ def main() -> None:
                "mean_lacey": float(np.mean([np.nanmean(x["lacey"]) for x in r])),
                "moved_share_mean": float(np.mean([m for x in r for m in x["moved"]]))}
         if jump == "stitch":
-            row["flow"] = (e.fine_stitcher if e.half else e.stitcher).flow
+            row["flow"] = e.jump_stitcher.flow
         out["variants"].append(row)
         print(json.dumps(row), file=sys.stderr, flush=True)
     print(json.dumps(out))
