@@ -18,6 +18,12 @@ from __future__ import annotations
 import numpy as np
 
 
+def _runs_on(states: np.ndarray, first: int) -> bool:
+    """Whether ``states`` are first, first + 1, ... (consecutive boundaries)."""
+    return states[0] == first and states[-1] == first + states.size - 1 and \
+        np.array_equal(states, first + np.arange(states.size))
+
+
 class SequenceIndex:
     """Per-database data for the indices along sequences: the movers of each transition b -> b + 1 (CSR), and per
     state the grain volume b and count n per cell with their sums."""
@@ -59,7 +65,7 @@ class SequenceIndex:
     def sequence(self, w: np.ndarray, s_prev: int, states: np.ndarray) -> np.ndarray:
         """(L + 1, n): the tagged volume per cell at ``s_prev`` (row 0) and at each of ``states`` (as ``volumes``)."""
         L, n = states.size, self.n
-        if L and states[0] == s_prev + 1 and np.array_equal(states, s_prev + 1 + np.arange(L)):
+        if L and _runs_on(states, s_prev + 1):
             lo, hi = self.mv_off[s_prev], self.mv_off[s_prev + L]
             off = (s_prev - 1) * n  # transition s_prev + t lands in row t + 1
             wm = w[self.mv_g[lo:hi]]
@@ -77,10 +83,8 @@ class SequenceIndex:
     def indices(self, m: np.ndarray, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(cell index M, Lacey index) at each row of m (L, n), the tagged volume per cell at ``states``."""
         L = states.size
-        if L > 1 and states[-1] - states[0] == L - 1 and np.array_equal(states, states[0] + np.arange(L)):
-            rows = slice(int(states[0]), int(states[0]) + L)  # consecutive states: views, not copies
-        else:
-            rows = states
+        rows = slice(int(states[0]), int(states[0]) + L) if L > 1 and _runs_on(states, states[0]) else states
+        # (consecutive states: views of the per-state rows, not copies)
         b, wq, wl = self.b[rows], self.wq[rows], self.wl[rows]
         btot, N, K = self.btot[rows], self.N[rows], self.K[rows]
         p = m.sum(1) / btot
