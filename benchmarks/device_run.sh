@@ -12,6 +12,7 @@
 # gas (the gas step alone on the Verma grid 32x32x116 and on 32x32x64 with a bed's void fraction and drag:
 # ms per step, then launches and host reads per step, then the launches' host cost: Taichi's own call against
 # the cached plans of app/sim/launch.py, interleaved; issue 18's target is <= 3 ms per Verma step on one H200),
+# gas_profile (the same scene under Taichi's kernel profiler: each kernel's tasks and device time per step, sorted),
 # series (issue 21: verma_small on the GPU, its summary.json wall_split with the callbacks' share, then the host
 # reads per fluid step of its first 0.1 s, the step's and the callbacks', by benchmarks/series_reads.py).
 # Before a call that runs the cavity or the Verma analysis: `mkdir -p runs && cp -r ../shared/reference runs/`
@@ -49,6 +50,8 @@ for stage in "$@"; do
         --warmup 5 && python3 benchmarks/gas_counts.py --arch cuda --grids 32x32x116 32x32x64 --label cuda &&
         python3 benchmarks/launch_cost.py --arch cuda --grids 8x8x16 32x32x116 --blocks 5 &&
         python3 benchmarks/launch_cost.py --arch cuda --per-array' ;;
+    gas_profile)  # where the gas step's time goes on the device: per kernel, tasks and summed task time a step
+      $T python3 benchmarks/gas_counts.py --arch cuda --profile --grids 32x32x116 32x32x64 --steps 10 --warmup 3 ;;
     series)
       $T bash -c 'python3 -m app run presets/verma_small.toml --arch cuda --out runs/verma_small --overwrite &&
         python3 benchmarks/series_reads.py presets/verma_small.toml --arch cuda --set run.duration=0.1 --label cuda' ;;

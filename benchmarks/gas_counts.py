@@ -13,13 +13,20 @@ the median per step with the min and max and appends a table to benchmarks/RESUL
 ``--tasks`` counts instead the offloaded tasks per step with Taichi's kernel profiler (every top-level loop of a
 kernel is a task per launch on the CPU, ~70 us each on one thread even when empty; the serial form of the gas
 kernels nests them in one task), in its own process since the profiler times every task.
+
+``--profile`` adds where the device time goes: each kernel's tasks per step and their summed time per step
+(Taichi's kernel profiler: device time per task on CUDA), the kernels sorted by time, against the step's wall
+time with the profiler on (which times every task, so the wall time there is no throughput figure). A step
+whose device time is far below its wall time is bound by the host's launches; one near it, by the device.
 """
 from __future__ import annotations
 
 import argparse
 import pathlib
+import re
 import statistics
 import sys
+import time
 
 from flow_throughput import DT, scene, shuffle_bed  # benchmarks/, this script's folder
 
@@ -44,8 +51,12 @@ def main(argv=None) -> int:
     ap.add_argument("--warmup", type=int, default=2)
     ap.add_argument("--label", default="", help="what is counted (e.g. before / after)")
     ap.add_argument("--tasks", action="store_true", help="count offloaded tasks per step (kernel profiler)")
+    ap.add_argument("--profile", action="store_true", help="device time per kernel per step (kernel profiler)")
+    ap.add_argument("--top", type=int, default=25, help="kernels listed by --profile")
     ap.add_argument("--dry", action="store_true")
     args = ap.parse_args(argv)
+    if args.profile:
+        return profile(args)
     if args.tasks:
         return count_tasks(args)
     arch = runtime.init(args.arch, args.precision)
@@ -104,6 +115,52 @@ def count_tasks(args) -> int:
     title = (f"Gas step: offloaded tasks per step ({arch}, {args.precision}, Taichi's kernel profiler; the "
              f"flow_throughput scene; {args.steps} steps after {args.warmup})")
     append_results(title, rows, arch, dry=args.dry)
+    return 0
+
+
+def kernel_of(task: str) -> str:
+    """The kernel a task belongs to: Taichi names a task <kernel>_c<id>_<instance>_<task kind>_<n>."""
+    m = re.match(r"(.+?)_c\d+_\d+_", task)
+    return m.group(1) if m else task
+
+
+def profile(args) -> int:
+    arch = runtime.init(args.arch, args.precision, kernel_profiler=True)
+    for g in args.grids:
+        shape = tuple(int(x) for x in g.lower().split("x"))
+        s, bed, eps, rng = scene(shape, 1e-6)
+        for _ in range(args.warmup):
+            s.step(DT)
+        per_kernel: dict[str, list[float]] = {}
+        walls, totals, ntasks, iters = [], [], [], []
+        for _ in range(args.steps):
+            eps = shuffle_bed(s, bed, eps, rng)
+            runtime.clear_profile()
+            t = time.perf_counter()
+            iters.append(s.step(DT).pressure_iterations)
+            runtime.sync()
+            walls.append(time.perf_counter() - t)
+            rec = runtime.profiled_times()
+            totals.append(sum(x for _, x in rec))
+            ntasks.append(len(rec))
+            for name, x in rec:
+                k = per_kernel.setdefault(kernel_of(name), [0.0, 0])
+                k[0] += x
+                k[1] += 1
+        n = args.steps
+        med = statistics.median
+        rows = [{"kernel": k, "tasks/step": f"{c / n:.1f}", "ms/step": f"{1e3 * x / n:.3f}",
+                 "share": f"{100 * x / max(sum(totals), 1e-30):.1f}%"}
+                for k, (x, c) in sorted(per_kernel.items(), key=lambda kv: -kv[1][0])[:args.top]]
+        head = {"grid": g, "tasks/step (median)": f"{med(ntasks):g}",
+                "task time ms/step (median)": f"{1e3 * med(totals):.2f}",
+                "wall ms/step, profiler on (median)": f"{1e3 * med(walls):.2f}", "p-iters (median)": f"{med(iters):g}"}
+        print(head, flush=True)
+        for r in rows:
+            print(r, flush=True)
+        title = (f"Gas step: time per kernel ({arch}, {args.precision}, Taichi's kernel profiler; the flow_throughput "
+                 f"scene, {g}; {n} steps after {args.warmup}; {head})")
+        append_results(title, rows, arch, dry=args.dry)
     return 0
 
 

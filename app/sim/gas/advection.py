@@ -222,11 +222,12 @@ def _finish_at(g: ti.template(), inp: ti.template(), st: ti.template(), dt, cdt,
 def _advect(g: ti.template(), inp: ti.template(), st: ti.template(), dt, serial: ti.template()):
     nf = g.nfaces
     cdt = dt / g.par[P_H]
-    st.gsc[SC_UOLD] = 0.0
+    uold = 0.0  # a kernel-scope reduction, not an atomic per face into gsc (layout.face_max)
     for f in range(nf):
         u = st.vel[f]
         st.vel_old[f] = u
-        ti.atomic_max(st.gsc[SC_UOLD], ti.abs(u))
+        ti.atomic_max(uold, ti.abs(u))
+    st.gsc[SC_UOLD] = uold
     each_face(g, nf, _trace, (g, inp, st, dt, cdt), serial)
 
 

@@ -270,6 +270,89 @@ def each_face_colour(g: ti.template(), nf, colour, body: ti.template(), ctx: ti.
                 body(ctx, f, a, I)
 
 
+# ---- the same loops reducing what the body returns. The largest value accumulates in a kernel-scope variable,
+# which Taichi 1.7.4 reduces per thread (then per warp on CUDA) and writes once (make_thread_local); an atomic
+# into an array element would be one atomic per face on one address, and a float max on CUDA is a
+# compare-and-swap loop that retries until its write lands (benchmarks/reduction_cost.py). Values are >= 0.
+@ti.func
+def face_max(g: ti.template(), nf, body: ti.template(), ctx: ti.template(), serial: ti.template()):
+    """The largest body(ctx, f, a, I) over the faces :func:`each_face` visits (0 with none)."""
+    m = 0.0
+    if ti.static(serial):
+        for a in range(3 * ti.cast(nf > 0, ti.i32)):
+            d = fdims(g, a)
+            for i in range(d[0]):
+                for j in range(d[1]):
+                    fij = g.face_off[a] + (i * d[1] + j) * d[2]
+                    for k in range(d[2]):
+                        ti.atomic_max(m, body(ctx, fij + k, a, ti.Vector([i, j, k])))
+    else:
+        for f in range(nf):
+            a, I = fdecode(g, f)
+            ti.atomic_max(m, body(ctx, f, a, I))
+    return m
+
+
+@ti.func
+def face_colour_max(g: ti.template(), nf, colour, body: ti.template(), ctx: ti.template(), serial: ti.template()):
+    """The largest body(ctx, f, a, I) over the faces :func:`each_face_colour` visits (0 with none)."""
+    m = 0.0
+    if ti.static(serial):
+        for a in range(3 * ti.cast(nf > 0, ti.i32)):
+            d = fdims(g, a)
+            for i in range(d[0]):
+                for j in range(d[1]):
+                    fij = g.face_off[a] + (i * d[1] + j) * d[2]
+                    k0 = (i + j + colour) % 2
+                    for kk in range((d[2] - k0 + 1) // 2):
+                        k = k0 + 2 * kk
+                        ti.atomic_max(m, body(ctx, fij + k, a, ti.Vector([i, j, k])))
+    else:
+        for f in range(nf):
+            a, I = fdecode(g, f)
+            if (I[0] + I[1] + I[2]) % 2 == colour:
+                ti.atomic_max(m, body(ctx, f, a, I))
+    return m
+
+
+@ti.func
+def cell_max(g: ti.template(), on, body: ti.template(), ctx: ti.template(), serial: ti.template()):
+    """The largest body(ctx, I) over the cells :func:`each_cell` visits (0 with none)."""
+    m = 0.0
+    n = g.dims
+    if ti.static(serial):
+        for i in range(n[0] * on):
+            for j in range(n[1]):
+                for k in range(n[2]):
+                    ti.atomic_max(m, body(ctx, ti.Vector([i, j, k])))
+    else:
+        for i, j, k in ti.ndrange(n[0] * on, n[1], n[2]):
+            ti.atomic_max(m, body(ctx, ti.Vector([i, j, k])))
+    return m
+
+
+@ti.func
+def cell_max2(g: ti.template(), on, body: ti.template(), ctx: ti.template(), serial: ti.template()):
+    """The largest of each of the two values body(ctx, I) returns, over the cells :func:`each_cell` visits
+    (0, 0 with none)."""
+    m1 = 0.0
+    m2 = 0.0
+    n = g.dims
+    if ti.static(serial):
+        for i in range(n[0] * on):
+            for j in range(n[1]):
+                for k in range(n[2]):
+                    v1, v2 = body(ctx, ti.Vector([i, j, k]))
+                    ti.atomic_max(m1, v1)
+                    ti.atomic_max(m2, v2)
+    else:
+        for i, j, k in ti.ndrange(n[0] * on, n[1], n[2]):
+            v1, v2 = body(ctx, ti.Vector([i, j, k]))
+            ti.atomic_max(m1, v1)
+            ti.atomic_max(m2, v2)
+    return m1, m2
+
+
 @ti.func
 def each_cell(g: ti.template(), on, body: ti.template(), ctx: ti.template(), serial: ti.template()):
     """body(ctx, I) for every cell I (none unless ``on``); serial: nested loops, else a parallel ndrange."""

@@ -81,17 +81,21 @@ class SolveInfo:
 
 
 # ============================================================================ kernels
+# Every reduction below (max|r|, the dot products, the active sums) accumulates in a kernel-scope variable that
+# is stored once: Taichi 1.7.4 reduces such a variable per thread (then per warp on CUDA), where an atomic into
+# an element of ``ctrl`` is one atomic per cell on one address (see app/sim/gas/layout.py, face_max).
 @ti.func
 def _true_residual_cell(mg: ti.template(), ks: ti.template(), n, fo, I, c):
+    """r = b - A x at cell c into res and bs; returns |r| (0 at an inactive cell, whose x is zeroed)."""
     r = 0.0
     if mg.diag[c] > 0.0:
         _, _, ax = stencil(mg, n, fo, ks.sol, 0, I, c, True)
         r = ks.rhs[c] - ax
-        ti.atomic_max(mg.ctrl[S_TRUE], ti.abs(r))
     else:
         ks.sol[c] = 0.0
     ks.res[c] = r
     mg.bs[c] = r
+    return ti.abs(r)
 
 
 @ti.func
@@ -100,28 +104,31 @@ def _true_residual(mg: ti.template(), ks: ti.template(), nc, serial: ti.template
     level 0); max|r| into S_TRUE. It also feeds the next V-cycle (bs). ``serial``: nested loops over i, j, k."""
     n = mgm.dims(mg, 0)
     fo = mgm.face_offsets(mg, 0)
-    mg.ctrl[S_TRUE] = 0.0
+    rmax = 0.0
     if ti.static(serial):
         for i in range(n[0] * ti.cast(nc > 0, ti.i32)):
             for j in range(n[1]):
                 cij = (i * n[1] + j) * n[2]
                 for k in range(n[2]):
-                    _true_residual_cell(mg, ks, n, fo, ti.Vector([i, j, k]), cij + k)
+                    ti.atomic_max(rmax, _true_residual_cell(mg, ks, n, fo, ti.Vector([i, j, k]), cij + k))
     else:
         for c in range(nc):
-            _true_residual_cell(mg, ks, n, fo, decode(n, c), c)
+            ti.atomic_max(rmax, _true_residual_cell(mg, ks, n, fo, decode(n, c), c))
+    mg.ctrl[S_TRUE] = rmax
 
 
 @ti.func
 def _active_sum(mg: ti.template(), values: ti.template(), nc):
     """Sum of values over the active cells (diag > 0) among the first nc cells into S_SUM, their count into
     S_CNT (nc = 0: both zero): the mean a singular system's solution and right-hand side lose."""
-    mg.ctrl[S_SUM] = 0.0
-    mg.ctrl[S_CNT] = 0.0
+    total = 0.0
+    cnt = 0.0
     for c in range(nc):
         if mg.diag[c] > 0.0:
-            mg.ctrl[S_SUM] += values[c]
-            mg.ctrl[S_CNT] += 1.0
+            total += values[c]
+            cnt += 1.0
+    mg.ctrl[S_SUM] = total
+    mg.ctrl[S_CNT] = cnt
 
 
 #: the members the solve's first and last kernels read and write
@@ -144,12 +151,13 @@ def k_pcg_begin(mg: BeginMultigrid, ks: BeginKrylov, singular: ti.i32, tol: floa
 def _pcg_begin(mg: ti.template(), ks: ti.template(), singular, tol, scale_mode, scale, serial: ti.template()):
     nc = mg.ncell0
     _active_sum(mg, ks.rhs, nc * singular)
-    mg.ctrl[S_BNORM] = 0.0
+    bmax = 0.0
     for c in range(nc):
         if mg.diag[c] > 0.0:
             if singular and mg.ctrl[S_CNT] > 0.0:
                 ks.rhs[c] -= mg.ctrl[S_SUM] / mg.ctrl[S_CNT]
-            ti.atomic_max(mg.ctrl[S_BNORM], ti.abs(ks.rhs[c]))
+            ti.atomic_max(bmax, ti.abs(ks.rhs[c]))
+    mg.ctrl[S_BNORM] = bmax
     _true_residual(mg, ks, nc, serial)
     if scale_mode == 0:
         mg.ctrl[S_SCALE] = mg.ctrl[S_BNORM]
@@ -179,8 +187,8 @@ def pcg_from(mg: ti.template(), ks: ti.template(), singular):
     :func:`app.sim.gas.vcycle.k_up_from`."""
     nc = mg.ncell0 * on(mg)
     _active_sum(mg, mg.xs, nc * singular)
-    mg.ctrl[S_RZN] = 0.0
-    mg.ctrl[S_RZO] = 0.0
+    rzn = 0.0
+    rzo = 0.0
     for c in range(nc):
         m = 0.0
         if singular and mg.ctrl[S_CNT] > 0.0:
@@ -192,8 +200,10 @@ def pcg_from(mg: ti.template(), ks: ti.template(), singular):
         ks.prec_old[c] = zo
         ks.prec[c] = z
         r = ks.res[c]
-        mg.ctrl[S_RZN] += r * z
-        mg.ctrl[S_RZO] += r * zo
+        rzn += r * z
+        rzo += r * zo
+    mg.ctrl[S_RZN] = rzn
+    mg.ctrl[S_RZO] = rzo
     for c in range(nc):
         beta = 0.0
         if mg.ctrl[S_FIRST] == 0.0 and mg.ctrl[S_RZ] != 0.0:
@@ -215,7 +225,7 @@ def _ap_cell(mg: ti.template(), ks: ti.template(), n, fo, I, c):
         _, _, ax = stencil(mg, n, fo, ks.dirn, 0, I, c, False)
         ap = ax
     ks.a_dirn[c] = ap
-    mg.ctrl[S_PAP] += ap * ks.dirn[c]
+    return ap * ks.dirn[c]
 
 
 @ti.func
@@ -228,17 +238,18 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.template
     n = mgm.dims(mg, 0)
     fo = mgm.face_offsets(mg, 0)
     nc = mg.ncell0 * on(mg)
-    mg.ctrl[S_PAP] = 0.0
+    pap = 0.0
     if ti.static(serial):  # nested loops over i, j, k: no index decoding by division
         for i in range(n[0] * on(mg)):
             for j in range(n[1]):
                 cij = (i * n[1] + j) * n[2]
                 for k in range(n[2]):
-                    _ap_cell(mg, ks, n, fo, ti.Vector([i, j, k]), cij + k)
+                    pap += _ap_cell(mg, ks, n, fo, ti.Vector([i, j, k]), cij + k)
     else:
         for c in range(nc):
-            _ap_cell(mg, ks, n, fo, decode(n, c), c)
-    mg.ctrl[S_TRUE] = 0.0
+            pap += _ap_cell(mg, ks, n, fo, decode(n, c), c)
+    mg.ctrl[S_PAP] = pap
+    rmax = 0.0
     for c in range(nc):
         alpha = 0.0
         if mg.ctrl[S_PAP] > 0.0:
@@ -248,7 +259,8 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.template
         ks.res[c] = r
         mg.bs[c] = r
         if mg.diag[c] > 0.0:
-            ti.atomic_max(mg.ctrl[S_TRUE], ti.abs(r))
+            ti.atomic_max(rmax, ti.abs(r))
+    mg.ctrl[S_TRUE] = rmax
     cand = 0
     if nc > 0:
         mg.ctrl[S_IT] += 1.0

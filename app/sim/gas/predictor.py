@@ -15,7 +15,7 @@ import taichi as ti
 from ..launch import kernel, narrowed
 from .boundary import face_grad, ghost_coef
 from .layout import (P_G, P_H, P_MU, P_RHO, P_THMIN, SC_DV, SC_NSW, SC_UOLD, SC_VACT, SC_VTHR, Cells, Grid, Inputs,
-                     State, each_face, each_face_colour, eps_at, face_cells, face_eps, face_mean_comp, fidx, solved,
+                     State, each_face, eps_at, face_cells, face_colour_max, face_eps, face_mean_comp, fidx, solved,
                      wrap)
 from ..tasks import each_chunk, one_task
 
@@ -183,18 +183,19 @@ def _visc_colour(g: ti.template(), st: ti.template(), colour, nf, serial: ti.tem
     """Gauss-Seidel update, in place on the velocity, of the faces of one colour (parity of
     i+j+k) among the first nf faces (all, or none once the sweeps have stopped): the viscous
     stencil couples a face only to faces of the other colour. u = (R + sum of the fluid neighbours'
-    c_q u_q) / D with D and R from :func:`_visc_setup`."""
-    each_face_colour(g, nf, colour, _visc_face, (g, st), serial)
+    c_q u_q) / D with D and R from :func:`_visc_setup`. Returns the largest change of a face velocity."""
+    return face_colour_max(g, nf, colour, _visc_face, (g, st), serial)
 
 
 @ti.func
 def _visc_face(c: ti.template(), f, a, I):
-    _visc_face_in(c[0], c[1], f, a, I)
+    return _visc_face_in(c[0], c[1], f, a, I)
 
 
 @ti.func
 def _visc_face_in(g: ti.template(), st: ti.template(), f, a, I):
     h = g.par[P_H]
+    dv = 0.0
     if solved(g, f, a, I):
         eP = st.eps_f[f]
         s = 0.0
@@ -208,8 +209,9 @@ def _visc_face_in(g: ti.template(), st: ti.template(), f, a, I):
                         if not solid:
                             s += g.par[P_MU] * 0.5 * (eP + st.eps_f[q]) / (h * h) * st.vel[q]
         unew = (st.vel_lo[f] + s) / st.vel_tmp[f]
-        ti.atomic_max(st.gsc[SC_DV], ti.abs(unew - st.vel[f]))
+        dv = ti.abs(unew - st.vel[f])
         st.vel[f] = unew
+    return dv
 
 
 #: the members k_visc reads (launched up to ~10 times a step: fewer members, less host time a launch)
@@ -244,9 +246,9 @@ def _visc_sweep(_sweep, g: ti.template(), st: ti.template(), max_sweeps, serial:
     """One red-black sweep (of a chunk of ``VISCOUS_CHUNK``), unless the sweeps have stopped; then the stopping
     test."""
     nf = g.nfaces * ti.cast(st.gsc[SC_VACT] > 0.0, ti.i32)
-    st.gsc[SC_DV] = 0.0
-    _visc_colour(g, st, 0, nf, serial)
-    _visc_colour(g, st, 1, nf, serial)
+    dv0 = _visc_colour(g, st, 0, nf, serial)
+    dv1 = _visc_colour(g, st, 1, nf, serial)
+    st.gsc[SC_DV] = ti.max(dv0, dv1)
     if nf > 0:
         st.gsc[SC_NSW] += 1.0
         if st.gsc[SC_DV] <= st.gsc[SC_VTHR] or st.gsc[SC_NSW] >= ti.cast(max_sweeps, float):

@@ -14,7 +14,8 @@ from . import multigrid as mgm
 from .boundary import face_grad, grad_across, has_grad
 from .config import OUTLET
 from .layout import (P_H, P_RHO, P_TRACE, SC_CORR, SC_DMAX, SC_NSW, SC_SMAX, SC_SPRED, SC_SREF, SC_UMAX, SC_UOLD,
-                     Cells, Grid, Inputs, State, cidx, each_cell, each_face, fdecode, fidx, is_boundary, solved)
+                     Cells, Grid, Inputs, State, cell_max, cell_max2, cidx, each_cell, each_face, face_max, fdecode, fidx,
+                     is_boundary, solved)
 from .multigrid import Multigrid
 from .pcg import Krylov, solve_record
 from ..tasks import one_task
@@ -85,8 +86,7 @@ def _build(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.templ
         nfo = 0
     each_face(g, nfo, _outlet_at, (g, cl, st, dt), serial)
     each_face(g, g.nfaces, _trans_at, (g, st, mg, dt), serial)
-    st.gsc[SC_SMAX] = 0.0
-    each_cell(g, 1, _rhs_at, (g, inp, st, ks), serial)
+    st.gsc[SC_SMAX] = cell_max(g, 1, _rhs_at, (g, inp, st, ks), serial)
     if not again:
         st.gsc[SC_SPRED] = st.gsc[SC_SMAX]
         st.gsc[SC_SREF] = st.gsc[SC_SMAX]
@@ -142,20 +142,22 @@ def _trans_at_in(g: ti.template(), st: ti.template(), mg: ti.template(), dt: ti.
 
 @ti.func
 def _rhs_at(c: ti.template(), I):
-    """The pressure system's right-hand side at cell I (minus its net outflow rate), the gross-flux scale."""
-    _rhs_at_in(c[0], c[1], c[2], c[3], I)
+    """The pressure system's right-hand side at cell I (minus its net outflow rate); returns the gross-flux scale."""
+    return _rhs_at_in(c[0], c[1], c[2], c[3], I)
 
 
 @ti.func
 def _rhs_at_in(g: ti.template(), inp: ti.template(), st: ti.template(), ks: ti.template(), I):
     ci = cidx(g, I)
     b = 0.0
+    gross = 0.0
     if g.open_vol[I] > 0.0:
-        net, gross = cell_balance(g, inp, st, st.vel, I)
+        net, gr = cell_balance(g, inp, st, st.vel, I)
         b = -net
-        ti.atomic_max(st.gsc[SC_SMAX], gross)
+        gross = gr
     ks.rhs[ci] = b
     ks.sol[ci] = 0.0  # the solve is for the pressure increment
+    return gross
 
 
 @ti.func
@@ -191,13 +193,12 @@ def _pressure_at_in(g: ti.template(), ks: ti.template(), cl: ti.template(), I):
 
 @ti.func
 def _accel_at(c: ti.template(), f, a, I):
-    """max|u| and the step's weighted non-advective acceleration at face f."""
-    _accel_at_in(c[0], c[1], c[2], f, a, I)
+    """The step's weighted non-advective acceleration at face f; returns |u| there."""
+    return _accel_at_in(c[0], c[1], c[2], f, a, I)
 
 
 @ti.func
 def _accel_at_in(g: ti.template(), st: ti.template(), dt: ti.template(), f, a, I):
-    ti.atomic_max(st.gsc[SC_UMAX], ti.abs(st.vel[f]))
     acc = 0.0
     if solved(g, f, a, I):
         # net non-advective acceleration of this step, weighted by the inertial share of the
@@ -209,6 +210,7 @@ def _accel_at_in(g: ti.template(), st: ti.template(), dt: ti.template(), f, a, I
         wt = rho * e / (rho * e + be * dt)
         acc = g.par[P_TRACE] * wt * (st.vel[f] - st.vel_adv[f]) / dt
     st.accel[f] = acc
+    return ti.abs(st.vel[f])
 
 
 @ti.func
@@ -216,25 +218,25 @@ def cell_outputs(g: ti.template(), inp: ti.template(), st: ti.template(), cl: ti
                  serial: ti.template()):
     """Cell-centred gas velocity and pressure gradient, divergence and its scale (reductions);
     nothing unless ``on``."""
+    dmax, smax = cell_max2(g, on, _outputs_at, (g, inp, st, cl), serial)
     if on:
-        st.gsc[SC_DMAX] = 0.0
-        st.gsc[SC_SMAX] = 0.0
-    each_cell(g, on, _outputs_at, (g, inp, st, cl), serial)
+        st.gsc[SC_DMAX] = dmax
+        st.gsc[SC_SMAX] = smax
 
 
 @ti.func
 def _outputs_at(c: ti.template(), I):
-    _outputs_at_in(c[0], c[1], c[2], c[3], I)
+    return _outputs_at_in(c[0], c[1], c[2], c[3], I)
 
 
 @ti.func
 def _outputs_at_in(g: ti.template(), inp: ti.template(), st: ti.template(), cl: ti.template(), I):
     active = g.open_vol[I] > 0.0
     net = 0.0
+    gross = 0.0
     if active:
-        net, gross = cell_balance(g, inp, st, st.vel, I)
-        ti.atomic_max(st.gsc[SC_DMAX], ti.abs(net))
-        ti.atomic_max(st.gsc[SC_SMAX], gross)
+        net, gr = cell_balance(g, inp, st, st.vel, I)
+        gross = gr
     cl.div_cell[I] = net
     # a run-time loop over the two faces of an axis: unrolled, the pressure gradient (with its outlet and
     # cut-cell cases) was inlined six times. k_correct's cold compile 4.6 -> 3.0 s; the axes stay unrolled
@@ -258,6 +260,7 @@ def _outputs_at_in(g: ti.template(), inp: ti.template(), st: ti.template(), cl: 
                 gp /= cnt
         cl.u_cell[I][a] = uc
         cl.gradp_cell[I][a] = gp
+    return ti.abs(net), gross
 
 
 @kernel
@@ -294,9 +297,9 @@ def _correct(g: ti.template(), inp: ti.template(), mg: ti.template(), ks: ti.tem
                 J = I
                 J[a] = 0
                 st.vel[f] = st.vel[fidx(g, a, J)]
+    umax = face_max(g, nf, _accel_at, (g, st, dt), serial)
     if on:
-        st.gsc[SC_UMAX] = 0.0
-    each_face(g, nf, _accel_at, (g, st, dt), serial)
+        st.gsc[SC_UMAX] = umax
     cell_outputs(g, inp, st, cl, on, serial)
     if on:
         st.gsc[SC_SREF] = ti.max(st.gsc[SC_SREF], st.gsc[SC_SMAX])
