@@ -94,6 +94,9 @@ def main(argv=None):
     ap.add_argument("--sort-interval", type=int, default=None,
                     help="the DEM's sort_interval (list builds between re-orderings by cell; 0: never); default: "
                          "the model's")
+    ap.add_argument("--diag-calls", type=int, default=0,
+                    help="also time this many diagnostics records (a run's series and guard take one a fluid step): "
+                         "ms a call, read back included")
     a = ap.parse_args(argv)
     import dataclasses
 
@@ -130,10 +133,19 @@ def main(argv=None):
         med = statistics.median(times)
         d = dem.diagnostics()
         assert d["grains_removed"] == 0 and d["non_finite"] == 0
+        diag_ms = "-"
+        if a.diag_calls:
+            per = []
+            for _ in range(3):
+                t0 = time.perf_counter()
+                for _ in range(a.diag_calls):
+                    dem.diagnostics()
+                per.append((time.perf_counter() - t0) / a.diag_calls)
+            diag_ms = f"{1e3 * statistics.median(per):.3f}"
         print(f"N={n} {a.precision} {'poly' if a.poly else 'mono'} ms/substep={1e3 * med / a.substeps:.4f} "
               f"pss={n * a.substeps / med:.4g} bytes/grain={bytes_per_grain(scene.model, 4 if a.precision == 'float32' else 8):.0f} "
               f"slots={scene.model.slots} builds={dem.nlist.builds} contacts={d.get('contacts', '-')} "
-              f"shuffled={a.shuffle} sort_interval={getattr(model, 'sort_interval', '-')}", flush=True)
+              f"shuffled={a.shuffle} sort_interval={getattr(model, 'sort_interval', '-')} ms/diagnostics={diag_ms}", flush=True)
 
 
 if __name__ == "__main__":

@@ -58,8 +58,8 @@ for stage in "$@"; do
     bench)
       $T python3 benchmarks/dem_throughput.py --arch cuda --sizes 10000 100000 1000000 --substeps 500 ;;
     dem)
-      $T bash -c "python3 benchmarks/dem_substep.py --arch cuda --poly --settle 10000 --sizes 1000000 --substeps 500 --repeats 3 &&
-        python3 benchmarks/dem_substep.py --arch cuda --sizes 1000000 --substeps 500 --repeats 3 &&
+      $T bash -c "python3 benchmarks/dem_substep.py --arch cuda --poly --settle 10000 --sizes 1000000 --substeps 500 --repeats 3 --diag-calls 20 &&
+        python3 benchmarks/dem_substep.py --arch cuda --sizes 1000000 --substeps 500 --repeats 3 --diag-calls 20 &&
         python3 benchmarks/dem_substep.py --arch cuda --sizes 1000000 --substeps 500 --repeats 3 --shuffle &&
         python3 benchmarks/dem_substep.py --arch cuda --sizes 1000000 --substeps 500 --repeats 3 --shuffle --sort-interval 0 &&
         python3 -m app run presets/verma.toml --arch cuda --out runs/verma_dem --overwrite --set run.duration=0.05 \

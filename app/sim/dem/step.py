@@ -317,7 +317,16 @@ def measure_parts(model: ti.template(), sizes: ti.template(), state: ti.template
         out[k] = 0.0
     for b in range(hist.shape[0]):
         hist[b] = 0
+    # the sums and maxima accumulate in kernel-scope variables, stored once after the loop: Taichi 1.7.4 reduces
+    # those per thread (per warp on CUDA); an atomic into an element of ``out`` would be one per grain (and per
+    # neighbour) on one address, a compare-and-swap loop for a float max on CUDA (benchmarks/reduction_cost.py)
     alive = 0
+    ke = 0.0
+    ke_rot = 0.0
+    overlap = 0.0
+    vmax = 0.0
+    n_bad = 0
+    n_touch = 0
     nb = hist.shape[0]
     for i in range(model.n):
         if state.alive[i]:
@@ -326,19 +335,20 @@ def measure_parts(model: ti.template(), sizes: ti.template(), state: ti.template
             ri = grain_radius(model, sizes, i)
             v = state.v[i]
             x = state.x[i]
-            ti.atomic_add(out[0], 0.5 * mass * v.dot(v))
+            ke += 0.5 * mass * v.dot(v)
             if ti.static(model.friction):
                 w = state.omega[i]
-                ti.atomic_add(out[1], 0.5 * 0.4 * mass * ri * ri * w.dot(w))
-            ti.atomic_max(out[3], v.norm())
+                ke_rot += 0.5 * 0.4 * mass * ri * ri * w.dot(w)
+            ti.atomic_max(vmax, v.norm())
             bad = 0
             for a in ti.static(range(3)):
                 if not (ti.abs(x[a]) < 1e30 and ti.abs(v[a]) < 1e30):  # also catches NaN
                     bad = 1
-            ti.atomic_add(out[5], bad)
+            n_bad += bad
             zb = ti.cast((x[2] - model.lo[2]) / (model.hi[2] - model.lo[2]) * nb, ti.i32)
             ti.atomic_add(hist[ti.min(ti.max(zb, 0), nb - 1)], 1)
             touching = 0
+            ov = -1e30  # this grain's largest overlap / diameter (its neighbours', its walls')
             for k in range(nlist.count[i]):
                 j = nlist.partner[k, i]
                 if state.alive[j]:
@@ -347,21 +357,28 @@ def measure_parts(model: ti.template(), sizes: ti.template(), state: ti.template
                     if ti.static(model.wraps):
                         sep = min_image(model, sep)
                     d = sep.norm()
-                    ti.atomic_max(out[2], (ri + rj - d) / (2.0 * ti.min(ri, rj)))
+                    ov = ti.max(ov, (ri + rj - d) / (2.0 * ti.min(ri, rj)))
                     if d < ri + rj:
                         touching += 1
-            ti.atomic_add(out[6], touching)
+            n_touch += touching
             wi = ti.Vector([0.0, 0.0, 0.0])
             if ti.static(model.friction):
                 wi = state.omega[i]
             for w in ti.static(range(len(model.walls))):
                 clearance, nrm = wall_clearance_normal(model.walls[w], walls.sampled[w], x)
-                ti.atomic_max(out[2], (ri - clearance) / (2.0 * ri))
+                ov = ti.max(ov, (ri - clearance) / (2.0 * ri))
                 delta = ri - clearance
                 if delta > 0:
                     f, _ft, _tr, _s, _r, _n, _a = wall_contact(model, history, w, i, v, wi, ri, mass, nrm, delta)
-                    ti.atomic_add(out[7 + w], f[2])  # the force on the grain, from the wall
+                    ti.atomic_add(out[7 + w], f[2])  # the force on the grain, from the wall (few grains touch one)
+            ti.atomic_max(overlap, ov)
+    out[0] = ke
+    out[1] = ke_rot
+    out[2] = overlap
+    out[3] = vmax
     out[4] = alive
+    out[5] = n_bad
+    out[6] = n_touch
     ti.loop_config(serialize=True)
     for _ in range(1):  # one thread: the record, and the first bin where the cumulative count reaches 95%
         for k in ti.static(range(4)):
