@@ -16,37 +16,51 @@ from .layout import CellGeometry, Inputs, Outputs
 @kernel
 def _k_gas_extremes(u: ti.types.ndarray(), p: ti.types.ndarray(), out: ti.types.ndarray()):
     """out = [largest |u|^2 over the cells, number of cells with a non-finite velocity or pressure]: the
-    per-step diagnostics reduced on the device (copying u and p to the host every step cost more)."""
-    out[0] = 0.0
-    out[1] = 0.0
+    per-step diagnostics reduced on the device (copying u and p to the host every step cost more). Both reduce
+    into kernel-scope variables, stored once (an atomic per cell into ``out`` is one atomic per cell on one
+    address: layout.face_max)."""
+    vmax = 0.0
+    nbad = 0.0
     for I in ti.grouped(p):
         v = u[I]
-        ti.atomic_max(out[0], v.dot(v))
+        ti.atomic_max(vmax, v.dot(v))
         bad = 0.0
         for a in ti.static(range(3)):
             if not ti.abs(v[a]) < 1e30:  # also catches NaN
                 bad = 1.0
         if not ti.abs(p[I]) < 1e30:
             bad = 1.0
-        ti.atomic_add(out[1], bad)
+        nbad += bad
+    out[0] = vmax
+    out[1] = nbad
 
 
 @kernel
 def _k_end_layer_pressures(p: ti.types.ndarray(), vf: ti.types.ndarray(), out: ti.types.ndarray()):
     """out = [sums over the first, second, second-to-last and last cell layers of p x open fraction of the
     end layer (first for the bottom two, last for the top two), the first layer's and the last's open sum]."""
-    for k in range(6):
-        out[k] = 0.0
     nz = p.shape[2]
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    s3 = 0.0
+    s4 = 0.0
+    s5 = 0.0
     for i, j in ti.ndrange(p.shape[0], p.shape[1]):
         wb = vf[i, j, 0]
         wt = vf[i, j, nz - 1]
-        ti.atomic_add(out[0], p[i, j, 0] * wb)
-        ti.atomic_add(out[1], p[i, j, 1] * wb)
-        ti.atomic_add(out[2], p[i, j, nz - 2] * wt)
-        ti.atomic_add(out[3], p[i, j, nz - 1] * wt)
-        ti.atomic_add(out[4], wb)
-        ti.atomic_add(out[5], wt)
+        s0 += p[i, j, 0] * wb
+        s1 += p[i, j, 1] * wb
+        s2 += p[i, j, nz - 2] * wt
+        s3 += p[i, j, nz - 1] * wt
+        s4 += wb
+        s5 += wt
+    out[0] = s0
+    out[1] = s1
+    out[2] = s2
+    out[3] = s3
+    out[4] = s4
+    out[5] = s5
 
 
 def _cells(sh, vec: bool = False, dtype=float):
