@@ -176,3 +176,35 @@ def test_every_launch_arrangement_of_the_v_cycle_solves_the_system():
         assert np.max(np.abs(r)) <= 1e-8 * np.max(np.abs(b)), shape
     assert {(0, False, False), (0, True, False), (1, False, False), (1, True, False), (2, False, False),
             (2, False, True)} <= seen, seen
+
+
+def test_a_line_of_cells_is_solved_exactly_by_the_coarse_sweep():
+    """A coarsest level that is one line of cells (here the only level: 1 x 1 x 7, coefficients varying 100x)
+    is solved by the tridiagonal sweep, an exact inverse: the outer CG converges in one iteration, to scipy's
+    direct solution within 1e-9 (float64 roundoff of a 7-cell system, far below the 1e-10 asked). A line with
+    a part that touches no Dirichlet face (an inactive cell cuts it; a right-hand side there that sums to zero,
+    so the system is consistent) gives the sweep a zero pivot; the solve still converges to 1e-10 with finite
+    values (the sweep hands such a level to the coarse CG)."""
+    rng = np.random.default_rng(4)
+    shape = (1, 1, 7)
+    ts = _system(shape, dirichlet_faces=("z-", "z+"), coef=lambda a, fs: 10.0 ** rng.uniform(-1, 1, fs))
+    b = rng.standard_normal(shape)
+    mg = MGPCG(shape)
+    assert mg.nlevels == 1 and int(mg.mg["coarse_axis"]) == 2
+    mg.set_system(*ts, b=b, x0=0.0)
+    info = mg.solve(1e-10, 50)
+    x = spla.spsolve(_matrix(shape, ts, (False,) * 3).tocsc(), b.ravel())
+    assert info.converged and info.iterations == 1, info
+    assert np.max(np.abs(mg.solution().ravel() - x)) <= 1e-9 * np.max(np.abs(x))
+
+    ts = _system(shape, dirichlet_faces=("z-",))
+    ts[2][0, 0, 3:5] = 0.0  # cell 3 closed: cells 4-6 touch no Dirichlet face
+    b = rng.standard_normal(shape)
+    b[0, 0, 3:] = [0.0, 1.0, -2.0, 1.0]
+    mg = MGPCG(shape)
+    mg.set_system(*ts, b=b, x0=0.0)
+    info = mg.solve(1e-10, 50)
+    x = mg.solution()
+    assert info.converged and np.all(np.isfinite(x))
+    r = b.ravel() - _matrix(shape, ts, (False,) * 3) @ x.ravel()
+    assert np.max(np.abs(r)) <= 1e-10 * np.max(np.abs(b))

@@ -63,7 +63,8 @@ class MGPCG:
                                 xs=_zeros(ncells_all), bs=_zeros(ncells_all), rs=_zeros(ncells_all),
                                 cg_p=_zeros(ncoarse), cg_ap=_zeros(ncoarse), dirichlet=self._dval, ctrl=self._sc,
                                 periodic=ti.Vector([int(p) for p in self.periodic], ti.i32), ncell0=n0,
-                                coarse_iters=self.coarse_iterations)
+                                coarse_iters=self.coarse_iterations,
+                                coarse_axis=mgm.line_axis(plan[-1]["shape"], self.periodic))
         self.vc = view(mgm.VCycle, self.mg)
         self._x, self._b0 = _zeros(n0), _zeros(n0)
         self.ks = pcg.Krylov(sol=self._x, res=_zeros(n0), prec=_zeros(n0), prec_old=_zeros(n0),

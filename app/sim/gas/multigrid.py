@@ -36,12 +36,14 @@ ND1 = ti.types.ndarray(ndim=1)
 #: the hierarchy: lev (i32, [levels, NMETA]); trans: the transmissibilities of every level's faces;
 #: diag, xs (smoother iterate), bs (level right-hand side), rs (level residual): cells of every level;
 #: cg_p, cg_ap the coarsest CG's vectors; dirichlet the six Dirichlet values; ctrl the solve's scalars
-#: (S_*); periodic axes; ncell0 cells of level 0; coarse_iters iterations of the coarsest CG.
+#: (S_*); periodic axes; ncell0 cells of level 0; coarse_iters iterations of the coarsest CG; coarse_axis the
+#: axis of a coarsest level that is one line of cells along a non-periodic axis (solved exactly by a tridiagonal
+#: sweep, :func:`app.sim.gas.vcycle.coarse_solve`), -1 otherwise.
 #: (Taichi 1.7.4 flattens an argpack's members into kernel arguments by name: member names must differ
 #: across the bundles of one kernel and from its local variables.)
 Multigrid = ti.types.argpack(lev=ti.types.ndarray(ndim=2), trans=ND1, diag=ND1, xs=ND1, bs=ND1, rs=ND1, cg_p=ND1,
                              cg_ap=ND1, dirichlet=ND1, ctrl=ND1, periodic=ti.types.vector(3, ti.i32),
-                             ncell0=ti.i32, coarse_iters=ti.i32)
+                             ncell0=ti.i32, coarse_iters=ti.i32, coarse_axis=ti.i32)
 #: the members of :data:`Multigrid` a red-black level of the V-cycle reads (the same arrays): launched
 #: 2L times a cycle, its launch costs less host time with fewer members (Taichi 1.7.4 sets every
 #: member on every launch; CPU: 6 ndarrays and a vector 129 us, the whole Multigrid 190 us, loaded)
@@ -69,6 +71,15 @@ def plan_levels(shape, min_coarse_cells=8, max_levels=16):
         levels.append(dict(shape=tuple(s[a] // r[a] for a in range(3)), hrel=tuple(hr[a] * r[a] for a in range(3)),
                            ratio=(1, 1, 1)))
     return levels
+
+
+def line_axis(shape, periodic) -> int:
+    """The axis along which a grid of ``shape`` is one line of cells (every other length 1, that one > 1 and not
+    periodic: its matrix is tridiagonal), else -1 (host)."""
+    long = [a for a in range(3) if shape[a] > 1]
+    if len(long) == 1 and not periodic[long[0]]:
+        return long[0]
+    return -1
 
 
 def level_table(plan):

@@ -34,9 +34,12 @@ Method
   prolongation injects). Smoother: red-black Gauss-Seidel, two sweeps red->black going down
   and two black->red coming up (a symmetric cycle); levels with an odd periodic length,
   where red-black colouring is inconsistent, use damped Jacobi (weight 0.8).
-* Coarsest level: Jacobi-preconditioned CG, a fixed number of iterations (the number of
-  cells when that is small, so tiny coarse grids are solved exactly), run by one thread
-  inside one kernel (the coarsest grid has tens of cells). When the dimensions do not halve
+* Coarsest level: when it is one line of cells along a non-periodic axis (the usual end of
+  semi-coarsening, e.g. 1x1x29) and the system is not singular, a tridiagonal (Thomas) sweep
+  solves it exactly in 2n cell visits; otherwise Jacobi-preconditioned CG, a fixed number of
+  iterations (the number of cells when that is small, so tiny coarse grids are solved exactly).
+  Either runs on one thread inside one kernel (the coarsest grid has tens of cells; on a GPU
+  that thread's chain of memory reads is the cost, n^2 for the CG against 2n for the sweep). When the dimensions do not halve
   far enough (coarsest grid > 512 cells, e.g. 33^3) it gets 4 parallel symmetric red-black
   double sweeps instead: still a valid preconditioner, but the outer iteration count then
   grows with the grid; choose dimensions with factors of 2.
