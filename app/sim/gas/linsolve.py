@@ -192,12 +192,24 @@ class MGPCG:
         """Every iteration up to max_iter has been launched."""
         return self._launched >= self._max_iter
 
-    def budget(self) -> int:
-        """Iterations to launch before the first look: the last solve's count and half as many more
-        (at least 4 more). The launches past convergence do nothing on the device; a solve that
-        needs more gets further batches, each with one more read."""
-        last = self.last.iterations if self.last is not None else 8
-        return max(4, last + max(4, last // 2))
+    #: iterations launched past the last solve's count before the first look, and in each further batch
+    MARGIN = 1
+    BATCH = 2
+
+    def budget(self, last: int | None = None) -> int:
+        """Iterations to launch before the first look: the last solve's count and ``MARGIN`` more. A launch
+        past convergence does nothing on the device but still costs its host time and its (empty) tasks, about
+        a tenth of a V-cycle's launches each (10 a V-cycle on the Verma grid), while a solve that needs more
+        gets further batches of ``BATCH`` (:meth:`more`), each with one more read of a few numbers: on the
+        flow_throughput bed the count moves by 1-2 between steps, so a small margin wastes least. ``last``:
+        the count to start from instead of the last solve's."""
+        if last is None:
+            last = self.last.iterations if self.last is not None else 8
+        return max(2, last + self.MARGIN)
+
+    def more(self) -> int:
+        """Iterations of a further batch, when the last look found the solve still going."""
+        return self.BATCH
 
     def info_from(self, rec) -> SolveInfo:
         """A :class:`SolveInfo` from a record (:func:`app.sim.gas.pcg.solve_record`) read from the device."""
@@ -228,5 +240,5 @@ class MGPCG:
             rec = pcg.k_record(self.mg)
             if rec[5] > 0.5 or self.exhausted:
                 break
-            n = max(4, n // 2)
+            n = self.more()
         return self.info_from(rec)

@@ -106,6 +106,7 @@ class FlowSolver(SolverOutputs):
         self._s_pred = 0.0
         self._div = (0.0, 0.0)
         self._p_init_pending = True
+        self._refine_iters = 1  # outer iterations the last refinement round of the pressure solve took
         self._face_coefficients()
 
     def _make_views(self) -> None:
@@ -272,7 +273,7 @@ class FlowSolver(SolverOutputs):
         """One fractional step. Every kernel is launched without waiting on the device: the viscous
         sweeps and the pressure iterations stop themselves there (a fixed number of launches, each
         doing nothing once done), and the host reads one record at the end. It reads again only
-        when the pressure solve needed more iterations than the last step's count and a half
+        when the pressure solve needed more iterations than the last step's count and one more
         (:meth:`MGPCG.budget`), or a refinement round is due (float32 at its precision floor)."""
         cfg = self.config
         g = self.g
@@ -300,7 +301,8 @@ class FlowSolver(SolverOutputs):
             if dmax <= cfg.tol * s_ref or iters >= max_iter:
                 break
             rec = self._project(dt, 1, max_iter - iters)
-            iters += self.mg.info_from(rec[7:]).iterations
+            self._refine_iters = self.mg.info_from(rec[7:]).iterations
+            iters += self._refine_iters
         self.mg.last = first  # the next step's iteration budget follows the main solve
         uold, umax, nsw, dmax, smax, s_ref = (float(x) for x in rec[:6])
         self._s_pred = s_ref
@@ -320,11 +322,13 @@ class FlowSolver(SolverOutputs):
         g, mg = self.g, self.mg
         projection.k_build(g, *self._build_args, dt, again, self.serial)
         mg.begin(self.config.tol, max_iter, singular=self._singular, device_scale=True)
-        n = mg.budget()
+        # a refinement round projects a much smaller remainder: its own last count (1 on the Verma grid in
+        # float32), not the main solve's, sets its budget
+        n = mg.budget(self._refine_iters if again else None)
         while True:
             mg.launch(n)
             projection.k_correct(g, *self._correct_args, dt, again, self.serial)
             rec = projection.k_record(*self._record_args)
             if rec[6] > 0.5 or mg.exhausted:
                 return rec
-            n = max(4, n // 2)
+            n = mg.more()
