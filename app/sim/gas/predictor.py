@@ -22,6 +22,10 @@ from ..tasks import each_chunk, one_task
 VISCOUS_CHUNK = 4  # red-black sweeps per launch of the viscous predictor (each stops itself on the device;
 # each is a copy of the sweep in the compiled kernel; with the fixed parts computed once per step the
 # solver's whole compile took as long with 4 as with 2: 122 s, 8x8x16, no offline cache, loaded CPU)
+VISCOUS_CHUNK_MORE = 4  # sweeps per later launch (k_visc_more). A step takes ~3 sweeps, so the later launches are
+# usually empty; they take 8 arrays instead of k_visc's 16 (host time: ~3 us an array on a GPU's host). Larger
+# chunks would mean fewer launches but not fewer (empty) tasks, and cost compile time in the parallel form, where
+# each sweep is unrolled: 12 sweeps a launch took the gas's cold first step from 18.8 to 32.3 s (CPU, 2 threads)
 
 
 @ti.func
@@ -218,6 +222,9 @@ def _visc_face_in(g: ti.template(), st: ti.template(), f, a, I):
 ViscState = narrowed(State, "vel", "vel_adv", "vel_tmp", "vel_lo", "eps_f", "beta_f", "gsc")
 ViscInputs = narrowed(Inputs, "gas_eps", "solid_vel", "ext_force")
 ViscCells = narrowed(Cells, "pres")
+#: what the sweeps alone read (k_visc_more: the fixed parts are k_visc's first launch)
+SweepGrid = narrowed(Grid, "dims", "wrap", "face_off", "has_walls", "nfaces", "clear", "aperture", "par")
+SweepState = narrowed(State, "vel", "vel_tmp", "vel_lo", "eps_f", "gsc")
 
 
 @kernel
@@ -239,6 +246,18 @@ def _visc(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.templa
         st.gsc[SC_VTHR] = factor * ti.max(ti.max(st.gsc[SC_UOLD], bc_speed), 1e-30)
     _visc_setup(g, inp, cl, st, dt, g.nfaces * first, serial)
     each_chunk(serial, VISCOUS_CHUNK, _visc_sweep, (g, st, max_sweeps, serial))
+
+
+@kernel
+def k_visc_more(g: SweepGrid, st: SweepState, max_sweeps: ti.i32, serial: ti.template()):
+    """VISCOUS_CHUNK_MORE more sweeps after :func:`k_visc`'s first launch, each only while the sweeps go on
+    (the same sweeps and stopping test)."""
+    one_task(serial, _visc_more, (g, st, max_sweeps, serial))
+
+
+@ti.func
+def _visc_more(g: ti.template(), st: ti.template(), max_sweeps, serial: ti.template()):
+    each_chunk(serial, VISCOUS_CHUNK_MORE, _visc_sweep, (g, st, max_sweeps, serial))
 
 
 @ti.func

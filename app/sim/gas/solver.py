@@ -114,6 +114,7 @@ class FlowSolver(SolverOutputs):
         the same arrays, nothing copied; Taichi 1.7.4 sets every ndarray member of a pack at each launch)."""
         self._visc_args = (view(predictor.ViscInputs, self.inp), view(predictor.ViscCells, self.cl),
                            view(predictor.ViscState, self.st))
+        self._sweep_args = (view(predictor.SweepGrid, self.g), view(predictor.SweepState, self.st))
         self._advect_args = (view(layout.EpsInputs, self.inp), view(advection.AdvectState, self.st))
         self._finish_args = (view(layout.EpsInputs, self.inp), view(advection.CorrectionState, self.st))
         self._bc_args = (view(layout.EpsInputs, self.inp), view(boundary.BcState, self.st))
@@ -288,8 +289,9 @@ class FlowSolver(SolverOutputs):
         r = self._jacobi_factor(dt) ** 2
         factor = VISCOUS_REDUCTION * min(1.0, (1.0 - r) / max(r, 1e-30))
         nmax = int(cfg.max_viscous_sweeps)
-        for c in range(-(-nmax // predictor.VISCOUS_CHUNK)):
-            predictor.k_visc(g, *self._visc_args, dt, int(c == 0), factor, self._bc_speed, nmax, self.serial)
+        predictor.k_visc(g, *self._visc_args, dt, 1, factor, self._bc_speed, nmax, self.serial)
+        for _ in range(-(-max(nmax - predictor.VISCOUS_CHUNK, 0) // predictor.VISCOUS_CHUNK_MORE)):
+            predictor.k_visc_more(*self._sweep_args, nmax, self.serial)
         max_iter = int(cfg.max_iter)
         rec = self._project(dt, 0, max_iter)
         first = self.mg.info_from(rec[7:])
