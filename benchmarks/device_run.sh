@@ -12,7 +12,8 @@
 # gas (the gas step alone on the Verma grid 32x32x116 and on 32x32x64 with a bed's void fraction and drag:
 # ms per step, then launches and host reads per step, then the launches' host cost: Taichi's own call against
 # the cached plans of app/sim/launch.py, interleaved; issue 18's target is <= 3 ms per Verma step on one H200),
-# gas_profile (the same scene under Taichi's kernel profiler: each kernel's tasks and device time per step, sorted),
+# grid_ab (the gas step and the DEM substep with Taichi's CUDA launch width saturating_grid_dim at its default,
+# 2112 and 1056 blocks: A/B in one call), gas_profile (the same scene under Taichi's kernel profiler: each kernel's tasks and device time per step, sorted),
 # series (issue 21: verma_small on the GPU, its summary.json wall_split with the callbacks' share, then the host
 # reads per fluid step of its first 0.1 s, the step's and the callbacks', by benchmarks/series_reads.py).
 # Before a call that runs the cavity or the Verma analysis: `mkdir -p runs && cp -r ../shared/reference runs/`
@@ -50,6 +51,14 @@ for stage in "$@"; do
         --warmup 5 && python3 benchmarks/gas_counts.py --arch cuda --grids 32x32x116 32x32x64 --label cuda &&
         python3 benchmarks/launch_cost.py --arch cuda --grids 8x8x16 32x32x116 --blocks 5 &&
         python3 benchmarks/launch_cost.py --arch cuda --per-array' ;;
+    grid_ab)  # Taichi launches every dynamic-range loop on CUDA with saturating_grid_dim blocks (default 2 x max
+      # blocks per SM x SMs: 8448 of 128 threads on an H100, 1.1M threads for a 119k-cell or an empty loop); the gas
+      # step (~650 such loops a step, many tiny or empty) and the DEM substep with 2112 and 1056 against the default
+      for gd in "" 2112 1056; do echo "== TI_SATURATING_GRID_DIM=${gd:-default}"
+        TI_SATURATING_GRID_DIM=$gd $T python3 benchmarks/flow_throughput.py --arch cuda --grids 32x32x116 --steps 30 \
+          --warmup 3 --dry
+        TI_SATURATING_GRID_DIM=$gd $T python3 benchmarks/dem_substep.py --arch cuda --sizes 1000000 --substeps 300 \
+          --repeats 3 --diag-calls 10; done ;;
     gas_profile)  # where the gas step's time goes on the device: per kernel, tasks and summed task time a step
       $T python3 benchmarks/gas_counts.py --arch cuda --profile --grids 32x32x116 32x32x64 --steps 10 --warmup 3 ;;
     series)
