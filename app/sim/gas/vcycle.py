@@ -176,13 +176,81 @@ def _black_first(s, mg: ti.template(), l, act, serial: ti.template()):
     _colour_sweep(mg, l, (s + 1) % 2, act, serial)
 
 
+# ---------------------------------------------------------------------------- the parallel form's loops
+# In the parallel form every top-level loop is a task, and so is every run of statements between two loops (a
+# serial task, one thread): the level's constants computed ahead of each loop (and the copies a ti.func makes of
+# its value arguments) cost a serial task per loop. The red-black level kernels therefore compute the constants
+# of both levels once, at their head, and run their loops back to back through these functions, whose arguments
+# are templates (passed by reference: no copy, no statement between the loops). The arithmetic is the serial
+# form's and the functions' above, loop for loop.
+@ti.func
+def _level(mg: ti.template(), l, act):
+    """(dims, face offsets, cell offset, cells x act) of level l."""
+    return dims(mg, l), face_offsets(mg, l), mg.lev[l, L_CO], mg.lev[l, L_NCELL] * act
+
+
+@ti.func
+def _first_red_loop(mg: ti.template(), n: ti.template(), co: ti.template(), nc: ti.template()):
+    for c in range(nc):
+        I = decode(n, c)
+        _red_cell(mg, co, c, (I[0] + I[1] + I[2]) % 2 == 0)
+
+
+@ti.func
+def _colour_loop(mg: ti.template(), n: ti.template(), fo: ti.template(), co: ti.template(), h2: ti.template(),
+                 nq: ti.template(), colour: ti.template()):
+    for q in range(nq):
+        ij = q // h2
+        I = ti.Vector([ij // n[1], ij % n[1], 0])
+        I[2] = 2 * (q % h2) + (I[0] + I[1] + colour) % 2
+        if I[2] < n[2]:
+            _gs_cell(mg, n, fo, co, I, local(n, I))
+
+
+@ti.func
+def _restrict_loop(mg: ti.template(), n: ti.template(), fo: ti.template(), co: ti.template(), r: ti.template(),
+                   N: ti.template(), cb: ti.template(), NC: ti.template()):
+    for C in range(NC):
+        K = decode(N, C)
+        s = 0.0
+        for d in range(8):
+            o = ti.Vector([d & 1, (d >> 1) & 1, (d >> 2) & 1])
+            if o[0] < r[0] and o[1] < r[1] and o[2] < r[2]:
+                I = K * r + o
+                c = local(n, I)
+                if mg.diag[co + c] > 0.0:
+                    _, _, ax = stencil(mg, n, fo, mg.xs, co, I, c, False)
+                    s += mg.bs[co + c] - ax
+        mg.bs[cb + C] = s
+
+
+@ti.func
+def _prolong_loop(mg: ti.template(), n: ti.template(), co: ti.template(), nc: ti.template(), r: ti.template(),
+                  N: ti.template(), cb: ti.template()):
+    for c in range(nc):
+        if mg.diag[co + c] > 0.0:
+            K = decode(n, c) // r
+            mg.xs[co + c] += mg.xs[cb + local(N, K)]
+
+
 # ============================================================================ kernels
 @ti.func
 def _down(mg: ti.template(), l, serial: ti.template()):
     act = on(mg)
-    _first_red(mg, l, act, serial)
-    each_chunk(serial, 2 * PRE_SWEEPS - 1, _black_first, (mg, l, act, serial))  # black, red, black
-    _restrict_residual(mg, l, act)
+    if ti.static(serial):
+        _first_red(mg, l, act, serial)
+        each_chunk(serial, 2 * PRE_SWEEPS - 1, _black_first, (mg, l, act, serial))  # black, red, black
+        _restrict_residual(mg, l, act)
+    else:  # the same loops, the constants first (see _level)
+        n, fo, co, nc = _level(mg, l, act)
+        h2 = (n[2] + 1) // 2
+        nq = n[0] * n[1] * h2 * act
+        r = _ratio(mg, l)
+        N, _, cb, NC = _level(mg, l + 1, act)
+        _first_red_loop(mg, n, co, nc)
+        for s in ti.static(range(2 * PRE_SWEEPS - 1)):  # black, red, black
+            _colour_loop(mg, n, fo, co, h2, nq, (s + 1) % 2)
+        _restrict_loop(mg, n, fo, co, r, N, cb, NC)
 
 
 @kernel
@@ -226,8 +294,18 @@ def k_down_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32, serial: ti.templat
 @ti.func
 def _up(mg: ti.template(), l, serial: ti.template()):
     act = on(mg)
-    _prolong(mg, l, act, serial)
-    each_chunk(serial, 2 * POST_SWEEPS, _black_first, (mg, l, act, serial))  # black, red, black, red
+    if ti.static(serial):
+        _prolong(mg, l, act, serial)
+        each_chunk(serial, 2 * POST_SWEEPS, _black_first, (mg, l, act, serial))  # black, red, black, red
+    else:  # the same loops, the constants first (see _level)
+        n, fo, co, nc = _level(mg, l, act)
+        h2 = (n[2] + 1) // 2
+        nq = n[0] * n[1] * h2 * act
+        r = _ratio(mg, l)
+        N, _, cb, _ = _level(mg, l + 1, act)
+        _prolong_loop(mg, n, co, nc, r, N, cb)
+        for s in ti.static(range(2 * POST_SWEEPS)):  # black, red, black, red
+            _colour_loop(mg, n, fo, co, h2, nq, (s + 1) % 2)
 
 
 @kernel
