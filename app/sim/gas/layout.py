@@ -316,6 +316,18 @@ def face_colour_max(g: ti.template(), nf, colour, body: ti.template(), ctx: ti.t
 
 
 @ti.func
+def face_colour_max_into(m: ti.template(), g: ti.template(), nf: ti.template(), colour: ti.template(),
+                         body: ti.template(), ctx: ti.template()):
+    """The parallel form of :func:`face_colour_max` into the caller's variable ``m`` (passed by reference, as is
+    every argument: a kernel that runs several such loops back to back, their accumulators set beforehand, makes
+    no serial task between them; see app/sim/gas/vcycle.py, ``_level``)."""
+    for f in range(nf):
+        a, I = fdecode(g, f)
+        if (I[0] + I[1] + I[2]) % 2 == colour:
+            ti.atomic_max(m, body(ctx, f, a, I))
+
+
+@ti.func
 def cell_max(g: ti.template(), on, body: ti.template(), ctx: ti.template(), serial: ti.template()):
     """The largest body(ctx, I) over the cells :func:`each_cell` visits (0 with none)."""
     m = 0.0

@@ -15,8 +15,8 @@ import taichi as ti
 from ..launch import kernel, narrowed
 from .boundary import face_grad, ghost_coef
 from .layout import (P_G, P_H, P_MU, P_RHO, P_THMIN, SC_DV, SC_NSW, SC_UOLD, SC_VACT, SC_VTHR, Cells, Grid, Inputs,
-                     State, each_face, eps_at, face_cells, face_colour_max, face_eps, face_mean_comp, fidx, solved,
-                     wrap)
+                     State, each_face, eps_at, face_cells, face_colour_max, face_colour_max_into, face_eps,
+                     face_mean_comp, fidx, solved, wrap)
 from ..tasks import each_chunk, one_task
 
 VISCOUS_CHUNK = 4  # red-black sweeps per launch of the viscous predictor (each stops itself on the device;
@@ -265,8 +265,14 @@ def _visc_sweep(_sweep, g: ti.template(), st: ti.template(), max_sweeps, serial:
     """One red-black sweep (of a chunk of ``VISCOUS_CHUNK``), unless the sweeps have stopped; then the stopping
     test."""
     nf = g.nfaces * ti.cast(st.gsc[SC_VACT] > 0.0, ti.i32)
-    dv0 = _visc_colour(g, st, 0, nf, serial)
-    dv1 = _visc_colour(g, st, 1, nf, serial)
+    dv0 = 0.0
+    dv1 = 0.0
+    if ti.static(serial):
+        dv0 = _visc_colour(g, st, 0, nf, serial)
+        dv1 = _visc_colour(g, st, 1, nf, serial)
+    else:  # the two colours' loops back to back, after one serial task (layout.face_colour_max_into)
+        face_colour_max_into(dv0, g, nf, 0, _visc_face, (g, st))
+        face_colour_max_into(dv1, g, nf, 1, _visc_face, (g, st))
     st.gsc[SC_DV] = ti.max(dv0, dv1)
     if nf > 0:
         st.gsc[SC_NSW] += 1.0
