@@ -51,6 +51,8 @@ def main(argv=None) -> int:
     ap.add_argument("--warmup", type=int, default=2)
     ap.add_argument("--label", default="", help="what is counted (e.g. before / after)")
     ap.add_argument("--tasks", action="store_true", help="count offloaded tasks per step (kernel profiler)")
+    ap.add_argument("--threads", type=int, default=None,
+                    help="CPU threads for --tasks/--profile (default: all; 2 or more runs the parallel form, as CUDA)")
     ap.add_argument("--profile", action="store_true", help="device time per kernel per step (kernel profiler)")
     ap.add_argument("--top", type=int, default=25, help="kernels listed by --profile")
     ap.add_argument("--dry", action="store_true")
@@ -94,7 +96,7 @@ def main(argv=None) -> int:
 
 
 def count_tasks(args) -> int:
-    arch = runtime.init(args.arch, args.precision, kernel_profiler=True)
+    arch = runtime.init(args.arch, args.precision, threads=args.threads, kernel_profiler=True)
     rows = []
     for g in args.grids:
         shape = tuple(int(x) for x in g.lower().split("x"))
@@ -125,7 +127,7 @@ def kernel_of(task: str) -> str:
 
 
 def profile(args) -> int:
-    arch = runtime.init(args.arch, args.precision, kernel_profiler=True)
+    arch = runtime.init(args.arch, args.precision, threads=args.threads, kernel_profiler=True)
     for g in args.grids:
         shape = tuple(int(x) for x in g.lower().split("x"))
         s, bed, eps, rng = scene(shape, 1e-6)

@@ -310,6 +310,37 @@ def measure(model: ti.template(), sizes: ti.template(), state: ti.template(), hi
 
 
 @ti.func
+def _grain_contacts(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+                    nlist: ti.template(), walls: ti.template(), out: ti.template(), i, x, v, ri, mass):
+    """Grain i's largest overlap / diameter with its neighbours and walls, and its touching neighbours; each
+    wall's vertical force on it added into ``out[7 + w]`` (few grains touch a wall)."""
+    touching = 0
+    ov = -1e30
+    for k in range(nlist.count[i]):
+        j = nlist.partner[k, i]
+        if state.alive[j]:
+            rj = grain_radius(model, sizes, j)
+            sep = state.x[j] - x
+            if ti.static(model.wraps):
+                sep = min_image(model, sep)
+            d = sep.norm()
+            ov = ti.max(ov, (ri + rj - d) / (2.0 * ti.min(ri, rj)))
+            if d < ri + rj:
+                touching += 1
+    wi = ti.Vector([0.0, 0.0, 0.0])
+    if ti.static(model.friction):
+        wi = state.omega[i]
+    for w in ti.static(range(len(model.walls))):
+        clearance, nrm = wall_clearance_normal(model.walls[w], walls.sampled[w], x)
+        ov = ti.max(ov, (ri - clearance) / (2.0 * ri))
+        delta = ri - clearance
+        if delta > 0:
+            f, _ft, _tr, _s, _r, _n, _a = wall_contact(model, history, w, i, v, wi, ri, mass, nrm, delta)
+            ti.atomic_add(out[7 + w], f[2])  # the force on the grain, from the wall
+    return ov, touching
+
+
+@ti.func
 def measure_parts(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                   nlist: ti.template(), walls: ti.template(), out: ti.template(), hist: ti.template(),
                   ring: ti.template(), row, col):
@@ -347,30 +378,8 @@ def measure_parts(model: ti.template(), sizes: ti.template(), state: ti.template
             n_bad += bad
             zb = ti.cast((x[2] - model.lo[2]) / (model.hi[2] - model.lo[2]) * nb, ti.i32)
             ti.atomic_add(hist[ti.min(ti.max(zb, 0), nb - 1)], 1)
-            touching = 0
-            ov = -1e30  # this grain's largest overlap / diameter (its neighbours', its walls')
-            for k in range(nlist.count[i]):
-                j = nlist.partner[k, i]
-                if state.alive[j]:
-                    rj = grain_radius(model, sizes, j)
-                    sep = state.x[j] - x
-                    if ti.static(model.wraps):
-                        sep = min_image(model, sep)
-                    d = sep.norm()
-                    ov = ti.max(ov, (ri + rj - d) / (2.0 * ti.min(ri, rj)))
-                    if d < ri + rj:
-                        touching += 1
+            ov, touching = _grain_contacts(model, sizes, state, history, nlist, walls, out, i, x, v, ri, mass)
             n_touch += touching
-            wi = ti.Vector([0.0, 0.0, 0.0])
-            if ti.static(model.friction):
-                wi = state.omega[i]
-            for w in ti.static(range(len(model.walls))):
-                clearance, nrm = wall_clearance_normal(model.walls[w], walls.sampled[w], x)
-                ov = ti.max(ov, (ri - clearance) / (2.0 * ri))
-                delta = ri - clearance
-                if delta > 0:
-                    f, _ft, _tr, _s, _r, _n, _a = wall_contact(model, history, w, i, v, wi, ri, mass, nrm, delta)
-                    ti.atomic_add(out[7 + w], f[2])  # the force on the grain, from the wall (few grains touch one)
             ti.atomic_max(overlap, ov)
     out[0] = ke
     out[1] = ke_rot
