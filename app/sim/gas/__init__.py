@@ -127,6 +127,11 @@ top-level, parallel loop of its kernel; on one CPU thread (Taichi 1.7.4 makes ea
 ~70 us even when empty) the kernel's loops are nested in one serial loop, one task a launch, and walk the grid as
 nested loops over (axis,) i, j, k instead of decoding a flat index by division (:func:`.layout.each_face`,
 :func:`.layout.each_cell`). Both compute the same step up to the order of float sums (tests/test_gas_serial.py).
+In the parallel form a run of statements between two loops is a task too (one thread): the kernels launched many
+times a step (the V-cycle's levels, the viscous sweeps) compute their constants at their head and run their loops
+back to back through functions with template arguments (``vcycle._level``). Every max and sum of the step
+accumulates in a kernel-scope variable (thread-local, then one atomic per warp on CUDA), never with an atomic per
+cell into an array element (``layout.face_max``).
 """
 from .config import (ALIASES, BC, CONVECTION, EPS_MIN, FACES, GAS_KEYS, INLET, KIND_ALIASES, KINDS, MOVING, OUTLET,
                      PERIODIC, PRESSURE_FORMS, SLIP, THETA_MIN, VISCOUS_REDUCTION, WALL, FlowConfig, StepInfo,
