@@ -81,14 +81,20 @@ def bin_by_cell(model: ti.template(), state: ti.template(), nlist: ti.template()
     """Counting sort of the alive grains by cell into ``nlist.sorted`` (``cell_start``: each cell's first
     entry, then the count); ungated (a sort), the dead grains follow the alive ones, so every slot is named."""
     # one array of n_cells + 1 ints: counts, then inclusive ends (the scan), then starts (each scattered
-    # grain takes its slot from the end of its cell downwards)
+    # grain takes its slot from the end of its cell downwards). The flag is read once, ahead of the loops: in the
+    # parallel form a statement between two loops is a one-thread task of its own (a kernel launch on CUDA), and
+    # nothing here writes the flag
     nb = (model.n_cells + SCAN_BLOCK - 1) // SCAN_BLOCK
-    for c in range(gate(nlist, gated) * model.n_cells):
+    g = gate(nlist, gated)
+    n_cells = g * model.n_cells
+    n_grains = g * model.n
+    n_blocks = g * nb
+    for c in range(n_cells):
         nlist.cell_start[c] = 0
-    for i in range(gate(nlist, gated) * model.n):
+    for i in range(n_grains):
         if state.alive[i]:
             ti.atomic_add(nlist.cell_start[cell_index(model, cell_of(model, state.x[i]))], 1)
-    for b in range(gate(nlist, gated) * nb):
+    for b in range(n_blocks):
         total = 0
         for t in range(SCAN_BLOCK):
             c = b * SCAN_BLOCK + t
@@ -96,7 +102,7 @@ def bin_by_cell(model: ti.template(), state: ti.template(), nlist: ti.template()
                 total += nlist.cell_start[c]
         nlist.block_sum[b] = total
     ti.loop_config(serialize=True)
-    for _ in range(gate(nlist, gated)):
+    for _ in range(g):
         run = 0
         for k in range(nb):
             v = nlist.block_sum[k]
@@ -104,7 +110,7 @@ def bin_by_cell(model: ti.template(), state: ti.template(), nlist: ti.template()
             run += v
         nlist.cell_start[model.n_cells] = run
         nlist.counters[DEAD] = 0
-    for b in range(gate(nlist, gated) * nb):
+    for b in range(n_blocks):
         run = nlist.block_sum[b]
         for t in range(SCAN_BLOCK):
             c = b * SCAN_BLOCK + t
@@ -112,7 +118,7 @@ def bin_by_cell(model: ti.template(), state: ti.template(), nlist: ti.template()
                 run += nlist.cell_start[c]
                 nlist.cell_start[c] = run  # the end of cell c
     ti.loop_config(serialize=model.serial)  # one thread: the order within a cell is the same run to run
-    for i in range(gate(nlist, gated) * model.n):
+    for i in range(n_grains):
         if state.alive[i]:
             slot = ti.atomic_sub(nlist.cell_start[cell_index(model, cell_of(model, state.x[i]))], 1) - 1
             nlist.sorted[slot] = i
