@@ -14,7 +14,7 @@ import taichi as ti
 
 from .. import runtime
 from . import multigrid as mgm
-from . import pcg, vcycle
+from . import coarse, pcg, vcycle
 from .pcg import SolveInfo, plan_levels
 from ..launch import view
 
@@ -149,7 +149,7 @@ class MGPCG:
             for k in range(mgm.COARSE_SMOOTH_SWEEPS):
                 vcycle.k_coarse_smooth(mg, L, int(k == 0), ser)
         elif not fused:
-            vcycle.k_coarse(mg, L, sg)
+            coarse.k_coarse(mg, L, sg)
         for l in reversed(range(L)):
             if self.level_jacobi[l]:
                 vcycle.k_up_j(mg, l, ser)

@@ -38,7 +38,7 @@ ND1 = ti.types.ndarray(ndim=1)
 #: cg_p, cg_ap the coarsest CG's vectors; dirichlet the six Dirichlet values; ctrl the solve's scalars
 #: (S_*); periodic axes; ncell0 cells of level 0; coarse_iters iterations of the coarsest CG; coarse_axis the
 #: axis of a coarsest level that is one line of cells along a non-periodic axis (solved exactly by a tridiagonal
-#: sweep, :func:`app.sim.gas.vcycle.coarse_solve`), -1 otherwise.
+#: sweep, :func:`app.sim.gas.coarse.coarse_solve`), -1 otherwise.
 #: (Taichi 1.7.4 flattens an argpack's members into kernel arguments by name: member names must differ
 #: across the bundles of one kernel and from its local variables.)
 Multigrid = ti.types.argpack(lev=ti.types.ndarray(ndim=2), trans=ND1, diag=ND1, xs=ND1, bs=ND1, rs=ND1, cg_p=ND1,

@@ -189,13 +189,29 @@ def pcg_from(mg: ti.template(), ks: ti.template(), singular):
     when S_FIRST is set). Nothing once the solve has stopped. Also the tail of
     :func:`app.sim.gas.vcycle.k_up_from`."""
     nc = mg.ncell0 * on(mg)
-    _active_sum(mg, mg.xs, nc * singular)
+    nsing = nc * singular
+    total = 0.0
+    cnt = 0.0
     rzn = 0.0
     rzo = 0.0
+    pcg_from_loops(mg, ks, singular, nc, nsing, total, cnt, rzn, rzo)
+
+
+@ti.func
+def pcg_from_loops(mg: ti.template(), ks: ti.template(), singular: ti.template(), nc: ti.template(),
+                   nsing: ti.template(), total: ti.template(), cnt: ti.template(), rzn: ti.template(),
+                   rzo: ti.template()):
+    """The loops of :func:`pcg_from`, its counts (nc cells, nsing = nc or 0 for the mean) and accumulators
+    (zero) set by the caller and passed by reference: a kernel whose loops come before sets them at its head,
+    so that in the parallel form no serial task separates its loops from these (``vcycle._level``)."""
+    for c in range(nsing):  # the mean a singular system's z loses (:func:`_active_sum`)
+        if mg.diag[c] > 0.0:
+            total += mg.xs[c]
+            cnt += 1.0
     for c in range(nc):
         m = 0.0
-        if singular and mg.ctrl[S_CNT] > 0.0:
-            m = mg.ctrl[S_SUM] / mg.ctrl[S_CNT]
+        if singular and cnt > 0.0:
+            m = total / cnt
         z = 0.0
         if mg.diag[c] > 0.0:
             z = mg.xs[c] - m
@@ -205,6 +221,8 @@ def pcg_from(mg: ti.template(), ks: ti.template(), singular):
         r = ks.res[c]
         rzn += r * z
         rzo += r * zo
+    mg.ctrl[S_SUM] = total
+    mg.ctrl[S_CNT] = cnt
     mg.ctrl[S_RZN] = rzn
     mg.ctrl[S_RZO] = rzo
     for c in range(nc):
