@@ -260,6 +260,7 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.template
     fo = mgm.face_offsets(mg, 0)
     nc = mg.ncell0 * on(mg)
     pap = 0.0
+    rmax = 0.0  # both accumulators ahead of the loops, which run back to back (parallel form: no serial task between)
     if ti.static(serial):  # nested loops over i, j, k: no index decoding by division
         for i in range(n[0] * on(mg)):
             for j in range(n[1]):
@@ -269,18 +270,17 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.template
     else:
         for c in range(nc):
             pap += _ap_cell(mg, ks, n, fo, decode(n, c), c)
-    mg.ctrl[S_PAP] = pap
-    rmax = 0.0
     for c in range(nc):
         alpha = 0.0
-        if mg.ctrl[S_PAP] > 0.0:
-            alpha = mg.ctrl[S_RZ] / mg.ctrl[S_PAP]
+        if pap > 0.0:
+            alpha = mg.ctrl[S_RZ] / pap
         ks.sol[c] += alpha * ks.dirn[c]
         r = ks.res[c] - alpha * ks.a_dirn[c]
         ks.res[c] = r
         mg.bs[c] = r
         if mg.diag[c] > 0.0:
             ti.atomic_max(rmax, ti.abs(r))
+    mg.ctrl[S_PAP] = pap
     mg.ctrl[S_TRUE] = rmax
     cand = 0
     if nc > 0:
