@@ -126,7 +126,7 @@ class MGPCG:
     def _precondition(self, iterate: bool = False) -> None:
         """(``iterate``: an outer CG iteration, then) z = one V-cycle of the residual, then the outer CG's
         new direction: a launch down and one up per level above the coarsest; the iteration rides on the
-        first launch down, the coarsest solve on the last (when it is the one-thread CG after a
+        first launch down, the coarsest solve on the last (when it is the one-thread solve after a
         red-black level), the new direction on the last launch up, where those levels are red-black."""
         mg, vc = self.mg, self.vc
         L = self.nlevels - 1

@@ -28,7 +28,7 @@ NSCAL = 24
 
 PRE_SWEEPS = 2
 POST_SWEEPS = 2
-COARSE_SERIAL_MAX = 512  # largest coarsest grid solved by the one-thread CG
+COARSE_SERIAL_MAX = 512  # largest coarsest grid solved on one thread (coarse.py: a line sweep or the CG)
 COARSE_SMOOTH_SWEEPS = 4  # symmetric red-black double sweeps on a larger coarsest grid
 JACOBI_WEIGHT = 0.8
 

@@ -2,7 +2,7 @@
 and one up per level, the coarsest solve riding on the last launch down.
 
 :func:`k_down` runs a red-black level's pre-smoothing, residual and restriction (:func:`k_down_coarse`, on
-the last level, the coarsest level's one-thread CG as well), :func:`k_up` its prolongation and
+the last level, the coarsest level's one-thread solve as well, :mod:`.coarse`), :func:`k_up` its prolongation and
 post-smoothing; these two take the :data:`~.multigrid.VCycle` bundle (the members they read, so their
 launches cost less host time than with the whole hierarchy). Every loop over cells
 is a top-level loop of its kernel, so each runs as its own parallel task (a grid-wide barrier between
@@ -288,7 +288,7 @@ def _down_coarse(mg: ti.template(), l, singular, serial: ti.template()):
 
 @kernel
 def k_down_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32, serial: ti.template()):
-    """:func:`k_down` of the last red-black level l, then the one-thread CG of level l+1 (the coarsest)."""
+    """:func:`k_down` of the last red-black level l, then the one-thread solve of level l+1 (the coarsest, :func:`.coarse.coarse_solve`)."""
     one_task(serial, _down_coarse, (mg, l, singular, serial))
 
 
