@@ -161,18 +161,21 @@ class MGPCG:
             pcg.k_pcg_from(mg, self.ks, sg, ser)
 
     def begin(self, tol: float, max_iter: int, *, singular: bool = False, scale: float | None = None,
-              device_scale: bool = False) -> None:
+              device_scale: bool = False, same_matrix: bool = False) -> None:
         """Start a solve of A x = b (level-0 T, b, x already in the bundles) from the current x; launches
         only (nothing is read back). ``scale``: see :meth:`solve`; ``device_scale``: a caller's kernel has
-        written the scale into the solver's scalars (``mg.ctrl[S_SCALE]``)."""
+        written the scale into the solver's scalars (``mg.ctrl[S_SCALE]``); ``same_matrix``: the level-0
+        transmissibilities are those of the last solve (a refinement round), so the coarse levels and the
+        diagonals built for it still hold and are not built again."""
         if not (tol > 0.0):
             raise ValueError(f"tolerance must be > 0, got {tol}")
         self._singular = bool(singular)
         self._max_iter = int(max_iter)
         self._launched = 0
-        mgm.k_diag(self._mg_setup, 0, self.serial)
-        for l in range(self.nlevels - 1):
-            mgm.k_coarsen(self._mg_setup, l, self.serial)
+        if not same_matrix:
+            mgm.k_diag(self._mg_setup, 0, self.serial)
+            for l in range(self.nlevels - 1):
+                mgm.k_coarsen(self._mg_setup, l, self.serial)
         mode = 2 if device_scale else (0 if scale is None else 1)
         pcg.k_pcg_begin(*self._begin_args, int(self._singular), float(tol), mode, float(scale or 0.0), self.serial)
         self._precondition()

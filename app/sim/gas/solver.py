@@ -323,7 +323,9 @@ class FlowSolver(SolverOutputs):
         more only when the solve outran its budget)."""
         g, mg = self.g, self.mg
         projection.k_build(g, *self._build_args, dt, again, self.serial)
-        mg.begin(self.config.tol, max_iter, singular=self._singular, device_scale=True)
+        # a refinement round's k_build writes the same transmissibilities (eps, beta and dt unchanged): the
+        # hierarchy of the first round still holds
+        mg.begin(self.config.tol, max_iter, singular=self._singular, device_scale=True, same_matrix=bool(again))
         # a refinement round projects a much smaller remainder: its own last count (1 on the Verma grid in
         # float32), not the main solve's, sets its budget
         n = mg.budget(self._refine_iters if again else None)
