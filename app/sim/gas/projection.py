@@ -85,7 +85,7 @@ def _build(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.templ
     if again:
         nfo = 0
     each_face(g, nfo, _outlet_at, (g, cl, st, dt), serial)
-    each_face(g, g.nfaces, _trans_at, (g, st, mg, dt), serial)
+    each_face(g, nfo, _trans_at, (g, st, mg, dt), serial)  # a refinement round's are the first round's
     st.gsc[SC_SMAX] = cell_max(g, 1, _rhs_at, (g, inp, st, ks), serial)
     if not again:
         st.gsc[SC_SPRED] = st.gsc[SC_SMAX]
