@@ -2,6 +2,8 @@
 one serial loop (one task a launch); elsewhere (CUDA, several CPU threads) they stay parallel top-level
 loops. Both must compute the same step: the only difference allowed is the order of the float sums of
 the pressure solver's dot products (atomic adds across threads in the parallel form), i.e. round-off."""
+import re
+
 import numpy as np
 import pytest
 
@@ -58,24 +60,47 @@ def _state(s):
     return [u.copy() for u in s.face_velocities()], s.pressure().copy(), s.cell_velocity().copy()
 
 
-def _parallel_run(make):
+def _parallel_run(make, tasks=None):
     """The parallel form on two CPU threads (runtime.serial() False: the default there), then the session's
     runtime back. The serial run stays in the session's runtime, whose serial kernels the other gas tests of a
-    worker may already have compiled: only the parallel form is compiled here (minutes on a cold cache)."""
-    runtime.init("cpu", "float64", threads=2)
+    worker may already have compiled: only the parallel form is compiled here (minutes on a cold cache). With
+    Taichi's kernel profiler on, the tasks of the last step go into ``tasks`` (a list) when given."""
+    runtime.init("cpu", "float64", threads=2, kernel_profiler=True)
     try:
         assert not runtime.serial()
-        s, infos = _run(make, False)
+        s = make(False)
+        assert s.serial is False and s.mg.serial is False
+        infos = [s.step(DT) for _ in range(2)]
+        runtime.clear_profile()
+        infos.append(s.step(DT))
+        if tasks is not None:
+            tasks.extend(name for name, _ in runtime.profiled_times())
         return _state(s), infos
     finally:
         _session_runtime()
+
+
+def _per_launch(tasks, kernel):
+    """(launches, serial tasks, loop tasks) of ``kernel`` among the profiled task names (Taichi names a task
+    <kernel>_c<id>_<instance>_kernel_<index>_<kind>; a launch's first task has index 0)."""
+    mine = [t.split("_kernel_")[1] for t in tasks if re.match(kernel + r"_c\d+_\d+_kernel_", t)]
+    launches = sum(1 for t in mine if t.startswith("0_"))
+    return launches, sum(t.endswith("serial") for t in mine), sum(t.endswith("range_for") for t in mine)
 
 
 @pytest.mark.parametrize("make", [_bed_scene, _periodic_scene], ids=["bed", "periodic"])
 def test_serial_and_parallel_steps_agree(make):
     ser_s, iser = _run(make, True)
     (u_ser, p_ser, c_ser) = _state(ser_s)
-    (u_par, p_par, c_par), ipar = _parallel_run(make)
+    tasks = []
+    (u_par, p_par, c_par), ipar = _parallel_run(make, tasks)
+    if make is _bed_scene:
+        # the parallel form's task structure (on CUDA each task is a kernel launch; a statement between two
+        # top-level loops is a one-thread task of its own): a red-black level's launch down or up computes its
+        # constants once, then runs its 5 loops back to back (vcycle._level); the multigrid set-up its 4
+        for kernel, loops in (("k_down", 5), ("k_up", 5), ("k_coarsen", 4)):
+            n, serial, ranges = _per_launch(tasks, kernel)
+            assert n > 0 and (serial, ranges) == (n, loops * n), (kernel, n, serial, ranges)
     for a, b in zip(ipar, iser):
         # same control flow: the device-side stopping tests took the same decisions
         assert (a.pressure_iterations, a.viscous_sweeps, a.converged) == (b.pressure_iterations, b.viscous_sweeps,
