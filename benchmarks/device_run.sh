@@ -53,7 +53,8 @@ for stage in "$@"; do
         python3 benchmarks/launch_cost.py --arch cuda --per-array' ;;
     grid_ab)  # Taichi launches every dynamic-range loop on CUDA with saturating_grid_dim blocks (default 2 x max
       # blocks per SM x SMs: 8448 of 128 threads on an H100, 1.1M threads for a 119k-cell or an empty loop); the gas
-      # step (~650 such loops a step, many tiny or empty) and the DEM substep with 2112 and 1056 against the default
+      # step (~450 such loops a step, many tiny or empty) and the DEM substep with 2112 and 1056 against the default.
+      # Each width compiles anew (it is part of Taichi's cache key): about 5 minutes; give it a call of its own
       for gd in "" 2112 1056; do echo "== TI_SATURATING_GRID_DIM=${gd:-default}"
         TI_SATURATING_GRID_DIM=$gd $T python3 benchmarks/flow_throughput.py --arch cuda --grids 32x32x116 --steps 30 \
           --warmup 3 --dry
