@@ -188,15 +188,8 @@ def stencil(mg: ti.template(), n, fo, v: ti.template(), vo, I, c, affine: ti.tem
 def level_diag(mg: ti.template(), l):
     n = dims(mg, l)
     co = mg.lev[l, L_CO]
-    for c in range(mg.lev[l, L_NCELL]):
-        I = decode(n, c)
-        d = 0.0
-        for a in ti.static(range(3)):
-            for side in ti.static(range(2)):
-                F = I
-                F[a] += side
-                d += mg.trans[face(mg, l, a, F)]
-        mg.diag[co + c] = d
+    nc = mg.lev[l, L_NCELL]
+    _diag_loop(mg, l, n, co, nc)
 
 
 #: the members the hierarchy's set-up kernels read (k_coarsen runs once per level each solve)

@@ -188,13 +188,16 @@ def pcg_from(mg: ti.template(), ks: ti.template(), singular):
     """z = V-cycle output (zero mean if singular); new search direction (flexible CG; a restart
     when S_FIRST is set). Nothing once the solve has stopped. Also the tail of
     :func:`app.sim.gas.vcycle.k_up_from`."""
-    nc = mg.ncell0 * on(mg)
-    nsing = nc * singular
-    total = 0.0
-    cnt = 0.0
-    rzn = 0.0
-    rzo = 0.0
+    nc, nsing, total, cnt, rzn, rzo = pcg_from_head(mg, singular)
     pcg_from_loops(mg, ks, singular, nc, nsing, total, cnt, rzn, rzo)
+
+
+@ti.func
+def pcg_from_head(mg: ti.template(), singular):
+    """:func:`pcg_from_loops`' counts, nc cells (0 once the solve has stopped) and nsing for the singular mean, and
+    its four accumulators, zero."""
+    nc = mg.ncell0 * on(mg)
+    return nc, nc * singular, 0.0, 0.0, 0.0, 0.0
 
 
 @ti.func

@@ -21,7 +21,7 @@ to one coarse cell), so the level's residual is not stored.
 import taichi as ti
 
 from ..launch import kernel, narrowed
-from .pcg import Krylov, pcg_from, pcg_from_loops, pcg_iter
+from .pcg import Krylov, pcg_from, pcg_from_head, pcg_from_loops, pcg_iter
 from .multigrid import (JACOBI_WEIGHT, L_CO, L_NCELL, POST_SWEEPS, PRE_SWEEPS, Multigrid, VCycle, _ncell, _ratio,
                         decode, dims, face_offsets, local, on, stencil)
 from ..tasks import each_chunk, one_task
@@ -50,9 +50,8 @@ def _first_red(mg: ti.template(), l, act, serial: ti.template()):
                 for k in range(n[2]):
                     _red_cell(mg, co, cij + k, (i + j + k) % 2 == 0)
     else:
-        for c in range(mg.lev[l, L_NCELL] * act):
-            I = decode(n, c)
-            _red_cell(mg, co, c, (I[0] + I[1] + I[2]) % 2 == 0)
+        nc = mg.lev[l, L_NCELL] * act
+        _first_red_loop(mg, n, co, nc)
 
 
 @ti.func
@@ -79,36 +78,17 @@ def _colour_sweep(mg: ti.template(), l, colour, act, serial: ti.template()):
                     k = k0 + 2 * kk
                     _gs_cell(mg, n, fo, co, ti.Vector([i, j, k]), cij + k)
     else:
-        for q in range(n[0] * n[1] * h2 * act):
-            ij = q // h2
-            I = ti.Vector([ij // n[1], ij % n[1], 0])
-            I[2] = 2 * (q % h2) + (I[0] + I[1] + colour) % 2
-            if I[2] < n[2]:
-                _gs_cell(mg, n, fo, co, I, local(n, I))
+        nq = n[0] * n[1] * h2 * act
+        _colour_loop(mg, n, fo, co, h2, nq, colour)
 
 
 @ti.func
 def _restrict_residual(mg: ti.template(), l, act):
     """b of level l+1 = the sum of the residuals b - A x of the fine cells each coarse cell covers."""
-    L = l + 1
     r = _ratio(mg, l)
-    n = dims(mg, l)
-    fo = face_offsets(mg, l)
-    N = dims(mg, L)
-    co = mg.lev[l, L_CO]
-    cb = mg.lev[L, L_CO]
-    for C in range(mg.lev[L, L_NCELL] * act):
-        K = decode(N, C)
-        s = 0.0
-        for d in range(8):
-            o = ti.Vector([d & 1, (d >> 1) & 1, (d >> 2) & 1])
-            if o[0] < r[0] and o[1] < r[1] and o[2] < r[2]:
-                I = K * r + o
-                c = local(n, I)
-                if mg.diag[co + c] > 0.0:
-                    _, _, ax = stencil(mg, n, fo, mg.xs, co, I, c, False)
-                    s += mg.bs[co + c] - ax
-        mg.bs[cb + C] = s
+    n, fo, co, _ = _level(mg, l, act)
+    N, _, cb, NC = _level(mg, l + 1, act)
+    _restrict_loop(mg, n, fo, co, r, N, cb, NC)
 
 
 @ti.func
@@ -131,10 +111,8 @@ def _prolong(mg: ti.template(), l, act, serial: ti.template()):
                     if mg.diag[co + cij + k] > 0.0:
                         mg.xs[co + cij + k] += mg.xs[Cij + (k >> sh[2])]
     else:
-        for c in range(mg.lev[l, L_NCELL] * act):
-            if mg.diag[co + c] > 0.0:
-                K = decode(n, c) // r
-                mg.xs[co + c] += mg.xs[cb + local(N, K)]
+        nc = mg.lev[l, L_NCELL] * act
+        _prolong_loop(mg, n, co, nc, r, N, cb)
 
 
 @ti.func
@@ -321,12 +299,7 @@ def _up_from(mg: ti.template(), ks: ti.template(), singular, serial: ti.template
         _up(mg, 0, serial)
         pcg_from(mg, ks, singular)
     else:  # pcg_from's counts and accumulators at the head, with _up's constants (see _level)
-        nc = mg.ncell0 * on(mg)
-        nsing = nc * singular
-        total = 0.0
-        cnt = 0.0
-        rzn = 0.0
-        rzo = 0.0
+        nc, nsing, total, cnt, rzn, rzo = pcg_from_head(mg, singular)
         _up(mg, 0, serial)
         pcg_from_loops(mg, ks, singular, nc, nsing, total, cnt, rzn, rzo)
 
