@@ -1,6 +1,7 @@
 """The gas package's structure (issue 18): modules of at most 400 lines, kernels over named bundles
 (argpacks) rather than one flat arena, and kernels that compile once for any grid size."""
 import pathlib
+import re
 
 import numpy as np
 import pytest
@@ -8,12 +9,12 @@ import taichi as ti
 from taichi.lang.argpack import ArgPackType
 
 from app.sim import gas
-from app.sim.gas import advection, boundary, layout, multigrid, pcg, predictor, projection, vcycle
+from app.sim.gas import advection, boundary, coarse, layout, multigrid, pcg, predictor, projection, vcycle
 
 pytestmark = pytest.mark.unit
 
 GAS = pathlib.Path(gas.__file__).parent
-MODULES = (advection, boundary, layout, multigrid, pcg, predictor, projection, vcycle)
+MODULES = (advection, boundary, coarse, layout, multigrid, pcg, predictor, projection, vcycle)
 # host <-> array transfers and small reductions: plain ndarrays are their whole point
 TRANSFER = {"k_write", "k_read", "k_copy", "_k_set_faces", "_k_get_faces", "_k_cells_in", "_k_cells_out"}
 
@@ -29,6 +30,20 @@ def _kernels():
         for name, k in vars(m).items():
             if getattr(k, "_is_wrapped_kernel", False) and k.__module__ == m.__name__:
                 yield m.__name__ + "." + name, name, k
+
+
+def test_no_atomic_into_one_array_element():
+    """Every max and sum of the gas over cells or faces accumulates in a kernel-scope variable, which Taichi 1.7.4
+    reduces per thread (then one atomic per warp on CUDA), never with ``ti.atomic_*`` into one element of an array
+    (``gsc[SC_...]``, ``ctrl[S_...]``, ``out[0]``): that is one atomic per cell on one address, and a float max on
+    CUDA a compare-and-swap loop per cell (benchmarks/reduction_cost.py: 4-40x on the CPU already). Read from the
+    source: on the tree before this check it finds the 17 such atomics the gas had. An augmented assignment into an
+    element inside a loop (``ctrl[S_X] += ...``) is the same atomic, which this text search cannot tell from the
+    one-thread updates of the solve's control and does not look for."""
+    one_element = re.compile(r"atomic_(?:add|sub|max|min)\(\s*[\w.]+\[\s*[A-Z_0-9]+\s*\]")
+    hits = [f"{p.name}:{i}: {line.strip()}" for p in sorted(GAS.glob("*.py"))
+            for i, line in enumerate(p.read_text().splitlines(), 1) if one_element.search(line)]
+    assert not hits, hits
 
 
 def test_solver_kernels_take_bundles_not_an_arena():
