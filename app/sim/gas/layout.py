@@ -251,8 +251,10 @@ def each_face(g: ti.template(), nf, body: ti.template(), ctx: ti.template(), ser
 
 
 @ti.func
-def each_face_colour(g: ti.template(), nf, colour, body: ti.template(), ctx: ti.template(), serial: ti.template()):
-    """:func:`each_face` over the faces whose i + j + k has the parity ``colour`` (serial: only those are visited)."""
+def each_face_colour(g: ti.template(), nf: ti.template(), colour: ti.template(), body: ti.template(),
+                     ctx: ti.template(), serial: ti.template()):
+    """:func:`each_face` over the faces whose i + j + k has the parity ``colour`` (serial: only those are visited).
+    ``nf`` and ``colour`` are templates (not copied: no statement ahead of the loop in the parallel form)."""
     if ti.static(serial):
         for a in range(3 * ti.cast(nf > 0, ti.i32)):
             d = fdims(g, a)
@@ -274,72 +276,64 @@ def each_face_colour(g: ti.template(), nf, colour, body: ti.template(), ctx: ti.
 # which Taichi 1.7.4 reduces per thread (then per warp on CUDA) and writes once (make_thread_local); an atomic
 # into an array element would be one atomic per face on one address, and a float max on CUDA is a
 # compare-and-swap loop that retries until its write lands (benchmarks/reduction_cost.py). Values are >= 0.
+# The accumulator travels to the body in its context tuple, by reference (a template).
+@ti.func
+def _face_max_body(c: ti.template(), f, a, I):
+    """each_face's body for the reductions: c = (m, body, ctx), unpacked by name as the gas's bodies are."""
+    _face_max_in(c[0], c[1], c[2], f, a, I)
+
+
+@ti.func
+def _face_max_in(m: ti.template(), body: ti.template(), ctx: ti.template(), f, a, I):
+    ti.atomic_max(m, body(ctx, f, a, I))  # m: the caller's kernel-scope variable, by reference
+
+
+@ti.func
+def _cell_max_body(c: ti.template(), I):
+    """each_cell's body for :func:`cell_max`: c = (m, body, ctx)."""
+    _cell_max_in(c[0], c[1], c[2], I)
+
+
+@ti.func
+def _cell_max_in(m: ti.template(), body: ti.template(), ctx: ti.template(), I):
+    ti.atomic_max(m, body(ctx, I))
+
+
+@ti.func
+def _cell_max2_body(c: ti.template(), I):
+    """each_cell's body for :func:`cell_max2`: c = (m1, m2, body, ctx), body returning two values."""
+    _cell_max2_in(c[0], c[1], c[2], c[3], I)
+
+
+@ti.func
+def _cell_max2_in(m1: ti.template(), m2: ti.template(), body: ti.template(), ctx: ti.template(), I):
+    v1, v2 = body(ctx, I)
+    ti.atomic_max(m1, v1)
+    ti.atomic_max(m2, v2)
+
+
 @ti.func
 def face_max(g: ti.template(), nf, body: ti.template(), ctx: ti.template(), serial: ti.template()):
     """The largest body(ctx, f, a, I) over the faces :func:`each_face` visits (0 with none)."""
     m = 0.0
-    if ti.static(serial):
-        for a in range(3 * ti.cast(nf > 0, ti.i32)):
-            d = fdims(g, a)
-            for i in range(d[0]):
-                for j in range(d[1]):
-                    fij = g.face_off[a] + (i * d[1] + j) * d[2]
-                    for k in range(d[2]):
-                        ti.atomic_max(m, body(ctx, fij + k, a, ti.Vector([i, j, k])))
-    else:
-        for f in range(nf):
-            a, I = fdecode(g, f)
-            ti.atomic_max(m, body(ctx, f, a, I))
-    return m
-
-
-@ti.func
-def face_colour_max(g: ti.template(), nf, colour, body: ti.template(), ctx: ti.template(), serial: ti.template()):
-    """The largest body(ctx, f, a, I) over the faces :func:`each_face_colour` visits (0 with none)."""
-    m = 0.0
-    if ti.static(serial):
-        for a in range(3 * ti.cast(nf > 0, ti.i32)):
-            d = fdims(g, a)
-            for i in range(d[0]):
-                for j in range(d[1]):
-                    fij = g.face_off[a] + (i * d[1] + j) * d[2]
-                    k0 = (i + j + colour) % 2
-                    for kk in range((d[2] - k0 + 1) // 2):
-                        k = k0 + 2 * kk
-                        ti.atomic_max(m, body(ctx, fij + k, a, ti.Vector([i, j, k])))
-    else:
-        for f in range(nf):
-            a, I = fdecode(g, f)
-            if (I[0] + I[1] + I[2]) % 2 == colour:
-                ti.atomic_max(m, body(ctx, f, a, I))
+    each_face(g, nf, _face_max_body, (m, body, ctx), serial)
     return m
 
 
 @ti.func
 def face_colour_max_into(m: ti.template(), g: ti.template(), nf: ti.template(), colour: ti.template(),
-                         body: ti.template(), ctx: ti.template()):
-    """The parallel form of :func:`face_colour_max` into the caller's variable ``m`` (passed by reference, as is
-    every argument: a kernel that runs several such loops back to back, their accumulators set beforehand, makes
-    no serial task between them; see app/sim/gas/vcycle.py, ``_level``)."""
-    for f in range(nf):
-        a, I = fdecode(g, f)
-        if (I[0] + I[1] + I[2]) % 2 == colour:
-            ti.atomic_max(m, body(ctx, f, a, I))
+                         body: ti.template(), ctx: ti.template(), serial: ti.template()):
+    """The largest body(ctx, f, a, I) over the faces :func:`each_face_colour` visits, into the caller's variable
+    ``m`` (by reference, as is every argument: a kernel that sets several accumulators first and then runs such
+    loops back to back makes no serial task between them in the parallel form; see vcycle.py, ``_level``)."""
+    each_face_colour(g, nf, colour, _face_max_body, (m, body, ctx), serial)
 
 
 @ti.func
 def cell_max(g: ti.template(), on, body: ti.template(), ctx: ti.template(), serial: ti.template()):
     """The largest body(ctx, I) over the cells :func:`each_cell` visits (0 with none)."""
     m = 0.0
-    n = g.dims
-    if ti.static(serial):
-        for i in range(n[0] * on):
-            for j in range(n[1]):
-                for k in range(n[2]):
-                    ti.atomic_max(m, body(ctx, ti.Vector([i, j, k])))
-    else:
-        for i, j, k in ti.ndrange(n[0] * on, n[1], n[2]):
-            ti.atomic_max(m, body(ctx, ti.Vector([i, j, k])))
+    each_cell(g, on, _cell_max_body, (m, body, ctx), serial)
     return m
 
 
@@ -349,19 +343,7 @@ def cell_max2(g: ti.template(), on, body: ti.template(), ctx: ti.template(), ser
     (0, 0 with none)."""
     m1 = 0.0
     m2 = 0.0
-    n = g.dims
-    if ti.static(serial):
-        for i in range(n[0] * on):
-            for j in range(n[1]):
-                for k in range(n[2]):
-                    v1, v2 = body(ctx, ti.Vector([i, j, k]))
-                    ti.atomic_max(m1, v1)
-                    ti.atomic_max(m2, v2)
-    else:
-        for i, j, k in ti.ndrange(n[0] * on, n[1], n[2]):
-            v1, v2 = body(ctx, ti.Vector([i, j, k]))
-            ti.atomic_max(m1, v1)
-            ti.atomic_max(m2, v2)
+    each_cell(g, on, _cell_max2_body, (m1, m2, body, ctx), serial)
     return m1, m2
 
 

@@ -15,7 +15,7 @@ import taichi as ti
 from ..launch import kernel, narrowed
 from .boundary import face_grad, ghost_coef
 from .layout import (P_G, P_H, P_MU, P_RHO, P_THMIN, SC_DV, SC_NSW, SC_UOLD, SC_VACT, SC_VTHR, Cells, Grid, Inputs,
-                     State, each_face, eps_at, face_cells, face_colour_max, face_colour_max_into, face_eps,
+                     State, each_face, eps_at, face_cells, face_colour_max_into, face_eps,
                      face_mean_comp, fidx, solved, wrap)
 from ..tasks import each_chunk, one_task
 
@@ -183,12 +183,14 @@ def _visc_setup(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.
 
 
 @ti.func
-def _visc_colour(g: ti.template(), st: ti.template(), colour, nf, serial: ti.template()):
+def _visc_colour(dv: ti.template(), g: ti.template(), st: ti.template(), colour: ti.template(), nf: ti.template(),
+                 serial: ti.template()):
     """Gauss-Seidel update, in place on the velocity, of the faces of one colour (parity of
     i+j+k) among the first nf faces (all, or none once the sweeps have stopped): the viscous
     stencil couples a face only to faces of the other colour. u = (R + sum of the fluid neighbours'
-    c_q u_q) / D with D and R from :func:`_visc_setup`. Returns the largest change of a face velocity."""
-    return face_colour_max(g, nf, colour, _visc_face, (g, st), serial)
+    c_q u_q) / D with D and R from :func:`_visc_setup`. The largest change of a face velocity goes into the
+    caller's ``dv`` (by reference: the two colours' loops run back to back in the parallel form)."""
+    face_colour_max_into(dv, g, nf, colour, _visc_face, (g, st), serial)
 
 
 @ti.func
@@ -267,12 +269,8 @@ def _visc_sweep(_sweep, g: ti.template(), st: ti.template(), max_sweeps, serial:
     nf = g.nfaces * ti.cast(st.gsc[SC_VACT] > 0.0, ti.i32)
     dv0 = 0.0
     dv1 = 0.0
-    if ti.static(serial):
-        dv0 = _visc_colour(g, st, 0, nf, serial)
-        dv1 = _visc_colour(g, st, 1, nf, serial)
-    else:  # the two colours' loops back to back, after one serial task (layout.face_colour_max_into)
-        face_colour_max_into(dv0, g, nf, 0, _visc_face, (g, st))
-        face_colour_max_into(dv1, g, nf, 1, _visc_face, (g, st))
+    _visc_colour(dv0, g, st, 0, nf, serial)
+    _visc_colour(dv1, g, st, 1, nf, serial)
     st.gsc[SC_DV] = ti.max(dv0, dv1)
     if nf > 0:
         st.gsc[SC_NSW] += 1.0

@@ -14,8 +14,8 @@ from . import multigrid as mgm
 from .boundary import face_grad, grad_across, has_grad
 from .config import OUTLET
 from .layout import (P_H, P_RHO, P_TRACE, SC_CORR, SC_DMAX, SC_NSW, SC_SMAX, SC_SPRED, SC_SREF, SC_UMAX, SC_UOLD,
-                     Cells, Grid, Inputs, State, cell_max, cell_max2, cidx, each_cell, each_face, face_max, fdecode, fidx,
-                     is_boundary, solved)
+                     Cells, Grid, Inputs, State, cell_max, cell_max2, cidx, each_cell, each_face, face_max, fdecode,
+                     fidx, is_boundary, solved)
 from .multigrid import Multigrid
 from .pcg import Krylov, solve_record
 from ..tasks import one_task
