@@ -68,7 +68,6 @@ def _colour_sweep(mg: ti.template(), l, colour, act, serial: ti.template()):
     n = dims(mg, l)
     fo = face_offsets(mg, l)
     co = mg.lev[l, L_CO]
-    h2 = (n[2] + 1) // 2
     if ti.static(serial):
         for i in range(n[0] * act):
             for j in range(n[1]):
@@ -78,7 +77,7 @@ def _colour_sweep(mg: ti.template(), l, colour, act, serial: ti.template()):
                     k = k0 + 2 * kk
                     _gs_cell(mg, n, fo, co, ti.Vector([i, j, k]), cij + k)
     else:
-        nq = n[0] * n[1] * h2 * act
+        h2, nq = _sweep_range(n, act)
         _colour_loop(mg, n, fo, co, h2, nq, colour)
 
 
@@ -169,6 +168,25 @@ def _level(mg: ti.template(), l, act):
 
 
 @ti.func
+def _sweep_range(n, act):
+    """(h2, nq) of a colour sweep on a level of dims n: half a column's cells rounded up, and the loop's count
+    (x act) over (column, every other k)."""
+    h2 = (n[2] + 1) // 2
+    return h2, n[0] * n[1] * h2 * act
+
+
+@ti.func
+def _level_pair(mg: ti.template(), l, act):
+    """Every constant a red-black level's launch down (:func:`_down`) or up (:func:`_up`) uses: level l's
+    (dims, face offsets, cell offset, cells x act, :func:`_sweep_range`), its coarsening ratio, and level l+1's
+    (dims, cell offset, cells x act)."""
+    n, fo, co, nc = _level(mg, l, act)
+    h2, nq = _sweep_range(n, act)
+    N, _, cb, NC = _level(mg, l + 1, act)
+    return n, fo, co, nc, h2, nq, _ratio(mg, l), N, cb, NC
+
+
+@ti.func
 def _first_red_loop(mg: ti.template(), n: ti.template(), co: ti.template(), nc: ti.template()):
     for c in range(nc):
         I = decode(n, c)
@@ -221,11 +239,7 @@ def _down(mg: ti.template(), l, serial: ti.template()):
         each_chunk(serial, 2 * PRE_SWEEPS - 1, _black_first, (mg, l, act, serial))  # black, red, black
         _restrict_residual(mg, l, act)
     else:  # the same loops, the constants first (see _level)
-        n, fo, co, nc = _level(mg, l, act)
-        h2 = (n[2] + 1) // 2
-        nq = n[0] * n[1] * h2 * act
-        r = _ratio(mg, l)
-        N, _, cb, NC = _level(mg, l + 1, act)
+        n, fo, co, nc, h2, nq, r, N, cb, NC = _level_pair(mg, l, act)
         _first_red_loop(mg, n, co, nc)
         for s in ti.static(range(2 * PRE_SWEEPS - 1)):  # black, red, black
             _colour_loop(mg, n, fo, co, h2, nq, (s + 1) % 2)
@@ -266,7 +280,8 @@ def _down_coarse(mg: ti.template(), l, singular, serial: ti.template()):
 
 @kernel
 def k_down_coarse(mg: Multigrid, l: ti.i32, singular: ti.i32, serial: ti.template()):
-    """:func:`k_down` of the last red-black level l, then the one-thread solve of level l+1 (the coarsest, :func:`.coarse.coarse_solve`)."""
+    """:func:`k_down` of the last red-black level l, then the one-thread solve of level l+1 (the coarsest,
+    :func:`.coarse.coarse_solve`)."""
     one_task(serial, _down_coarse, (mg, l, singular, serial))
 
 
@@ -277,11 +292,7 @@ def _up(mg: ti.template(), l, serial: ti.template()):
         _prolong(mg, l, act, serial)
         each_chunk(serial, 2 * POST_SWEEPS, _black_first, (mg, l, act, serial))  # black, red, black, red
     else:  # the same loops, the constants first (see _level)
-        n, fo, co, nc = _level(mg, l, act)
-        h2 = (n[2] + 1) // 2
-        nq = n[0] * n[1] * h2 * act
-        r = _ratio(mg, l)
-        N, _, cb, _ = _level(mg, l + 1, act)
+        n, fo, co, nc, h2, nq, r, N, cb, _ = _level_pair(mg, l, act)
         _prolong_loop(mg, n, co, nc, r, N, cb)
         for s in ti.static(range(2 * POST_SWEEPS)):  # black, red, black, red
             _colour_loop(mg, n, fo, co, h2, nq, (s + 1) % 2)
