@@ -39,10 +39,10 @@ Method
   solves it exactly in 2n cell visits; otherwise Jacobi-preconditioned CG, a fixed number of
   iterations (the number of cells when that is small, so tiny coarse grids are solved exactly).
   Either runs on one thread inside one kernel (the coarsest grid has tens of cells; on a GPU
-  that thread's chain of memory reads is the cost, n^2 for the CG against 2n for the sweep). When the dimensions do not halve
-  far enough (coarsest grid > 512 cells, e.g. 33^3) it gets 4 parallel symmetric red-black
-  double sweeps instead: still a valid preconditioner, but the outer iteration count then
-  grows with the grid; choose dimensions with factors of 2.
+  that thread's chain of memory reads is the cost, n^2 for the CG against 2n for the sweep).
+  When the dimensions do not halve far enough (coarsest grid > 512 cells, e.g. 33^3) it gets 4
+  parallel symmetric red-black double sweeps instead: still a valid preconditioner, but the outer
+  iteration count then grows with the grid; choose dimensions with factors of 2.
 
 Implementation: the state is two bundles of ndarrays, :data:`app.sim.gas.multigrid.Multigrid`
 (the hierarchy and the solve's control) and :data:`Krylov` (the level-0 vectors), so every
@@ -126,12 +126,19 @@ def _active_sum(mg: ti.template(), values: ti.template(), nc):
     S_CNT (nc = 0: both zero): the mean a singular system's solution and right-hand side lose."""
     total = 0.0
     cnt = 0.0
+    _active_sum_into(total, cnt, mg, values, nc)
+    mg.ctrl[S_SUM] = total
+    mg.ctrl[S_CNT] = cnt
+
+
+@ti.func
+def _active_sum_into(total: ti.template(), cnt: ti.template(), mg: ti.template(), values: ti.template(),
+                     nc: ti.template()):
+    """:func:`_active_sum`'s loop into the caller's accumulators (by reference)."""
     for c in range(nc):
         if mg.diag[c] > 0.0:
             total += values[c]
             cnt += 1.0
-    mg.ctrl[S_SUM] = total
-    mg.ctrl[S_CNT] = cnt
 
 
 #: the members the solve's first and last kernels read and write
@@ -207,10 +214,7 @@ def pcg_from_loops(mg: ti.template(), ks: ti.template(), singular: ti.template()
     """The loops of :func:`pcg_from`, its counts (nc cells, nsing = nc or 0 for the mean) and accumulators
     (zero) set by the caller and passed by reference: a kernel whose loops come before sets them at its head,
     so that in the parallel form no serial task separates its loops from these (``vcycle._level``)."""
-    for c in range(nsing):  # the mean a singular system's z loses (:func:`_active_sum`)
-        if mg.diag[c] > 0.0:
-            total += mg.xs[c]
-            cnt += 1.0
+    _active_sum_into(total, cnt, mg, mg.xs, nsing)  # the mean a singular system's z loses
     for c in range(nc):
         m = 0.0
         if singular and cnt > 0.0:
