@@ -344,7 +344,7 @@ def _grain_contacts(model: ti.template(), sizes: ti.template(), state: ti.templa
 def measure_parts(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                   nlist: ti.template(), walls: ti.template(), out: ti.template(), hist: ti.template(),
                   ring: ti.template(), row, col):
-    for k in range(7 + ti.static(len(model.walls))):
+    for k in range(7, 7 + ti.static(len(model.walls))):  # the wall forces (the rest is stored after the loop)
         out[k] = 0.0
     for b in range(hist.shape[0]):
         hist[b] = 0

@@ -323,8 +323,8 @@ class FlowSolver(SolverOutputs):
         more only when the solve outran its budget)."""
         g, mg = self.g, self.mg
         projection.k_build(g, *self._build_args, dt, again, self.serial)
-        # a refinement round's k_build writes the same transmissibilities (eps, beta and dt unchanged): the
-        # hierarchy of the first round still holds
+        # a refinement round's k_build leaves the first round's transmissibilities in place (eps, beta and dt are
+        # unchanged), so the hierarchy built from them still holds
         mg.begin(self.config.tol, max_iter, singular=self._singular, device_scale=True, same_matrix=bool(again))
         # a refinement round projects a much smaller remainder: its own last count (1 on the Verma grid in
         # float32), not the main solve's, sets its budget
