@@ -14,7 +14,8 @@
 # the cached plans of app/sim/launch.py, interleaved; issue 18's target is <= 3 ms per Verma step on one H200),
 # grid_ab (the gas step and the DEM substep with Taichi's CUDA launch width saturating_grid_dim at its default,
 # 2112 and 1056 blocks: A/B in one call), gas_profile (the same scene under Taichi's kernel profiler: each kernel's tasks and device time per step, sorted),
-# series (issue 21: verma_small on the GPU, its summary.json wall_split with the callbacks' share, then the host
+# coarse (the pressure V-cycle's coarse levels in one launch, one block on CUDA, checked against a launch per
+# level and timed without it), series (issue 21: verma_small on the GPU, its summary.json wall_split with the callbacks' share, then the host
 # reads per fluid step of its first 0.1 s, the step's and the callbacks', by benchmarks/series_reads.py).
 # Before a call that runs the cavity or the Verma analysis: `mkdir -p runs && cp -r ../shared/reference runs/`
 # here, and carry [".devkit", "runs/reference"] (../shared is not copied to the device).
@@ -60,6 +61,15 @@ for stage in "$@"; do
           --warmup 3 --dry
         TI_SATURATING_GRID_DIM=$gd $T python3 benchmarks/dem_substep.py --arch cuda --sizes 1000000 --substeps 300 \
           --repeats 3 --diag-calls 10; done ;;
+    coarse)  # the coarse levels of the pressure V-cycle in one launch (app/sim/gas/coarse_cycle.py): on CUDA one block
+      # whose threads meet at barriers, a path no CPU test can run. First the same systems solved with it and with a
+      # launch per level (equal iterations, solutions equal to round-off, scipy's residual; exits 1 if not), then
+      # the gas step without it (gas_profile and gas time it with it): ~1 minute
+      $T bash -c 'python3 benchmarks/coarse_cycle_check.py --arch cuda --precision float64 &&
+        python3 benchmarks/coarse_cycle_check.py --arch cuda --precision float32 --tol 1e-5 &&
+        python3 benchmarks/flow_throughput.py --arch cuda --grids 32x32x116 32x32x64 --steps 30 --warmup 5 \
+          --coarse-block off && python3 benchmarks/gas_counts.py --arch cuda --grids 32x32x116 --coarse-block off \
+          --label "coarse block off"' ;;
     gas_profile)  # where the gas step's time goes on the device: per kernel, tasks and summed task time a step
       $T python3 benchmarks/gas_counts.py --arch cuda --profile --grids 32x32x116 32x32x64 --steps 10 --warmup 3 ;;
     series)
@@ -139,7 +149,12 @@ for stage in "$@"; do
       $T python3 -m app sweep presets/boyce.toml --arch cuda --out runs/boyce-sweep --plot bubble_peak_diameter \
         --set boundary.bottom.jet_duration=0.1542,0.0667,0.0514,0.025 --set video.enabled=false ;;
   esac > "$L/$stage.log" 2>&1
-  echo "$stage: exit $? in $(( $(date +%s) - start )) s" | tee -a "$L/stages.txt"
+  rc=$?
+  echo "$stage: exit $rc in $(( $(date +%s) - start )) s" | tee -a "$L/stages.txt"
+  if [ "$stage" = coarse ] && [ $rc -ne 0 ]; then  # every gas step on CUDA runs that cycle: stop before it is trusted
+    echo "coarse: the one-launch coarse cycle failed its check on CUDA: later stages skipped" | tee -a "$L/stages.txt"
+    break
+  fi
 done
 cp benchmarks/RESULTS.md $L/RESULTS.md
 for d in runs/*/; do [ -f "$d/summary.json" ] && cp "$d/summary.json" "$L/$(basename "$d")-summary.json"; done

@@ -105,9 +105,16 @@ def main(argv=None) -> int:
     ap.add_argument("--warmup", type=int, default=3)
     ap.add_argument("--tol", type=float, default=1e-6)
     ap.add_argument("--frozen", action="store_true", help="keep the bed fixed (default: new eps/beta every step)")
+    ap.add_argument("--coarse-block", choices=("on", "off"), default="on",
+                    help="off: a launch down and up per multigrid level, not the coarse levels in one launch "
+                         "(app/sim/gas/coarse_cycle.py; the parallel form only), for an A/B")
     ap.add_argument("--dry", action="store_true", help="print only, do not append to RESULTS.md")
     args = ap.parse_args(argv)
     from app.sim import runtime
+    from app.sim.gas import coarse_cycle
+
+    if args.coarse_block == "off":
+        coarse_cycle.MAX_CELLS = 0  # no level qualifies
 
     arch = runtime.init(args.arch, args.precision, threads=args.threads)
     rows = []
@@ -116,7 +123,8 @@ def main(argv=None) -> int:
         rows.append(run(shape, args.steps, args.warmup, args.tol, not args.frozen))
         print(rows[-1], flush=True)
     bed = "frozen bed" if args.frozen else "bed re-randomised every step (eps, beta, deps/dt)"
-    title = (f"Gas solver throughput ({arch}, {args.precision}, threads {args.threads or 'all'}; 6 mm cells, "
+    title = (f"Gas solver throughput ({arch}, {args.precision}, threads {args.threads or 'all'}, coarse block "
+             f"{args.coarse_block}; 6 mm cells, "
              f"cylinder vessel, {bed} in the lower 40%, 0.5 m/s inflow, Model A, MacCormack, dt = 1e-3 s, "
              f"tol {args.tol:g}; median of {args.steps} steps after {args.warmup} warm-up)")
     append_results(title, rows, arch, dry=args.dry)

@@ -52,16 +52,22 @@ def main(argv=None) -> int:
     ap.add_argument("--label", default="", help="what is counted (e.g. before / after)")
     ap.add_argument("--tasks", action="store_true", help="count offloaded tasks per step (kernel profiler)")
     ap.add_argument("--threads", type=int, default=None,
-                    help="CPU threads for --tasks/--profile (default: all; 2 or more runs the parallel form, as CUDA)")
+                    help="CPU threads (default: all; 2 or more runs the parallel form, as CUDA)")
     ap.add_argument("--profile", action="store_true", help="device time per kernel per step (kernel profiler)")
     ap.add_argument("--top", type=int, default=25, help="kernels listed by --profile")
+    ap.add_argument("--coarse-block", choices=("on", "off"), default="on",
+                    help="off: a launch down and up per multigrid level (app/sim/gas/coarse_cycle.py), for an A/B")
     ap.add_argument("--dry", action="store_true")
     args = ap.parse_args(argv)
+    if args.coarse_block == "off":
+        from app.sim.gas import coarse_cycle
+
+        coarse_cycle.MAX_CELLS = 0  # no level qualifies: a launch down and up per level
     if args.profile:
         return profile(args)
     if args.tasks:
         return count_tasks(args)
-    arch = runtime.init(args.arch, args.precision)
+    arch = runtime.init(args.arch, args.precision, threads=args.threads)
     rows = []
     for g in args.grids:
         shape = tuple(int(x) for x in g.lower().split("x"))
@@ -82,7 +88,8 @@ def main(argv=None) -> int:
                 sweeps.append(info.viscous_sweeps)
                 top = dict(kc.reads_by)
         med = statistics.median
-        rows.append({"label": args.label, "grid": g, "launches/step (median, min-max)":
+        rows.append({"label": args.label, "grid": g, "serial form": str(runtime.serial()),
+                     "launches/step (median, min-max)":
                      f"{med(launches):g} ({min(launches)}-{max(launches)})",
                      "host reads/step (median, min-max)": f"{med(reads):g} ({min(reads)}-{max(reads)})",
                      "ndarray arguments set/step (median, min-max)":

@@ -65,14 +65,21 @@ def test_solver_kernels_take_bundles_not_an_arena():
 
 
 def test_step_kernels_compile_once_for_two_grids():
-    """Solvers of two grid sizes (and boundary kinds) run the same compiled step kernels."""
+    """Solvers of two grid sizes (and boundary kinds) run the same compiled step kernels: the second grid compiles
+    no new instance of any (counted after the first grid's step, so instances other tests of the worker compiled,
+    e.g. the parallel form's, do not count)."""
+    kernels = (advection.k_advect, advection.k_advect_finish, boundary.k_bc_prep, predictor.k_visc,
+               predictor.k_face_coef, projection.k_build, projection.k_correct, projection.k_record, vcycle.k_down,
+               vcycle.k_up, vcycle.k_iter_down, vcycle.k_down_coarse, vcycle.k_up_from)
+    counts = None
     for shape, bcs in (((6, 6, 8), {"bottom": gas.velocity_inlet((0, 0, 0.2)), "top": gas.pressure_outlet()}),
                        ((8, 4, 10), {})):
         s = gas.FlowSolver(gas.FlowConfig(shape=shape, h=0.01, bcs=bcs))
         s.set_eps(np.full(shape, 0.8))
         info = s.step(1e-3)
         assert info.converged, info
-    for k in (advection.k_advect, advection.k_advect_finish, boundary.k_bc_prep, predictor.k_visc, predictor.k_face_coef,
-              projection.k_build, projection.k_correct, projection.k_record, vcycle.k_down, vcycle.k_up,
-              vcycle.k_iter_down, vcycle.k_down_coarse, vcycle.k_up_from):
-        assert len(k._primal.compiled_kernels) == 1, k._primal.func.__name__
+        now = [len(k._primal.compiled_kernels) for k in kernels]
+        assert min(now) >= 1
+        if counts is not None:
+            assert now == counts, [k._primal.func.__name__ for k, a, b in zip(kernels, now, counts) if a != b]
+        counts = now

@@ -60,11 +60,13 @@ def _state(s):
     return [u.copy() for u in s.face_velocities()], s.pressure().copy(), s.cell_velocity().copy()
 
 
-def _parallel_run(make, tasks=None):
+def _parallel_run(make, tasks=None, levels_tasks=None):
     """The parallel form on two CPU threads (runtime.serial() False: the default there), then the session's
     runtime back. The serial run stays in the session's runtime, whose serial kernels the other gas tests of a
     worker may already have compiled: only the parallel form is compiled here (minutes on a cold cache). With
-    Taichi's kernel profiler on, the tasks of the last step go into ``tasks`` (a list) when given."""
+    Taichi's kernel profiler on, the tasks of the last step go into ``tasks`` (a list) when given, and those of a
+    pressure solve on the step's grid with a launch down and up per level (no one-launch coarse cycle) into
+    ``levels_tasks``."""
     runtime.init("cpu", "float64", threads=2, kernel_profiler=True)
     try:
         assert not runtime.serial()
@@ -75,6 +77,15 @@ def _parallel_run(make, tasks=None):
         infos.append(s.step(DT))
         if tasks is not None:
             tasks.extend(name for name, _ in runtime.profiled_times())
+        if levels_tasks is not None:
+            from app.sim.gas.linsolve import MGPCG
+
+            mg = MGPCG(s.shape, coarse_block=False)
+            mg.set_system(*(np.ones(tuple(n + (a == b) for b, n in enumerate(s.shape))) for a in range(3)),
+                          b=np.random.default_rng(0).standard_normal(s.shape), x0=0.0)
+            runtime.clear_profile()
+            mg.solve(1e-8, 50, singular=True)
+            levels_tasks.extend(name for name, _ in runtime.profiled_times())
         return _state(s), infos
     finally:
         _session_runtime()
@@ -92,15 +103,22 @@ def _per_launch(tasks, kernel):
 def test_serial_and_parallel_steps_agree(make):
     ser_s, iser = _run(make, True)
     (u_ser, p_ser, c_ser) = _state(ser_s)
-    tasks = []
-    (u_par, p_par, c_par), ipar = _parallel_run(make, tasks)
+    tasks, levels_tasks = [], []
+    (u_par, p_par, c_par), ipar = _parallel_run(make, tasks, levels_tasks if make is _bed_scene else None)
     if make is _bed_scene:
         # the parallel form's task structure (on CUDA each task is a kernel launch; a statement between two
         # top-level loops is a one-thread task of its own): a red-black level's launch down or up computes its
-        # constants once, then runs its 5 loops back to back (vcycle._level); the multigrid set-up its 4
-        for kernel, loops in (("k_down", 5), ("k_up", 5), ("k_coarsen", 4)):
-            n, serial, ranges = _per_launch(tasks, kernel)
-            assert n > 0 and (serial, ranges) == (n, loops * n), (kernel, n, serial, ranges)
+        # constants once, then runs its 5 loops back to back (vcycle._level); the multigrid set-up its 4; the
+        # levels below the first (4x4x8 down to 1x1x2 here) are one launch of one task (coarse_cycle.py), so the
+        # step launches no k_up, whose structure a solve without that cycle shows
+        for kernel, loops, names in (("k_down", 5, tasks), ("k_coarsen", 4, tasks), ("k_up", 5, levels_tasks),
+                                     ("k_coarse_cycle", 0, tasks)):
+            n, serial, ranges = _per_launch(names, kernel)
+            if loops == 0:
+                assert n > 0 and serial + ranges == n, (kernel, n, serial, ranges)
+            else:
+                assert n > 0 and (serial, ranges) == (n, loops * n), (kernel, n, serial, ranges)
+        assert _per_launch(tasks, "k_up")[0] == 0
     for a, b in zip(ipar, iser):
         # same control flow: the device-side stopping tests took the same decisions
         assert (a.pressure_iterations, a.viscous_sweeps, a.converged) == (b.pressure_iterations, b.viscous_sweeps,

@@ -208,3 +208,40 @@ def test_a_line_of_cells_is_solved_exactly_by_the_coarse_sweep():
     assert info.converged and np.all(np.isfinite(x))
     r = b.ravel() - _matrix(shape, ts, (False,) * 3) @ x.ravel()
     assert np.max(np.abs(r)) <= 1e-10 * np.max(np.abs(b))
+
+
+def test_the_coarse_levels_in_one_launch_give_the_launches_result():
+    """The coarse end of the V-cycle in one launch (app/sim/gas/coarse_cycle.py: on CUDA one block, whose threads
+    share each pass's cells and meet at a barrier between passes) runs the per-cell functions of the launch-per-
+    level V-cycle in the same passes, and a pass's cells do not depend on one another, so the solution is the same
+    to the bit, in as many iterations. Checked in the parallel form (the one CUDA runs) on one thread, and with 7
+    threads' shares taken in turn (what the barrier guarantees: the division of the cells a block makes, odd so
+    that shares end unevenly), on a Dirichlet box, a singular box (the coarsest solved by CG) and a box periodic
+    in x and y (wrapped stencils). The levels it takes: from 8x8x29 on the Verma grid, none above a Jacobi level
+    or a coarsest level smoothed in parallel, none in the serial form unless asked."""
+    cases = [((16, 16, 20), (False,) * 3, ("z+",), False), ((16, 16, 20), (False,) * 3, (), True),
+             ((16, 8, 24), (True, True, False), (), True)]
+    for shape, per, faces, singular in cases:
+        rng = np.random.default_rng(5)
+        ts = _system(shape, per, faces, coef=lambda a, fs: 0.1 + rng.random(fs))
+        b = rng.standard_normal(shape)
+        if singular:
+            b -= b.mean()
+        out = []
+        for block, mode in ((False, None), (True, (1, False, False)), (True, (7, True, False))):
+            mg = MGPCG(shape, per, serial=False, coarse_block=block)
+            if mode is not None:
+                assert mg.block_from == 1, shape
+                mg.block_mode = mode
+            mg.set_system(*ts, b=b, x0=0.0)
+            info = mg.solve(1e-9, 100, singular=singular)
+            assert info.converged, (shape, block, mode, info)
+            out.append((info.iterations, mg.solution()))
+        for its, x in out[1:]:
+            assert its == out[0][0] and np.array_equal(x, out[0][1]), shape
+        r = b.ravel() - _matrix(shape, ts, per) @ out[1][1].ravel()
+        assert np.max(np.abs(r)) <= 1e-9 * np.max(np.abs(b)), shape
+    assert MGPCG((32, 32, 116), serial=False).block_from == 2  # 8x8x29 (1856 cells) down to the 1x1x29 line
+    assert MGPCG((12, 12, 40), (True, False, False), serial=False).block_from is None  # 3x3x10: Jacobi
+    assert MGPCG((33, 33, 33), serial=False).block_from is None  # the coarsest smoothed in parallel
+    assert MGPCG((32, 32, 116), serial=True).block_from is None

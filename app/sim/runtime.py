@@ -164,6 +164,13 @@ def reset() -> None:
     _current = None
 
 
+def on_cuda() -> bool:
+    """True when the running Taichi program is on CUDA (``init('cuda')`` falls back to the CPU without a GPU)."""
+    from taichi.lang import impl
+
+    return _current is not None and impl.current_cfg().arch == ti.cuda
+
+
 def sync() -> None:
     """Wait for every launched kernel to finish (read the clock after this when timing kernels)."""
     ti.sync()

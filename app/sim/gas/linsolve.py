@@ -14,7 +14,7 @@ import taichi as ti
 
 from .. import runtime
 from . import multigrid as mgm
-from . import coarse, pcg, vcycle
+from . import coarse, coarse_cycle, pcg, vcycle
 from .pcg import SolveInfo, plan_levels
 from ..launch import view
 
@@ -32,7 +32,7 @@ class MGPCG:
 
     def __init__(self, shape: Sequence[int], periodic: Sequence[bool] = (False, False, False), *,
                  min_coarse_cells: int = 8, max_levels: int = 16, coarse_iterations: int | None = None,
-                 serial: bool | None = None):
+                 serial: bool | None = None, coarse_block: bool | None = None):
         self.shape = tuple(int(n) for n in shape)
         if len(self.shape) != 3 or min(self.shape) < 1:
             raise ValueError(f"grid shape must be three positive ints, got {shape!r}")
@@ -55,6 +55,14 @@ class MGPCG:
         # smoothed in parallel instead; the outer CG then needs more iterations (choose grid
         # dimensions with factors of 2 for multigrid efficiency)
         self.coarse_parallel = ncoarse > mgm.COARSE_SERIAL_MAX
+        # the small red-black levels above the coarsest in one launch (coarse_cycle.py): in the parallel form
+        # (CUDA: one block; several CPU threads: one thread), not on one CPU thread, where a launch is one task
+        # anyway; ``coarse_block`` False keeps a launch down and up per level (A/B), True asks for it in either form
+        use = (not self.serial) if coarse_block is None else bool(coarse_block)
+        self.block_from = self._block_from() if use else None
+        cuda = runtime.on_cuda()
+        #: (threads, emulate, barrier) of coarse_cycle.k_coarse_cycle: one block on CUDA, else one thread
+        self.block_mode = (coarse_cycle.BLOCK_THREADS, False, True) if cuda else (1, False, False)
         self._lev = ti.ndarray(ti.i32, shape=lev.shape)
         self._lev.from_numpy(lev)
         self._dval = _zeros(6)
@@ -80,6 +88,21 @@ class MGPCG:
         self._singular = False
         self._max_iter = 0
         self._launched = 0
+
+    def _block_from(self) -> int | None:
+        """The first level of the one-launch coarse cycle: the finest level m >= 1 such that levels m..L-1 are
+        red-black with at most ``coarse_cycle.MAX_CELLS`` cells, and the coarsest L is solved on one thread; None
+        if there is none (a coarsest level smoothed in parallel, no such level, or a Jacobi level just above
+        the coarsest)."""
+        L = self.nlevels - 1
+        if L < 2 or self.coarse_parallel:
+            return None
+        m = None
+        for l in range(L - 1, 0, -1):
+            if self.level_jacobi[l] or int(np.prod(self.level_shapes[l])) > coarse_cycle.MAX_CELLS:
+                break
+            m = l
+        return m
 
     # ---------------------------------------------------------------- host helpers
     def set_system(self, tx=None, ty=None, tz=None, b=None, x0=None) -> None:
@@ -127,16 +150,19 @@ class MGPCG:
         """(``iterate``: an outer CG iteration, then) z = one V-cycle of the residual, then the outer CG's
         new direction: a launch down and one up per level above the coarsest; the iteration rides on the
         first launch down, the coarsest solve on the last (when it is the one-thread solve after a
-        red-black level), the new direction on the last launch up, where those levels are red-black."""
+        red-black level), the new direction on the last launch up, where those levels are red-black. With a
+        coarse cycle (``block_from`` m), levels m..L are one launch (:func:`.coarse_cycle.k_coarse_cycle`)."""
         mg, vc = self.mg, self.vc
         L = self.nlevels - 1
         sg = int(self._singular)
         ser = self.serial
-        fused = L > 0 and not self.coarse_parallel and not self.level_jacobi[L - 1]
+        m = self.block_from
+        top = L if m is None else m  # the levels launched one by one
+        fused = m is None and L > 0 and not self.coarse_parallel and not self.level_jacobi[L - 1]
         first = L > 1 and not self.level_jacobi[0]  # level 0 red-black and not the last: k_iter_down
         if iterate and not first:
             pcg.k_pcg_iter(mg, self.ks, self._max_iter, ser)
-        for l in range(L):
+        for l in range(top):
             if self.level_jacobi[l]:
                 vcycle.k_down_j(mg, l, ser)
             elif fused and l == L - 1:
@@ -145,12 +171,14 @@ class MGPCG:
                 vcycle.k_iter_down(self._mg_iter, self._ks_down, self._max_iter, ser)
             else:
                 vcycle.k_down(vc, l, ser)
-        if self.coarse_parallel:
+        if m is not None:
+            coarse_cycle.k_coarse_cycle(mg, m, L, sg, *self.block_mode)
+        elif self.coarse_parallel:
             for k in range(mgm.COARSE_SMOOTH_SWEEPS):
                 vcycle.k_coarse_smooth(mg, L, int(k == 0), ser)
         elif not fused:
             coarse.k_coarse(mg, L, sg)
-        for l in reversed(range(L)):
+        for l in reversed(range(top)):
             if self.level_jacobi[l]:
                 vcycle.k_up_j(mg, l, ser)
             elif l == 0:

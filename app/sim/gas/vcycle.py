@@ -10,7 +10,9 @@ tasks); in the serial form (one CPU thread, ``serial`` True) the kernel's loops 
 and walk i, j, k as nested loops. Levels with an odd periodic length use damped Jacobi (:func:`k_down_j`, :func:`k_up_j`).
 Fusing several levels into one kernel (``ti.static`` unrolled, idle levels over zero cells) was tried
 and dropped: Taichi 1.7.4's compile time grows faster than the kernel (CPU, 16 x 16 x 32: 8 s for the
-whole solver with one level a launch, 21-39 s with two, 198 s with six).
+whole solver with one level a launch, 21-39 s with two, 198 s with six). In the parallel form the small levels
+at the coarse end run instead as one launch with a run-time level loop on one block (:mod:`.coarse_cycle`),
+through this module's per-cell functions (``first_red_at``, ``colour_at``, ``restrict_at``, ``prolong_at``).
 
 The arithmetic of the red-black path is the textbook one up to reorganisations that give the same
 values: a red sweep from x = 0 is x = b / diag on red cells (their neighbours are black, still 0), so the
@@ -189,45 +191,74 @@ def _level_pair(mg: ti.template(), l, act):
 @ti.func
 def _first_red_loop(mg: ti.template(), n: ti.template(), co: ti.template(), nc: ti.template()):
     for c in range(nc):
-        I = decode(n, c)
-        _red_cell(mg, co, c, (I[0] + I[1] + I[2]) % 2 == 0)
+        first_red_at(c, mg, n, co)
 
 
 @ti.func
 def _colour_loop(mg: ti.template(), n: ti.template(), fo: ti.template(), co: ti.template(), h2: ti.template(),
                  nq: ti.template(), colour: ti.template()):
     for q in range(nq):
-        ij = q // h2
-        I = ti.Vector([ij // n[1], ij % n[1], 0])
-        I[2] = 2 * (q % h2) + (I[0] + I[1] + colour) % 2
-        if I[2] < n[2]:
-            _gs_cell(mg, n, fo, co, I, local(n, I))
+        colour_at(q, mg, n, fo, co, h2, colour)
 
 
 @ti.func
 def _restrict_loop(mg: ti.template(), n: ti.template(), fo: ti.template(), co: ti.template(), r: ti.template(),
                    N: ti.template(), cb: ti.template(), NC: ti.template()):
     for C in range(NC):
-        K = decode(N, C)
-        s = 0.0
-        for d in range(8):
-            o = ti.Vector([d & 1, (d >> 1) & 1, (d >> 2) & 1])
-            if o[0] < r[0] and o[1] < r[1] and o[2] < r[2]:
-                I = K * r + o
-                c = local(n, I)
-                if mg.diag[co + c] > 0.0:
-                    _, _, ax = stencil(mg, n, fo, mg.xs, co, I, c, False)
-                    s += mg.bs[co + c] - ax
-        mg.bs[cb + C] = s
+        restrict_at(C, mg, n, fo, co, r, N, cb)
 
 
 @ti.func
 def _prolong_loop(mg: ti.template(), n: ti.template(), co: ti.template(), nc: ti.template(), r: ti.template(),
                   N: ti.template(), cb: ti.template()):
     for c in range(nc):
-        if mg.diag[co + c] > 0.0:
-            K = decode(n, c) // r
-            mg.xs[co + c] += mg.xs[cb + local(N, K)]
+        prolong_at(c, mg, n, co, r, N, cb)
+
+
+# One cell (or coarse cell, or colour-sweep index) of each of the loops above: the parallel form's loops and the
+# coarse levels' one-launch cycle (:mod:`.coarse_cycle`) run the same arithmetic through these.
+@ti.func
+def first_red_at(c, mg: ti.template(), n: ti.template(), co: ti.template()):
+    """Cell c of the level (dims n, cell offset co): x = 0, then x = b / diag if red (:func:`_first_red`)."""
+    I = decode(n, c)
+    _red_cell(mg, co, c, (I[0] + I[1] + I[2]) % 2 == 0)
+
+
+@ti.func
+def colour_at(q, mg: ti.template(), n: ti.template(), fo: ti.template(), co: ti.template(), h2: ti.template(),
+              colour: ti.template()):
+    """Index q of a sweep of one colour: column q // h2, the (q % h2)-th cell of that colour up it."""
+    ij = q // h2
+    I = ti.Vector([ij // n[1], ij % n[1], 0])
+    I[2] = 2 * (q % h2) + (I[0] + I[1] + colour) % 2
+    if I[2] < n[2]:
+        _gs_cell(mg, n, fo, co, I, local(n, I))
+
+
+@ti.func
+def restrict_at(C, mg: ti.template(), n: ti.template(), fo: ti.template(), co: ti.template(), r: ti.template(),
+                N: ti.template(), cb: ti.template()):
+    """Coarse cell C (level dims N, offset cb): b = the sum of its fine cells' residuals b - A x."""
+    K = decode(N, C)
+    s = 0.0
+    for d in range(8):
+        o = ti.Vector([d & 1, (d >> 1) & 1, (d >> 2) & 1])
+        if o[0] < r[0] and o[1] < r[1] and o[2] < r[2]:
+            I = K * r + o
+            c = local(n, I)
+            if mg.diag[co + c] > 0.0:
+                _, _, ax = stencil(mg, n, fo, mg.xs, co, I, c, False)
+                s += mg.bs[co + c] - ax
+    mg.bs[cb + C] = s
+
+
+@ti.func
+def prolong_at(c, mg: ti.template(), n: ti.template(), co: ti.template(), r: ti.template(), N: ti.template(),
+               cb: ti.template()):
+    """Fine cell c: x += x of the coarse cell it lies in."""
+    if mg.diag[co + c] > 0.0:
+        K = decode(n, c) // r
+        mg.xs[co + c] += mg.xs[cb + local(N, K)]
 
 
 # ============================================================================ kernels

@@ -1,0 +1,89 @@
+"""The coarse end of a V-cycle in one launch: every red-black level from ``m`` down, the coarsest solve and the
+way back up, as one task (:func:`k_coarse_cycle`), where :mod:`.vcycle` launches two kernels a level.
+
+Why: on CUDA every loop of a level's launch is a kernel launch of its own, each on Taichi's full launch width
+(8448 blocks on an H100) however few cells the level has, and every launch costs host time (tens of us with
+its arrays). The Verma grid's levels below 16 x 16 x 58 have 1856 cells or fewer, yet took 7 launches and about
+40 tasks a V-cycle, 8 V-cycles a step. Here one block of :data:`BLOCK_THREADS` threads runs them all: each pass
+over a level's cells (the first red sweep, a colour sweep, the restriction, the prolongation) gives thread t the
+cells t, t + T, t + 2T, ..., and a barrier (``ti.simt.block.sync``) separates passes, as a kernel boundary did.
+The levels are a run-time loop, so the kernel is compiled once whatever the hierarchy (levels unrolled with
+``ti.static`` compiled too slowly, :mod:`.vcycle`).
+
+The arithmetic is the launches': the same per-cell functions (``vcycle.first_red_at``, ``colour_at``,
+``restrict_at``, ``prolong_at``) in the same passes, and a colour's cells do not depend on one another, so the
+result is the same to the bit whatever thread takes which cell. Without a GPU the cycle runs on one thread (the
+parallel form on the CPU: one task instead of ~40); ``emulate`` walks the T threads' shares one after the other
+inside each pass, which is what the barrier guarantees, so the CPU tests check the threads' division of the cells.
+
+Used for levels m..L-1 when each is red-black and has at most :data:`MAX_CELLS` cells and the coarsest is solved on
+one thread (:meth:`app.sim.gas.linsolve.MGPCG.block_from`).
+"""
+import taichi as ti
+
+from ..launch import kernel
+from .coarse import coarse_solve
+from .multigrid import POST_SWEEPS, PRE_SWEEPS, Multigrid, on
+from .vcycle import _level_pair, colour_at, first_red_at, prolong_at, restrict_at
+
+#: threads of the one block on CUDA (256: any kernel's registers fit; 1024 would need at most 64 a thread)
+BLOCK_THREADS = 256
+#: the largest level (cells) the block cycles: 16 a thread and pass at 256 threads (Verma grid: from 8 x 8 x 29)
+MAX_CELLS = 4096
+
+
+@ti.func
+def _pass(t, nt: ti.template(), emulate: ti.template(), barrier: ti.template(), count, body: ti.template(),
+          args: ti.template()):
+    """``body(i, *args)`` for i in 0..count-1: thread t takes i = t, t + nt, ... (``emulate``: one thread takes
+    every thread's share in turn); then the block's barrier (``barrier``, CUDA only)."""
+    lo = t
+    hi = t + 1
+    if ti.static(emulate):
+        lo = 0
+        hi = nt
+    for tt in range(lo, hi):
+        for q in range((count - tt + nt - 1) // nt):
+            body(tt + q * nt, *args)
+    if ti.static(barrier):
+        ti.simt.block.sync()
+
+
+@ti.func
+def _cycle(mg: ti.template(), m, L, singular, t, nt: ti.template(), emulate: ti.template(), barrier: ti.template()):
+    """Levels m..L-1 down (x = 0 and a red sweep, black, red, black, restriction: ``vcycle._down``), the coarsest
+    level L's one-thread solve (thread 0), levels L-1..m up (prolongation, black, red, black, red:
+    ``vcycle._up``). Nothing once the solve has stopped (every count is x on)."""
+    act = on(mg)
+    for l in range(m, L):
+        n, fo, co, nc, h2, nq, r, N, cb, NC = _level_pair(mg, l, act)
+        _pass(t, nt, emulate, barrier, nc, first_red_at, (mg, n, co))
+        for s in range(2 * PRE_SWEEPS - 1):
+            _pass(t, nt, emulate, barrier, nq, colour_at, (mg, n, fo, co, h2, (s + 1) % 2))
+        _pass(t, nt, emulate, barrier, NC, restrict_at, (mg, n, fo, co, r, N, cb))
+    if t == 0:
+        coarse_solve(mg, L, singular, 1)
+    if ti.static(barrier):
+        ti.simt.block.sync()
+    for q in range(L - m):
+        l = L - 1 - q
+        n, fo, co, nc, h2, nq, r, N, cb, _ = _level_pair(mg, l, act)
+        _pass(t, nt, emulate, barrier, nc, prolong_at, (mg, n, co, r, N, cb))
+        for s in range(2 * POST_SWEEPS):
+            _pass(t, nt, emulate, barrier, nq, colour_at, (mg, n, fo, co, h2, (s + 1) % 2))
+
+
+@kernel
+def k_coarse_cycle(mg: Multigrid, m: ti.i32, L: ti.i32, singular: ti.i32, threads: ti.template(),
+                   emulate: ti.template(), barrier: ti.template()):
+    """Levels m..L (L the coarsest) of a V-cycle whose level m's right-hand side the launch before restricted.
+    ``barrier`` (CUDA): one block of ``threads`` threads; else one thread (``emulate``: taking the shares of
+    ``threads`` threads in turn, the division of the cells a block makes)."""
+    if ti.static(barrier):
+        ti.loop_config(block_dim=threads)
+        for t in range(threads):
+            _cycle(mg, m, L, singular, t, threads, False, True)
+    else:
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _cycle(mg, m, L, singular, 0, threads, emulate, False)
