@@ -74,7 +74,7 @@ def _residual(shape, ts, periodic, x, b):
     return float(np.max(np.abs(b.ravel() - A @ x.ravel())))
 
 
-def main() -> int:
+def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--arch", choices=("cpu", "cuda"), default="cpu")
     ap.add_argument("--precision", choices=("float32", "float64"), default="float64")
@@ -82,7 +82,7 @@ def main() -> int:
     ap.add_argument("--tol", type=float, default=1e-8)
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--dry", action="store_true")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     arch = runtime.init(args.arch, args.precision, threads=args.threads)
     from app.sim.gas.linsolve import MGPCG
 
