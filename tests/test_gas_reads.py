@@ -4,6 +4,7 @@ Counted with a test double around every read point (tests/kernel_counter.py): ea
 kernel that returns a value, each to_numpy() and each Python-scope element read of a field or
 ndarray, over every kernel of app.sim.
 """
+import dataclasses
 import sys
 
 import numpy as np
@@ -66,3 +67,36 @@ def test_one_gas_step_reads_one_value_back():
     # the accessors a recording probe reads: the void fraction as set, face velocities of the face shapes
     np.testing.assert_array_equal(s.void_fraction(), eps)
     assert [u.shape for u in s.face_velocities()] == [s.grid.face_shape(a) for a in range(3)]
+
+
+def test_viscous_launches_follow_the_last_step_and_a_shortfall_changes_nothing():
+    """The viscous sweeps stop themselves on the device; the host launches the later chunks only as far as the
+    last step's count and a margin (FlowSolver.VISCOUS_MARGIN), not to gas.max_viscous_sweeps. When a step's
+    sweeps outrun that, its projection is void, found at the step's one read, and redone after the remaining
+    launches: the step is then the one every launch would have given, to the bit. A viscous bed (mu = 1e-2 Pa s:
+    10-13 sweeps a step, 3 chunks) run with every launch, with the margin, and with a margin so short that every
+    step outruns it: the same velocities, pressures and step figures; the margin launches fewer chunks (counted)."""
+    def run(margin):
+        s, _ = _bed_scene((8, 8, 12))
+        cfg = s.config
+        s = gas.FlowSolver(dataclasses.replace(cfg, mu=1e-2))
+        s.set_eps(np.where(np.arange(12) < 5, 0.45, 1.0)[None, None, :] * np.ones((8, 8, 12)))
+        s.set_beta(np.where(np.arange(12) < 5, 1.5e4, 0.0)[None, None, :] * np.ones((8, 8, 12)))
+        s.VISCOUS_MARGIN = margin
+        infos, more = [], []
+        with KernelCounter(_sim_modules()) as kc:
+            for _ in range(4):
+                kc.reset()
+                infos.append(s.step(DT))
+                more.append(sum(c for k, c in kc.by_kernel.items() if k.endswith("k_visc_more")))
+        state = [u.copy() for u in s.face_velocities()] + [s.pressure().copy()]
+        return infos, more, state, s.viscous_retries
+
+    every, budget, short = run(None), run(2), run(-20)
+    assert all(8 < i.viscous_sweeps < 40 for i in every[0]), every[0]  # several chunks, below the cap
+    assert every[3] == 0 and short[3] >= 3, (every[3], short[3])  # each step after the first outran the short one
+    for other in (budget, short):
+        assert other[0] == every[0]  # the same StepInfo: sweeps, iterations, residuals to the bit
+        for a, b in zip(other[2], every[2]):
+            assert np.array_equal(a, b)
+    assert sum(budget[1][1:]) < sum(every[1][1:]), (budget[1], every[1])

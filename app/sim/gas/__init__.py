@@ -116,10 +116,11 @@ Modules (each kernel a function over named bundles, :mod:`.layout`; inputs first
 Implementation note: all solver state lives in bundles of Taichi ndarrays and the kernels are
 module-level, so they compile once per process for any grid; only the two copy kernels between the
 :class:`GasFields` bundle and the solver's bundles are compiled per solver. A step does not wait on
-the device: the viscous sweeps and the pressure iterations are launched in fixed batches whose
-stopping tests run on the device (a launch past convergence does nothing), and the host reads one
-record per step (:func:`app.sim.gas.projection.k_record`), a second only when the pressure solve
-outran its batch or a float32 refinement round is due.
+the device: the viscous sweeps and the pressure iterations are launched in batches sized from the last
+step's counts whose stopping tests run on the device (a launch past convergence does nothing), and the
+host reads one record per step (:func:`app.sim.gas.projection.k_record`), a second only when the pressure
+solve outran its batch, the viscous sweeps outran theirs (that projection is void and is redone) or a float32
+refinement round is due.
 
 Two compiled forms of every step kernel (a compile-time ``serial`` argument, :attr:`FlowSolver.serial`, set from
 :func:`app.sim.runtime.serial` at construction): on CUDA and several CPU threads each loop over faces or cells is a

@@ -14,7 +14,7 @@ from . import multigrid as mgm
 from .boundary import face_grad, grad_across, has_grad
 from .config import OUTLET
 from .layout import (P_H, P_RHO, P_TRACE, SC_CORR, SC_DMAX, SC_NSW, SC_SMAX, SC_SPRED, SC_SREF, SC_UMAX, SC_UOLD,
-                     Cells, Grid, Inputs, State, cell_max, cell_max2, cidx, each_cell, each_face, face_max, fdecode,
+                     SC_VACT, Cells, Grid, Inputs, State, cell_max, cell_max2, cidx, each_cell, each_face, face_max, fdecode,
                      fidx, is_boundary, solved)
 from .multigrid import Multigrid
 from .pcg import Krylov, solve_record
@@ -74,19 +74,22 @@ def k_build(g: Grid, inp: RateInputs, cl: PresCells, st: BuildState, mg: BuildMu
     """Outlet faces get their predicted velocity (not ``again``: a refinement round projects the
     corrected field once more); the pressure system's T and b into the linear solver's bundles; the
     residual scale of the solve (the gross-flux scale of the predicted field, or the reference scale
-    in a refinement round) into its control scalars."""
+    in a refinement round) into its control scalars. While the viscous sweeps still go on (the host launched
+    fewer than they took: ``FlowSolver`` then launches the rest and projects again) a void round: no face
+    written, b = 0 and x = 0, so the solve stops at once, and :func:`k_correct` does nothing."""
     one_task(serial, _build, (g, inp, cl, st, mg, ks, dt, again, serial))
 
 
 @ti.func
 def _build(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.template(), mg: ti.template(),
            ks: ti.template(), dt, again, serial: ti.template()):
-    nfo = g.nfaces
+    live = ti.cast(st.gsc[SC_VACT] == 0.0, ti.i32)  # 0: the predictor is not done (a void round)
+    nfo = g.nfaces * live
     if again:
         nfo = 0
     each_face(g, nfo, _outlet_at, (g, cl, st, dt), serial)
     each_face(g, nfo, _trans_at, (g, st, mg, dt), serial)  # a refinement round's are the first round's
-    st.gsc[SC_SMAX] = cell_max(g, 1, _rhs_at, (g, inp, st, ks), serial)
+    st.gsc[SC_SMAX] = cell_max(g, 1, _rhs_at, (g, inp, st, ks, live), serial)
     if not again:
         st.gsc[SC_SPRED] = st.gsc[SC_SMAX]
         st.gsc[SC_SREF] = st.gsc[SC_SMAX]
@@ -143,15 +146,15 @@ def _trans_at_in(g: ti.template(), st: ti.template(), mg: ti.template(), dt: ti.
 @ti.func
 def _rhs_at(c: ti.template(), I):
     """The pressure system's right-hand side at cell I (minus its net outflow rate); returns the gross-flux scale."""
-    return _rhs_at_in(c[0], c[1], c[2], c[3], I)
+    return _rhs_at_in(c[0], c[1], c[2], c[3], c[4], I)
 
 
 @ti.func
-def _rhs_at_in(g: ti.template(), inp: ti.template(), st: ti.template(), ks: ti.template(), I):
+def _rhs_at_in(g: ti.template(), inp: ti.template(), st: ti.template(), ks: ti.template(), live: ti.template(), I):
     ci = cidx(g, I)
     b = 0.0
     gross = 0.0
-    if g.open_vol[I] > 0.0:
+    if g.open_vol[I] > 0.0 and live == 1:
         net, gr = cell_balance(g, inp, st, st.vel, I)
         b = -net
         gross = gr
@@ -276,7 +279,7 @@ def k_correct(g: Grid, inp: RateInputs, mg: CtrlMultigrid, ks: SolKrylov, st: Co
 def _correct(g: ti.template(), inp: ti.template(), mg: ti.template(), ks: ti.template(), st: ti.template(),
              cl: ti.template(), dt, again, serial: ti.template()):
     on = 0
-    if mg.ctrl[mgm.S_DONE] > 0.0 and st.gsc[SC_CORR] == 0.0:
+    if mg.ctrl[mgm.S_DONE] > 0.0 and st.gsc[SC_CORR] == 0.0 and st.gsc[SC_VACT] == 0.0:  # not in a void round
         on = 1
     nf = g.nfaces * on
     each_face(g, nf, _project_at, (g, ks, st, dt, again), serial)
@@ -308,13 +311,14 @@ def _correct(g: ti.template(), inp: ti.template(), mg: ti.template(), ks: ti.tem
 
 # the record's f64: fixed at import, maybe before ti.init
 @kernel
-def k_record(st: RecordState, mg: CtrlMultigrid) -> ti.types.vector(12, ti.f64):
+def k_record(st: RecordState, mg: CtrlMultigrid) -> ti.types.vector(13, ti.f64):
     """The step record, read once per step: max|u_old|, max|u_new|, viscous sweeps, max|div|, the
     corrected field's flux scale, the reference scale, 1 once corrected, then the pressure solve's
-    (iterations, max|r|, converged, scale, initial max|r|)."""
+    (iterations, max|r|, converged, scale, initial max|r|), then 1 if the viscous sweeps still go on (a void
+    round, :func:`k_build`)."""
     r = solve_record(mg)
     return ti.Vector([st.gsc[SC_UOLD], st.gsc[SC_UMAX], st.gsc[SC_NSW], st.gsc[SC_DMAX], st.gsc[SC_SMAX],
-                      st.gsc[SC_SREF], st.gsc[SC_CORR], r[0], r[1], r[2], r[3], r[4]])
+                      st.gsc[SC_SREF], st.gsc[SC_CORR], r[0], r[1], r[2], r[3], r[4], st.gsc[SC_VACT]])
 
 
 @kernel
