@@ -108,10 +108,11 @@ def test_serial_and_parallel_steps_agree(make):
     if make is _bed_scene:
         # the parallel form's task structure (on CUDA each task is a kernel launch; a statement between two
         # top-level loops is a one-thread task of its own): a red-black level's launch down or up computes its
-        # constants once, then runs its 5 loops back to back (vcycle._level); the multigrid set-up its 4; the
-        # levels below the first (4x4x8 down to 1x1x2 here) are one launch of one task (coarse_cycle.py), so the
-        # step launches no k_up, whose structure a solve without that cycle shows
-        for kernel, loops, names in (("k_down", 5, tasks), ("k_coarsen", 4, tasks), ("k_up", 5, levels_tasks),
+        # constants once, then runs its loops back to back (passes.level_pair): 5 down, 4 up (the prolongation rides
+        # on the first sweep up); the multigrid set-up its 4; the levels below the first (4x4x8 down to 1x1x2
+        # here) are one launch of one task (coarse_cycle.py), so the step launches no k_up, whose structure a
+        # solve without that cycle shows
+        for kernel, loops, names in (("k_down", 5, tasks), ("k_coarsen", 4, tasks), ("k_up", 4, levels_tasks),
                                      ("k_coarse_cycle", 0, tasks)):
             n, serial, ranges = _per_launch(names, kernel)
             if loops == 0:

@@ -130,7 +130,7 @@ nested loops over (axis,) i, j, k instead of decoding a flat index by division (
 :func:`.layout.each_cell`). Both compute the same step up to the order of float sums (tests/test_gas_serial.py).
 In the parallel form a run of statements between two loops is a task too (one thread): the kernels launched many
 times a step (the V-cycle's levels, the viscous sweeps) compute their constants at their head and run their loops
-back to back through functions with template arguments (``vcycle._level``). Every max and sum of the step
+back to back through functions with template arguments (``passes.level_pair``). Every max and sum of the step
 accumulates in a kernel-scope variable (thread-local, then one atomic per warp on CUDA), never with an atomic per
 cell into an array element (``layout.face_max``).
 """

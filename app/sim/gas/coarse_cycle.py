@@ -10,8 +10,8 @@ cells t, t + T, t + 2T, ..., and a barrier (``ti.simt.block.sync``) separates pa
 The levels are a run-time loop, so the kernel is compiled once whatever the hierarchy (levels unrolled with
 ``ti.static`` compiled too slowly, :mod:`.vcycle`).
 
-The arithmetic is the launches': the same per-cell functions (``vcycle.first_red_at``, ``colour_at``,
-``restrict_at``, ``prolong_at``) in the same passes, and a colour's cells do not depend on one another, so the
+The arithmetic is the launches': the same per-cell functions (:mod:`.passes`: ``first_red_at``, ``colour_at``,
+``restrict_at``, ``prolong_black_at``) in the same passes, and a colour's cells do not depend on one another, so the
 result is the same to the bit whatever thread takes which cell. Without a GPU the cycle runs on one thread (the
 parallel form on the CPU: one task instead of ~40); ``emulate`` walks the T threads' shares one after the other
 inside each pass, which is what the barrier guarantees, so the CPU tests check the threads' division of the cells.
@@ -24,7 +24,7 @@ import taichi as ti
 from ..launch import kernel
 from .coarse import coarse_solve
 from .multigrid import POST_SWEEPS, PRE_SWEEPS, Multigrid, on
-from .vcycle import _level_pair, colour_at, first_red_at, prolong_at, restrict_at
+from .passes import colour_at, first_red_at, level_pair, prolong_black_at, restrict_at
 
 #: threads of the one block on CUDA (256: any kernel's registers fit; 1024 would need at most 64 a thread)
 BLOCK_THREADS = 256
@@ -52,11 +52,11 @@ def _pass(t, nt: ti.template(), emulate: ti.template(), barrier: ti.template(), 
 @ti.func
 def _cycle(mg: ti.template(), m, L, singular, t, nt: ti.template(), emulate: ti.template(), barrier: ti.template()):
     """Levels m..L-1 down (x = 0 and a red sweep, black, red, black, restriction: ``vcycle._down``), the coarsest
-    level L's one-thread solve (thread 0), levels L-1..m up (prolongation, black, red, black, red:
+    level L's one-thread solve (thread 0), levels L-1..m up (prolongation with black, red, black, red:
     ``vcycle._up``). Nothing once the solve has stopped (every count is x on)."""
     act = on(mg)
     for l in range(m, L):
-        n, fo, co, nc, h2, nq, r, N, cb, NC = _level_pair(mg, l, act)
+        n, fo, co, nc, h2, nq, r, N, cb, NC = level_pair(mg, l, act)
         _pass(t, nt, emulate, barrier, nc, first_red_at, (mg, n, co))
         for s in range(2 * PRE_SWEEPS - 1):
             _pass(t, nt, emulate, barrier, nq, colour_at, (mg, n, fo, co, h2, (s + 1) % 2))
@@ -67,9 +67,9 @@ def _cycle(mg: ti.template(), m, L, singular, t, nt: ti.template(), emulate: ti.
         ti.simt.block.sync()
     for q in range(L - m):
         l = L - 1 - q
-        n, fo, co, nc, h2, nq, r, N, cb, _ = _level_pair(mg, l, act)
-        _pass(t, nt, emulate, barrier, nc, prolong_at, (mg, n, co, r, N, cb))
-        for s in range(2 * POST_SWEEPS):
+        n, fo, co, nc, h2, nq, r, N, cb, _ = level_pair(mg, l, act)
+        _pass(t, nt, emulate, barrier, nq, prolong_black_at, (mg, n, fo, co, h2, r, N, cb))
+        for s in range(1, 2 * POST_SWEEPS):
             _pass(t, nt, emulate, barrier, nq, colour_at, (mg, n, fo, co, h2, (s + 1) % 2))
 
 

@@ -325,7 +325,7 @@ def face_colour_max_into(m: ti.template(), g: ti.template(), nf: ti.template(), 
                          body: ti.template(), ctx: ti.template(), serial: ti.template()):
     """The largest body(ctx, f, a, I) over the faces :func:`each_face_colour` visits, into the caller's variable
     ``m`` (by reference, as is every argument: a kernel that sets several accumulators first and then runs such
-    loops back to back makes no serial task between them in the parallel form; see vcycle.py, ``_level``)."""
+    loops back to back makes no serial task between them in the parallel form; see passes.py, ``level_pair``)."""
     each_face_colour(g, nf, colour, _face_max_body, (m, body, ctx), serial)
 
 

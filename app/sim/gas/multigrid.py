@@ -155,6 +155,14 @@ def stencil(mg: ti.template(), n, fo, v: ti.template(), vo, I, c, affine: ti.tem
     offsets fo (:func:`dims`, :func:`face_offsets`, taken once per loop by the caller) for the vector
     v[vo + local]. The face and neighbour indices are those of :func:`face` and :func:`local` written
     as offsets from c."""
+    return stencil_lifted(mg, n, fo, v, vo, I, c, affine, ())
+
+
+@ti.func
+def stencil_lifted(mg: ti.template(), n, fo, v: ti.template(), vo, I, c, affine: ti.template(), lift: ti.template()):
+    """:func:`stencil` (``lift`` = ()); with ``lift`` = (r, N, cb) each neighbour's value is first raised by the value of the coarse
+    cell (level dims N, cell offset cb, coarsening ratio r) it lies in, as the prolongation would store it
+    (x_nb + x_coarse, the same sum): a red-black sweep reads its neighbours prolonged without their being written."""
     xc = v[vo + c]
     stride = ti.Vector([n[1] * n[2], n[2], 1])
     # faces below cell I: x faces (F0 n1 + I1) n2 + I2 = c (+ n1 n2 above), y faces c + I0 n2 (+ n2),
@@ -170,14 +178,20 @@ def stencil(mg: ti.template(), n, fo, v: ti.template(), vo, I, c, affine: ti.tem
                 J = I
                 J[a] += 2 * side - 1
                 xn = 0.0
+                inside = 0
                 if J[a] >= 0 and J[a] < n[a]:
                     xn = v[vo + c + (2 * side - 1) * stride[a]]
+                    inside = 1
                 elif mg.periodic[a] == 1:
                     J[a] = (J[a] + n[a]) % n[a]
                     xn = v[vo + local(n, J)]
+                    inside = 1
                 else:
                     if ti.static(affine):
                         xn = mg.dirichlet[2 * a + side]
+                if ti.static(len(lift) == 3):
+                    if inside == 1:
+                        xn += v[lift[2] + local(lift[1], J // lift[0])]
                 d += t
                 s += t * xn
                 ax += t * (xc - xn)

@@ -213,7 +213,7 @@ def pcg_from_loops(mg: ti.template(), ks: ti.template(), singular: ti.template()
                    rzo: ti.template()):
     """The loops of :func:`pcg_from`, its counts (nc cells, nsing = nc or 0 for the mean) and accumulators
     (zero) set by the caller and passed by reference: a kernel whose loops come before sets them at its head,
-    so that in the parallel form no serial task separates its loops from these (``vcycle._level``)."""
+    so that in the parallel form no serial task separates its loops from these (``passes.level_pair``)."""
     _active_sum_into(total, cnt, mg, mg.xs, nsing)  # the mean a singular system's z loses
     for c in range(nc):
         m = 0.0

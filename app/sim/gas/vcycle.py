@@ -12,7 +12,7 @@ Fusing several levels into one kernel (``ti.static`` unrolled, idle levels over 
 and dropped: Taichi 1.7.4's compile time grows faster than the kernel (CPU, 16 x 16 x 32: 8 s for the
 whole solver with one level a launch, 21-39 s with two, 198 s with six). In the parallel form the small levels
 at the coarse end run instead as one launch with a run-time level loop on one block (:mod:`.coarse_cycle`),
-through this module's per-cell functions (``first_red_at``, ``colour_at``, ``restrict_at``, ``prolong_at``).
+through the per-cell functions the loops here use (:mod:`.passes`).
 
 The arithmetic of the red-black path is the textbook one up to reorganisations that give the same
 values: a red sweep from x = 0 is x = b / diag on red cells (their neighbours are black, still 0), so the
@@ -25,18 +25,11 @@ import taichi as ti
 from ..launch import kernel, narrowed
 from .pcg import Krylov, pcg_from, pcg_from_head, pcg_from_loops, pcg_iter
 from .multigrid import (JACOBI_WEIGHT, L_CO, L_NCELL, POST_SWEEPS, PRE_SWEEPS, Multigrid, VCycle, _ncell, _ratio,
-                        decode, dims, face_offsets, local, on, stencil)
+                        decode, dims, face_offsets, on, stencil)
+from .passes import (colour_at, first_red_at, gs_cell, level, level_pair, prolong_at, prolong_black_at, red_cell,
+                     restrict_at, sweep_range)
 from ..tasks import each_chunk, one_task
 from .coarse import coarse_solve
-
-
-@ti.func
-def _red_cell(mg: ti.template(), co, c, red):
-    x = 0.0
-    dg = mg.diag[co + c]
-    if red and dg > 0.0:
-        x = mg.bs[co + c] / dg
-    mg.xs[co + c] = x
 
 
 @ti.func
@@ -50,17 +43,10 @@ def _first_red(mg: ti.template(), l, act, serial: ti.template()):
             for j in range(n[1]):
                 cij = (i * n[1] + j) * n[2]
                 for k in range(n[2]):
-                    _red_cell(mg, co, cij + k, (i + j + k) % 2 == 0)
+                    red_cell(mg, co, cij + k, (i + j + k) % 2 == 0)
     else:
         nc = mg.lev[l, L_NCELL] * act
         _first_red_loop(mg, n, co, nc)
-
-
-@ti.func
-def _gs_cell(mg: ti.template(), n, fo, co, I, c):
-    if mg.diag[co + c] > 0.0:
-        d, s, _ = stencil(mg, n, fo, mg.xs, co, I, c, False)
-        mg.xs[co + c] = (mg.bs[co + c] + s) / d
 
 
 @ti.func
@@ -77,9 +63,9 @@ def _colour_sweep(mg: ti.template(), l, colour, act, serial: ti.template()):
                 cij = (i * n[1] + j) * n[2]
                 for kk in range((n[2] - k0 + 1) // 2):
                     k = k0 + 2 * kk
-                    _gs_cell(mg, n, fo, co, ti.Vector([i, j, k]), cij + k)
+                    gs_cell(mg, n, fo, co, ti.Vector([i, j, k]), cij + k)
     else:
-        h2, nq = _sweep_range(n, act)
+        h2, nq = sweep_range(n, act)
         _colour_loop(mg, n, fo, co, h2, nq, colour)
 
 
@@ -87,8 +73,8 @@ def _colour_sweep(mg: ti.template(), l, colour, act, serial: ti.template()):
 def _restrict_residual(mg: ti.template(), l, act):
     """b of level l+1 = the sum of the residuals b - A x of the fine cells each coarse cell covers."""
     r = _ratio(mg, l)
-    n, fo, co, _ = _level(mg, l, act)
-    N, _, cb, NC = _level(mg, l + 1, act)
+    n, fo, co, _ = level(mg, l, act)
+    N, _, cb, NC = level(mg, l + 1, act)
     _restrict_loop(mg, n, fo, co, r, N, cb, NC)
 
 
@@ -164,31 +150,6 @@ def _black_first(s, mg: ti.template(), l, act, serial: ti.template()):
 # are templates (passed by reference: no copy, no statement between the loops). The arithmetic is the serial
 # form's and the functions' above, loop for loop.
 @ti.func
-def _level(mg: ti.template(), l, act):
-    """(dims, face offsets, cell offset, cells x act) of level l."""
-    return dims(mg, l), face_offsets(mg, l), mg.lev[l, L_CO], mg.lev[l, L_NCELL] * act
-
-
-@ti.func
-def _sweep_range(n, act):
-    """(h2, nq) of a colour sweep on a level of dims n: half a column's cells rounded up, and the loop's count
-    (x act) over (column, every other k)."""
-    h2 = (n[2] + 1) // 2
-    return h2, n[0] * n[1] * h2 * act
-
-
-@ti.func
-def _level_pair(mg: ti.template(), l, act):
-    """Every constant a red-black level's launch down (:func:`_down`) or up (:func:`_up`) uses: level l's
-    (dims, face offsets, cell offset, cells x act, :func:`_sweep_range`), its coarsening ratio, and level l+1's
-    (dims, cell offset, cells x act)."""
-    n, fo, co, nc = _level(mg, l, act)
-    h2, nq = _sweep_range(n, act)
-    N, _, cb, NC = _level(mg, l + 1, act)
-    return n, fo, co, nc, h2, nq, _ratio(mg, l), N, cb, NC
-
-
-@ti.func
 def _first_red_loop(mg: ti.template(), n: ti.template(), co: ti.template(), nc: ti.template()):
     for c in range(nc):
         first_red_at(c, mg, n, co)
@@ -215,50 +176,11 @@ def _prolong_loop(mg: ti.template(), n: ti.template(), co: ti.template(), nc: ti
         prolong_at(c, mg, n, co, r, N, cb)
 
 
-# One cell (or coarse cell, or colour-sweep index) of each of the loops above: the parallel form's loops and the
-# coarse levels' one-launch cycle (:mod:`.coarse_cycle`) run the same arithmetic through these.
 @ti.func
-def first_red_at(c, mg: ti.template(), n: ti.template(), co: ti.template()):
-    """Cell c of the level (dims n, cell offset co): x = 0, then x = b / diag if red (:func:`_first_red`)."""
-    I = decode(n, c)
-    _red_cell(mg, co, c, (I[0] + I[1] + I[2]) % 2 == 0)
-
-
-@ti.func
-def colour_at(q, mg: ti.template(), n: ti.template(), fo: ti.template(), co: ti.template(), h2: ti.template(),
-              colour: ti.template()):
-    """Index q of a sweep of one colour: column q // h2, the (q % h2)-th cell of that colour up it."""
-    ij = q // h2
-    I = ti.Vector([ij // n[1], ij % n[1], 0])
-    I[2] = 2 * (q % h2) + (I[0] + I[1] + colour) % 2
-    if I[2] < n[2]:
-        _gs_cell(mg, n, fo, co, I, local(n, I))
-
-
-@ti.func
-def restrict_at(C, mg: ti.template(), n: ti.template(), fo: ti.template(), co: ti.template(), r: ti.template(),
-                N: ti.template(), cb: ti.template()):
-    """Coarse cell C (level dims N, offset cb): b = the sum of its fine cells' residuals b - A x."""
-    K = decode(N, C)
-    s = 0.0
-    for d in range(8):
-        o = ti.Vector([d & 1, (d >> 1) & 1, (d >> 2) & 1])
-        if o[0] < r[0] and o[1] < r[1] and o[2] < r[2]:
-            I = K * r + o
-            c = local(n, I)
-            if mg.diag[co + c] > 0.0:
-                _, _, ax = stencil(mg, n, fo, mg.xs, co, I, c, False)
-                s += mg.bs[co + c] - ax
-    mg.bs[cb + C] = s
-
-
-@ti.func
-def prolong_at(c, mg: ti.template(), n: ti.template(), co: ti.template(), r: ti.template(), N: ti.template(),
-               cb: ti.template()):
-    """Fine cell c: x += x of the coarse cell it lies in."""
-    if mg.diag[co + c] > 0.0:
-        K = decode(n, c) // r
-        mg.xs[co + c] += mg.xs[cb + local(N, K)]
+def _prolong_black_loop(mg: ti.template(), n: ti.template(), fo: ti.template(), co: ti.template(), h2: ti.template(),
+                        nq: ti.template(), r: ti.template(), N: ti.template(), cb: ti.template()):
+    for q in range(nq):
+        prolong_black_at(q, mg, n, fo, co, h2, r, N, cb)
 
 
 # ============================================================================ kernels
@@ -269,8 +191,8 @@ def _down(mg: ti.template(), l, serial: ti.template()):
         _first_red(mg, l, act, serial)
         each_chunk(serial, 2 * PRE_SWEEPS - 1, _black_first, (mg, l, act, serial))  # black, red, black
         _restrict_residual(mg, l, act)
-    else:  # the same loops, the constants first (see _level)
-        n, fo, co, nc, h2, nq, r, N, cb, NC = _level_pair(mg, l, act)
+    else:  # the same loops, the constants first (see passes.level_pair)
+        n, fo, co, nc, h2, nq, r, N, cb, NC = level_pair(mg, l, act)
         _first_red_loop(mg, n, co, nc)
         for s in ti.static(range(2 * PRE_SWEEPS - 1)):  # black, red, black
             _colour_loop(mg, n, fo, co, h2, nq, (s + 1) % 2)
@@ -322,10 +244,10 @@ def _up(mg: ti.template(), l, serial: ti.template()):
     if ti.static(serial):
         _prolong(mg, l, act, serial)
         each_chunk(serial, 2 * POST_SWEEPS, _black_first, (mg, l, act, serial))  # black, red, black, red
-    else:  # the same loops, the constants first (see _level)
-        n, fo, co, nc, h2, nq, r, N, cb, _ = _level_pair(mg, l, act)
-        _prolong_loop(mg, n, co, nc, r, N, cb)
-        for s in ti.static(range(2 * POST_SWEEPS)):  # black, red, black, red
+    else:  # the same loops, the constants first (see passes.level_pair); the prolongation rides on the first sweep
+        n, fo, co, nc, h2, nq, r, N, cb, _ = level_pair(mg, l, act)
+        _prolong_black_loop(mg, n, fo, co, h2, nq, r, N, cb)
+        for s in ti.static(range(1, 2 * POST_SWEEPS)):  # red, black, red
             _colour_loop(mg, n, fo, co, h2, nq, (s + 1) % 2)
 
 
@@ -340,7 +262,7 @@ def _up_from(mg: ti.template(), ks: ti.template(), singular, serial: ti.template
     if ti.static(serial):
         _up(mg, 0, serial)
         pcg_from(mg, ks, singular)
-    else:  # pcg_from's counts and accumulators at the head, with _up's constants (see _level)
+    else:  # pcg_from's counts and accumulators at the head, with _up's constants (see passes.level_pair)
         nc, nsing, total, cnt, rzn, rzo = pcg_from_head(mg, singular)
         _up(mg, 0, serial)
         pcg_from_loops(mg, ks, singular, nc, nsing, total, cnt, rzn, rzo)
