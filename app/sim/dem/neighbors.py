@@ -91,16 +91,13 @@ def bin_by_cell(model: ti.template(), state: ti.template(), nlist: ti.template()
     n_blocks = g * nb
     for c in range(n_cells):
         nlist.cell_start[c] = 0
-    for i in range(n_grains):
+        if c < nb:
+            nlist.block_sum[c] = 0
+    for i in range(n_grains):  # each cell's count, and each block's (integers: the same sums in any order)
         if state.alive[i]:
-            ti.atomic_add(nlist.cell_start[cell_index(model, cell_of(model, state.x[i]))], 1)
-    for b in range(n_blocks):
-        total = 0
-        for t in range(SCAN_BLOCK):
-            c = b * SCAN_BLOCK + t
-            if c < model.n_cells:
-                total += nlist.cell_start[c]
-        nlist.block_sum[b] = total
+            ci = cell_index(model, cell_of(model, state.x[i]))
+            ti.atomic_add(nlist.cell_start[ci], 1)
+            ti.atomic_add(nlist.block_sum[ci // SCAN_BLOCK], 1)
     ti.loop_config(serialize=True)
     for _ in range(g):
         run = 0
@@ -129,14 +126,16 @@ def bin_by_cell(model: ti.template(), state: ti.template(), nlist: ti.template()
 @ti.func
 def rebuild_if_flagged(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                        nlist: ti.template()):
-    """The whole rebuild as top-level loops of the calling kernel; each runs empty unless flagged."""
+    """The whole rebuild as top-level loops of the calling kernel; each runs empty unless flagged. The flag is
+    cleared (and the build counted) by the rows' first item: the loop's count was taken before it, nothing in the
+    loop reads the flag, and only the integration after it raises the flag again (a one-thread task of its own
+    after the loop cost a launch a substep on CUDA)."""
     bin_by_cell(model, state, nlist, True)
     for i in range(nlist.counters[REBUILD] * model.n):
+        if i == 0:
+            nlist.counters[BUILDS] += 1
+            nlist.counters[REBUILD] = 0
         build_row(model, sizes, state, history, nlist, i)
-    ti.loop_config(serialize=True)
-    for _ in range(nlist.counters[REBUILD]):
-        nlist.counters[BUILDS] += 1
-        nlist.counters[REBUILD] = 0
 
 
 @ti.func
