@@ -15,7 +15,7 @@
 # grid_ab (the gas step and the DEM substep with Taichi's CUDA launch width saturating_grid_dim at its default,
 # 2112 and 1056 blocks: A/B in one call), gas_profile (the same scene under Taichi's kernel profiler: each kernel's tasks and device time per step, sorted),
 # coarse (the pressure V-cycle's coarse levels in one launch, one block on CUDA, checked against a launch per
-# level and timed without it), series (issue 21: verma_small on the GPU, its summary.json wall_split with the callbacks' share, then the host
+# level: run it first), coarse_ab (the gas step timed without that cycle), series (issue 21: verma_small on the GPU, its summary.json wall_split with the callbacks' share, then the host
 # reads per fluid step of its first 0.1 s, the step's and the callbacks', by benchmarks/series_reads.py).
 # Before a call that runs the cavity or the Verma analysis: `mkdir -p runs && cp -r ../shared/reference runs/`
 # here, and carry [".devkit", "runs/reference"] (../shared is not copied to the device).
@@ -62,12 +62,13 @@ for stage in "$@"; do
         TI_SATURATING_GRID_DIM=$gd $T python3 benchmarks/dem_substep.py --arch cuda --sizes 1000000 --substeps 300 \
           --repeats 3 --diag-calls 10; done ;;
     coarse)  # the coarse levels of the pressure V-cycle in one launch (app/sim/gas/coarse_cycle.py): on CUDA one block
-      # whose threads meet at barriers, a path no CPU test can run. First the same systems solved with it and with a
-      # launch per level (equal iterations, solutions equal to round-off, scipy's residual; exits 1 if not), then
-      # the gas step without it (gas_profile and gas time it with it): ~1 minute
+      # whose threads meet at barriers, a path no CPU test can run: the same systems solved with it and with a launch
+      # per level (equal iterations, solutions equal to round-off, scipy's residual; exits 1, and the call stops, if
+      # not); ~30 s. Run it first: every later gas step on CUDA uses that cycle
       $T bash -c 'python3 benchmarks/coarse_cycle_check.py --arch cuda --precision float64 &&
-        python3 benchmarks/coarse_cycle_check.py --arch cuda --precision float32 --tol 1e-5 &&
-        python3 benchmarks/flow_throughput.py --arch cuda --grids 32x32x116 32x32x64 --steps 30 --warmup 5 \
+        python3 benchmarks/coarse_cycle_check.py --arch cuda --precision float32 --tol 1e-5' ;;
+    coarse_ab)  # the gas step without that cycle (a launch down and up per level), to set against gas / gas_profile
+      $T bash -c 'python3 benchmarks/flow_throughput.py --arch cuda --grids 32x32x116 32x32x64 --steps 30 --warmup 5 \
           --coarse-block off && python3 benchmarks/gas_counts.py --arch cuda --grids 32x32x116 --coarse-block off \
           --label "coarse block off"' ;;
     gas_profile)  # where the gas step's time goes on the device: per kernel, tasks and summed task time a step
