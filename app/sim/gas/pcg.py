@@ -228,17 +228,17 @@ def pcg_from_loops(mg: ti.template(), ks: ti.template(), singular: ti.template()
         r = ks.res[c]
         rzn += r * z
         rzo += r * zo
+    for c in range(nc):  # the sums read where they were reduced: no one-thread task to store them between the loops
+        beta = 0.0
+        if mg.ctrl[S_FIRST] == 0.0 and mg.ctrl[S_RZ] != 0.0:
+            beta = (rzn - rzo) / mg.ctrl[S_RZ]
+        ks.dirn[c] = ks.prec[c] + beta * ks.dirn[c]
     mg.ctrl[S_SUM] = total
     mg.ctrl[S_CNT] = cnt
     mg.ctrl[S_RZN] = rzn
     mg.ctrl[S_RZO] = rzo
-    for c in range(nc):
-        beta = 0.0
-        if mg.ctrl[S_FIRST] == 0.0 and mg.ctrl[S_RZ] != 0.0:
-            beta = (mg.ctrl[S_RZN] - mg.ctrl[S_RZO]) / mg.ctrl[S_RZ]
-        ks.dirn[c] = ks.prec[c] + beta * ks.dirn[c]
     if nc > 0:
-        mg.ctrl[S_RZ] = mg.ctrl[S_RZN]
+        mg.ctrl[S_RZ] = rzn
 
 
 @kernel
@@ -267,7 +267,8 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.template
     fo = mgm.face_offsets(mg, 0)
     nc = mg.ncell0 * on(mg)
     pap = 0.0
-    rmax = 0.0  # both accumulators ahead of the loops, which run back to back (parallel form: no serial task between)
+    rmax = 0.0  # the accumulators ahead of the loops, which run back to back (parallel form: no serial task between)
+    rtrue = 0.0
     if ti.static(serial):  # nested loops over i, j, k: no index decoding by division
         for i in range(n[0] * on(mg)):
             for j in range(n[1]):
@@ -287,6 +288,12 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.template
         mg.bs[c] = r
         if mg.diag[c] > 0.0:
             ti.atomic_max(rmax, ti.abs(r))
+    if ti.static(not serial):
+        # the recursively updated residual drifts from b - A x in float32: where it meets the threshold (each
+        # thread tests it: no one-thread task between the loops), the true one is measured
+        for c in range(nc):
+            if rmax <= mg.ctrl[S_THR]:
+                ti.atomic_max(rtrue, _true_residual_cell(mg, ks, n, fo, decode(n, c), c))
     mg.ctrl[S_PAP] = pap
     mg.ctrl[S_TRUE] = rmax
     cand = 0
@@ -296,8 +303,10 @@ def pcg_iter(mg: ti.template(), ks: ti.template(), max_iter, serial: ti.template
         mg.ctrl[S_FIRST] = 0.0
         if mg.ctrl[S_RINF] <= mg.ctrl[S_THR]:
             cand = 1
-    # the recursively updated residual drifts from b - A x in float32: confirm with the true one
-    _true_residual(mg, ks, mg.ncell0 * cand, serial)
+    if ti.static(serial):
+        _true_residual(mg, ks, mg.ncell0 * cand, serial)
+    else:
+        mg.ctrl[S_TRUE] = rtrue  # what _true_residual stores: 0 where not measured
     if cand == 1:
         t = mg.ctrl[S_TRUE]
         mg.ctrl[S_RINF] = t
