@@ -131,11 +131,12 @@ def rebuild_if_flagged(model: ti.template(), sizes: ti.template(), state: ti.tem
     loop reads the flag, and only the integration after it raises the flag again (a one-thread task of its own
     after the loop cost a launch a substep on CUDA)."""
     bin_by_cell(model, state, nlist, True)
-    for i in range(nlist.counters[REBUILD] * model.n):
+    for i in range(nlist.counters[REBUILD] * ti.static(max(model.n, 1))):  # (one item with no grains: the flag)
         if i == 0:
             nlist.counters[BUILDS] += 1
             nlist.counters[REBUILD] = 0
-        build_row(model, sizes, state, history, nlist, i)
+        if ti.static(model.n > 0):
+            build_row(model, sizes, state, history, nlist, i)
 
 
 @ti.func
