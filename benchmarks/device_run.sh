@@ -63,8 +63,8 @@ for stage in "$@"; do
           --repeats 3 --diag-calls 10; done ;;
     coarse)  # the coarse levels of the pressure V-cycle in one launch (app/sim/gas/coarse_cycle.py): on CUDA one block
       # whose threads meet at barriers, a path no CPU test can run: the same systems solved with it and with a launch
-      # per level (equal iterations, solutions equal to round-off, scipy's residual; exits 1, and the call stops, if
-      # not); ~30 s. Run it first: every later gas step on CUDA uses that cycle
+      # per level (equal iterations, solutions equal to round-off, scipy's residual); ~30 s. Run it first: every later
+      # gas step on CUDA uses that cycle, and where the check fails the later stages of the call run without it
       $T bash -c 'python3 benchmarks/coarse_cycle_check.py --arch cuda --precision float64 &&
         python3 benchmarks/coarse_cycle_check.py --arch cuda --precision float32 --tol 1e-5' ;;
     coarse_ab)  # the gas step without that cycle (a launch down and up per level), to set against gas / gas_profile
@@ -152,9 +152,10 @@ for stage in "$@"; do
   esac > "$L/$stage.log" 2>&1
   rc=$?
   echo "$stage: exit $rc in $(( $(date +%s) - start )) s" | tee -a "$L/stages.txt"
-  if [ "$stage" = coarse ] && [ $rc -ne 0 ]; then  # every gas step on CUDA runs that cycle: stop before it is trusted
-    echo "coarse: the one-launch coarse cycle failed its check on CUDA: later stages skipped" | tee -a "$L/stages.txt"
-    break
+  if [ "$stage" = coarse ] && [ $rc -ne 0 ]; then  # every later gas step on CUDA would run that cycle: not trusted
+    export FBED_COARSE_CELLS=0  # a launch down and up per level instead (the same results; app/sim/gas/coarse_cycle.py)
+    echo "coarse: the one-launch coarse cycle failed its check on CUDA: later stages run without it" \
+      "(FBED_COARSE_CELLS=0)" | tee -a "$L/stages.txt"
   fi
 done
 cp benchmarks/RESULTS.md $L/RESULTS.md

@@ -245,3 +245,17 @@ def test_the_coarse_levels_in_one_launch_give_the_launches_result():
     assert MGPCG((12, 12, 40), (True, False, False), serial=False).block_from is None  # 3x3x10: Jacobi
     assert MGPCG((33, 33, 33), serial=False).block_from is None  # the coarsest smoothed in parallel
     assert MGPCG((32, 32, 116), serial=True).block_from is None
+
+
+def test_the_coarse_cycle_can_be_turned_off_from_the_environment(monkeypatch):
+    """FBED_COARSE_CELLS (for a device whose check of the CUDA cycle failed, benchmarks/device_run.sh): 0 gives a
+    launch down and up per level, a number the largest level the cycle takes, anything else a clear error."""
+    from app.config.errors import ConfigError
+
+    monkeypatch.setenv("FBED_COARSE_CELLS", "0")
+    assert MGPCG((32, 32, 116), serial=False).block_from is None
+    monkeypatch.setenv("FBED_COARSE_CELLS", "500")  # 4x4x29 (464 cells) and below
+    assert MGPCG((32, 32, 116), serial=False).block_from == 3
+    monkeypatch.setenv("FBED_COARSE_CELLS", "many")
+    with pytest.raises(ConfigError, match="FBED_COARSE_CELLS"):
+        MGPCG((32, 32, 116), serial=False)

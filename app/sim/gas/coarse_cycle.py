@@ -19,8 +19,11 @@ inside each pass, which is what the barrier guarantees, so the CPU tests check t
 Used for levels m..L-1 when each is red-black and has at most :data:`MAX_CELLS` cells and the coarsest is solved on
 one thread (:meth:`app.sim.gas.linsolve.MGPCG.block_from`).
 """
+import os
+
 import taichi as ti
 
+from ...config.errors import ConfigError
 from ..launch import kernel
 from .coarse import coarse_solve
 from .multigrid import POST_SWEEPS, PRE_SWEEPS, Multigrid, on
@@ -30,6 +33,23 @@ from .passes import colour_at, first_red_at, level_pair, prolong_black_at, restr
 BLOCK_THREADS = 256
 #: the largest level (cells) the block cycles: 16 a thread and pass at 256 threads (Verma grid: from 8 x 8 x 29)
 MAX_CELLS = 4096
+
+
+def max_cells() -> int:
+    """:data:`MAX_CELLS`, or the environment's ``FBED_COARSE_CELLS`` where set (0: no level qualifies, a launch down
+    and up per level, the same results; for a device whose check of this cycle failed, benchmarks/device_run.sh)."""
+    v = os.environ.get("FBED_COARSE_CELLS", "").strip()
+    if not v:
+        return MAX_CELLS
+    try:
+        n = int(v)
+    except ValueError:
+        n = -1
+    if n < 0:
+        raise ConfigError("not a whole number of cells >= 0", "environment", "FBED_COARSE_CELLS",
+                          hint=f"0 turns the pressure solver's one-launch coarse cycle off (a launch down and up per "
+                               f"level, the same results); unset it for the default, {MAX_CELLS}")
+    return n
 
 
 @ti.func

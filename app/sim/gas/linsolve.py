@@ -91,15 +91,16 @@ class MGPCG:
 
     def _block_from(self) -> int | None:
         """The first level of the one-launch coarse cycle: the finest level m >= 1 such that levels m..L-1 are
-        red-black with at most ``coarse_cycle.MAX_CELLS`` cells, and the coarsest L is solved on one thread; None
+        red-black with at most ``coarse_cycle.max_cells()`` cells, and the coarsest L is solved on one thread; None
         if there is none (a coarsest level smoothed in parallel, no such level, or a Jacobi level just above
         the coarsest)."""
         L = self.nlevels - 1
         if L < 2 or self.coarse_parallel:
             return None
         m = None
+        limit = coarse_cycle.max_cells()
         for l in range(L - 1, 0, -1):
-            if self.level_jacobi[l] or int(np.prod(self.level_shapes[l])) > coarse_cycle.MAX_CELLS:
+            if self.level_jacobi[l] or int(np.prod(self.level_shapes[l])) > limit:
                 break
             m = l
         return m
