@@ -5,8 +5,9 @@ Why: on CUDA every loop of a level's launch is a kernel launch of its own, each 
 (8448 blocks on an H100) however few cells the level has, and every launch costs host time (tens of us with
 its arrays). The Verma grid's levels below 16 x 16 x 58 have 1856 cells or fewer, yet took 7 launches and about
 40 tasks a V-cycle, 8 V-cycles a step. Here one block of :data:`BLOCK_THREADS` threads runs them all: each pass
-over a level's cells (the first red sweep, a colour sweep, the restriction, the prolongation) gives thread t the
-cells t, t + T, t + 2T, ..., and a barrier (``ti.simt.block.sync``) separates passes, as a kernel boundary did.
+over a level's cells (the first red sweep, a colour sweep, the restriction, the prolongation with the first sweep
+up) gives thread t the cells t, t + T, t + 2T, ..., and a barrier (``ti.simt.block.sync``) separates passes, as a
+kernel boundary did.
 The levels are a run-time loop, so the kernel is compiled once whatever the hierarchy (levels unrolled with
 ``ti.static`` compiled too slowly, :mod:`.vcycle`).
 
@@ -16,8 +17,8 @@ result is the same to the bit whatever thread takes which cell. Without a GPU th
 parallel form on the CPU: one task instead of ~40); ``emulate`` walks the T threads' shares one after the other
 inside each pass, which is what the barrier guarantees, so the CPU tests check the threads' division of the cells.
 
-Used for levels m..L-1 when each is red-black and has at most :data:`MAX_CELLS` cells and the coarsest is solved on
-one thread (:meth:`app.sim.gas.linsolve.MGPCG.block_from`).
+Used for levels m..L-1 when each is red-black and has at most :func:`max_cells` cells and the coarsest is solved on
+one thread (``MGPCG.block_from``, :mod:`app.sim.gas.linsolve`).
 """
 import os
 
