@@ -16,10 +16,10 @@ import sys
 import time
 
 import numpy as np
-import scipy.sparse as sp
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 from app.bench.common import append_results  # noqa: E402
+from app.bench.poisson import cell_operator  # noqa: E402
 from app.sim import runtime  # noqa: E402
 
 # (shape, periodic axes, singular): the Verma grid (block from 8x8x29), a Neumann box (the coarsest by CG), a
@@ -52,26 +52,7 @@ def _system(shape, periodic, singular, rng):
 
 def _residual(shape, ts, periodic, x, b):
     """max |b - A x| with A assembled by scipy (Dirichlet outside value 0)."""
-    n = int(np.prod(shape))
-    idx = np.arange(n).reshape(shape)
-    rows, cols, vals, diag = [], [], [], np.zeros(n)
-    for a in range(3):
-        t, na = ts[a], shape[a]
-        pairs = [(f, f - 1, f) for f in range(1, na)] + ([(0, na - 1, 0)] if periodic[a] and na > 1 else [])
-        for f, c0, c1 in pairs:
-            tf = np.take(t, f, axis=a).ravel()
-            i0, i1 = np.take(idx, c0, axis=a).ravel(), np.take(idx, c1, axis=a).ravel()
-            rows += [i0, i1]
-            cols += [i1, i0]
-            vals += [-tf, -tf]
-            np.add.at(diag, i0, tf)
-            np.add.at(diag, i1, tf)
-        if not periodic[a]:
-            np.add.at(diag, np.take(idx, 0, axis=a).ravel(), np.take(t, 0, axis=a).ravel())
-            np.add.at(diag, np.take(idx, na - 1, axis=a).ravel(), np.take(t, na, axis=a).ravel())
-    A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
-    A = A + sp.diags(diag)
-    return float(np.max(np.abs(b.ravel() - A @ x.ravel())))
+    return float(np.max(np.abs(b.ravel() - cell_operator(shape, ts, periodic) @ x.ravel())))
 
 
 def main(argv=None) -> int:

@@ -2,9 +2,9 @@
 checked against an independent scipy residual, and grid-independent iteration counts."""
 import numpy as np
 import pytest
-import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from app.bench.poisson import cell_operator
 from app.sim.gas.linsolve import MGPCG, plan_levels
 
 pytestmark = pytest.mark.verification
@@ -33,41 +33,6 @@ def _system(shape, periodic=(False, False, False), dirichlet_faces=("z+",), coef
     return ts
 
 
-def _matrix(shape, ts, periodic):
-    """The same operator assembled with scipy (independent of the Taichi code)."""
-    n = int(np.prod(shape))
-    idx = np.arange(n).reshape(shape)
-    rows, cols, vals = [], [], []
-    diag = np.zeros(n)
-    for a in range(3):
-        t = ts[a]
-        na = shape[a]
-        # interior faces 1..na-1 join cells f-1 and f
-        for f in range(1, na):
-            tf = np.take(t, f, axis=a).ravel()
-            i0 = np.take(idx, f - 1, axis=a).ravel()
-            i1 = np.take(idx, f, axis=a).ravel()
-            rows += [i0, i1]
-            cols += [i1, i0]
-            vals += [-tf, -tf]
-            np.add.at(diag, i0, tf)
-            np.add.at(diag, i1, tf)
-        if periodic[a] and na > 1:
-            tf = np.take(t, 0, axis=a).ravel()
-            i0 = np.take(idx, na - 1, axis=a).ravel()
-            i1 = np.take(idx, 0, axis=a).ravel()
-            rows += [i0, i1]
-            cols += [i1, i0]
-            vals += [-tf, -tf]
-            np.add.at(diag, i0, tf)
-            np.add.at(diag, i1, tf)
-        elif not periodic[a]:
-            np.add.at(diag, np.take(idx, 0, axis=a).ravel(), np.take(t, 0, axis=a).ravel())
-            np.add.at(diag, np.take(idx, na - 1, axis=a).ravel(), np.take(t, na, axis=a).ravel())
-    A = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
-    return A + sp.diags(diag)
-
-
 def _solve(shape, tol, periodic=(False, False, False), dirichlet_faces=("z+",), coef=None, seed=0, singular=False):
     rng = np.random.default_rng(seed)
     ts = _system(shape, periodic, dirichlet_faces, coef)
@@ -89,7 +54,7 @@ def test_iterations_flat_under_refinement():
         shape = (n, n, n)
         mg, info, ts, b = _solve(shape, 1e-8)
         assert info.converged
-        A = _matrix(shape, ts, (False, False, False))
+        A = cell_operator(shape, ts, (False, False, False))
         r = b.ravel() - A @ mg.solution().ravel()
         assert np.max(np.abs(r)) <= 1e-8 * np.max(np.abs(b))
         its.append(info.iterations)
@@ -108,7 +73,7 @@ def test_coefficient_jump_matches_direct_solve():
 
     mg, info, ts, b = _solve(shape, 1e-10, coef=coef, dirichlet_faces=("z+", "x-"))
     assert info.converged and info.iterations <= 25
-    A = _matrix(shape, ts, (False, False, False))
+    A = cell_operator(shape, ts, (False, False, False))
     x = spla.spsolve(A.tocsc(), b.ravel())
     assert np.max(np.abs(mg.solution().ravel() - x)) <= 1e-6 * np.max(np.abs(x))
 
@@ -122,7 +87,7 @@ def test_singular_periodic_and_semicoarsening():
     assert info.converged
     x = mg.solution()
     assert abs(x.mean()) < 1e-10 * np.abs(x).max()
-    A = _matrix(shape, ts, per)
+    A = cell_operator(shape, ts, per)
     r = b.ravel() - A @ x.ravel()
     assert np.max(np.abs(r)) <= 1e-9 * np.max(np.abs(b))
 
@@ -150,7 +115,7 @@ def test_odd_dimensions_fall_back_and_converge():
     mg, info, ts, b = _solve(shape, 1e-8)
     assert mg.nlevels == 1 and mg.coarse_parallel
     assert info.converged
-    A = _matrix(shape, ts, (False, False, False))
+    A = cell_operator(shape, ts, (False, False, False))
     r = b.ravel() - A @ mg.solution().ravel()
     assert np.max(np.abs(r)) <= 1e-8 * np.max(np.abs(b))
 
@@ -172,7 +137,7 @@ def test_every_launch_arrangement_of_the_v_cycle_solves_the_system():
         L = mg.nlevels - 1
         seen.add((min(L, 2), mg.coarse_parallel, mg.level_jacobi[0]))
         assert info.converged, (shape, info)
-        r = b.ravel() - _matrix(shape, ts, periodic) @ mg.solution().ravel()
+        r = b.ravel() - cell_operator(shape, ts, periodic) @ mg.solution().ravel()
         assert np.max(np.abs(r)) <= 1e-8 * np.max(np.abs(b)), shape
     assert {(0, False, False), (0, True, False), (1, False, False), (1, True, False), (2, False, False),
             (2, False, True)} <= seen, seen
@@ -193,7 +158,7 @@ def test_a_line_of_cells_is_solved_exactly_by_the_coarse_sweep():
     assert mg.nlevels == 1 and int(mg.mg["coarse_axis"]) == 2
     mg.set_system(*ts, b=b, x0=0.0)
     info = mg.solve(1e-10, 50)
-    x = spla.spsolve(_matrix(shape, ts, (False,) * 3).tocsc(), b.ravel())
+    x = spla.spsolve(cell_operator(shape, ts, (False,) * 3).tocsc(), b.ravel())
     assert info.converged and info.iterations == 1, info
     assert np.max(np.abs(mg.solution().ravel() - x)) <= 1e-9 * np.max(np.abs(x))
 
@@ -206,7 +171,7 @@ def test_a_line_of_cells_is_solved_exactly_by_the_coarse_sweep():
     info = mg.solve(1e-10, 50)
     x = mg.solution()
     assert info.converged and np.all(np.isfinite(x))
-    r = b.ravel() - _matrix(shape, ts, (False,) * 3) @ x.ravel()
+    r = b.ravel() - cell_operator(shape, ts, (False,) * 3) @ x.ravel()
     assert np.max(np.abs(r)) <= 1e-10 * np.max(np.abs(b))
 
 
@@ -239,7 +204,7 @@ def test_the_coarse_levels_in_one_launch_give_the_launches_result():
             out.append((info.iterations, mg.solution()))
         for its, x in out[1:]:
             assert its == out[0][0] and np.array_equal(x, out[0][1]), shape
-        r = b.ravel() - _matrix(shape, ts, per) @ out[1][1].ravel()
+        r = b.ravel() - cell_operator(shape, ts, per) @ out[1][1].ravel()
         assert np.max(np.abs(r)) <= 1e-9 * np.max(np.abs(b)), shape
     assert MGPCG((32, 32, 116), serial=False).block_from == 2  # 8x8x29 (1856 cells) down to the 1x1x29 line
     assert MGPCG((12, 12, 40), (True, False, False), serial=False).block_from is None  # 3x3x10: Jacobi

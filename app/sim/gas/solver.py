@@ -274,10 +274,11 @@ class FlowSolver(SolverOutputs):
 
     def _step(self, dt: float) -> StepInfo:
         """One fractional step. Every kernel is launched without waiting on the device: the viscous
-        sweeps and the pressure iterations stop themselves there (a fixed number of launches, each
-        doing nothing once done), and the host reads one record at the end. It reads again only
-        when the pressure solve needed more iterations than the last step's count and one more
-        (:meth:`MGPCG.budget`), or a refinement round is due (float32 at its precision floor)."""
+        sweeps and the pressure iterations stop themselves there (launches sized from the last step's
+        counts, each doing nothing once done), and the host reads one record at the end. It reads again
+        only when the pressure solve needed more iterations than the last step's count and one more
+        (:meth:`MGPCG.budget`), the viscous sweeps more than :meth:`_viscous_budget` launched (that
+        projection was void and is redone), or a refinement round is due (float32 at its precision floor)."""
         cfg = self.config
         g = self.g
         self._face_coefficients()
