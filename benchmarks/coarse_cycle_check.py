@@ -1,5 +1,7 @@
 """The one-launch coarse cycle (app/sim/gas/coarse_cycle.py) against a launch down and up per level, on the arch
-given (CUDA: one block with barriers, a path the CPU cannot run): the same pressure systems solved both ways.
+given (CUDA: one block with barriers, a path the CPU cannot run): the same pressure systems solved both ways. The
+multigrid set-up's coarsenings of the small levels in one launch (``k_coarsen_levels``) come with the cycle: the
+hierarchy (every level's transmissibilities and diagonal) is compared too.
 
 For each system: outer iterations both ways (must be equal), the largest difference of the solutions relative to
 the largest value (the per-cell arithmetic is the same: 0 on the CPU; on CUDA a few float round-offs at most if
@@ -82,9 +84,13 @@ def main(argv=None) -> int:
                 runtime.sync()
                 if r:
                     times.append(time.perf_counter() - t0)
-            out[block] = (mg.block_from, info, mg.solution(), statistics.median(times))
-        (_, i0, x0, t0), (m, i1, x1, t1) = out[False], out[True]
+            hier = np.concatenate([mg.mg.trans.to_numpy(), mg.mg.diag.to_numpy()])
+            out[block] = (mg.block_from, info, mg.solution(), statistics.median(times), mg.coarsen_from, hier)
+        (_, i0, x0, t0, _, h0), (m, i1, x1, t1, mc, h1) = out[False], out[True]
         diff = float(np.max(np.abs(x1 - x0)) / max(np.max(np.abs(x0)), 1e-300))
+        # the hierarchy (every level's transmissibilities and diagonal) built by the set-up's one launch from level
+        # coarsen_from (coarse_cycle.k_coarsen_levels) against a launch per level
+        hdiff = float(np.max(np.abs(h1 - h0)) / max(np.max(np.abs(h0)), 1e-300))
         res = _residual(shape, ts, periodic, x1, b) / max(float(np.max(np.abs(b))), 1e-300)
         # on the CPU the same code to the bit; on CUDA the two kernels may contract a multiply-add differently
         # (round-off), which can move a stopping test by an iteration: float64 1e-6 leaves 1e10 round-offs of room,
@@ -92,12 +98,13 @@ def main(argv=None) -> int:
         # iterations
         tol_diff = 0.0 if arch == "cpu" else 1e-6 if args.precision == "float64" else 1e-3
         d_it = 0 if arch == "cpu" else 1
-        good = m is not None and abs(i0.iterations - i1.iterations) <= d_it and i1.converged and diff <= tol_diff \
-            and res <= 10 * args.tol
+        good = m is not None and mc is not None and abs(i0.iterations - i1.iterations) <= d_it and i1.converged \
+            and diff <= tol_diff and hdiff <= tol_diff and res <= 10 * args.tol
         ok &= good
         rows.append({"shape": "x".join(map(str, shape)), "periodic": "".join("xyz"[a] for a in range(3) if periodic[a])
                      or "-", "singular": singular, "block from level": m, "iterations per level / block":
                      f"{i0.iterations} / {i1.iterations}", "max |x diff| / max |x|": f"{diff:.1e}",
+                     "set-up one launch from level": mc, "hierarchy max diff / max": f"{hdiff:.1e}",
                      "scipy residual / max|b|": f"{res:.1e}", "ms per solve per level / block": f"{1e3 * t0:.2f} / "
                      f"{1e3 * t1:.2f}", "check": "pass" if good else "FAIL"})
         print(rows[-1], flush=True)

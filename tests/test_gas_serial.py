@@ -109,17 +109,17 @@ def test_serial_and_parallel_steps_agree(make):
         # the parallel form's task structure (on CUDA each task is a kernel launch; a statement between two
         # top-level loops is a one-thread task of its own): a red-black level's launch down or up computes its
         # constants once, then runs its loops back to back (passes.level_pair): 5 down, 4 up (the prolongation rides
-        # on the first sweep up); the multigrid set-up its 4; the levels below the first (4x4x8 down to 1x1x2
-        # here) are one launch of one task (coarse_cycle.py), so the step launches no k_up, whose structure a
-        # solve without that cycle shows
-        for kernel, loops, names in (("k_down", 5, tasks), ("k_coarsen", 4, tasks), ("k_up", 4, levels_tasks),
-                                     ("k_coarse_cycle", 0, tasks)):
+        # on the first sweep up); the multigrid set-up its 4 a level; the levels below the first (4x4x8 down to
+        # 1x1x2 here) are one launch of one task (coarse_cycle.py), and so is the set-up of every level here, so the
+        # step launches no k_up and no k_coarsen, whose structure a solve without that cycle shows
+        for kernel, loops, names in (("k_down", 5, tasks), ("k_coarsen", 4, levels_tasks), ("k_up", 4, levels_tasks),
+                                     ("k_coarse_cycle", 0, tasks), ("k_coarsen_levels", 0, tasks)):
             n, serial, ranges = _per_launch(names, kernel)
             if loops == 0:
                 assert n > 0 and serial + ranges == n, (kernel, n, serial, ranges)
             else:
                 assert n > 0 and (serial, ranges) == (n, loops * n), (kernel, n, serial, ranges)
-        assert _per_launch(tasks, "k_up")[0] == 0
+        assert _per_launch(tasks, "k_up")[0] == 0 and _per_launch(tasks, "k_coarsen")[0] == 0
     for a, b in zip(ipar, iser):
         # same control flow: the device-side stopping tests took the same decisions
         assert (a.pressure_iterations, a.viscous_sweeps, a.converged) == (b.pressure_iterations, b.viscous_sweeps,

@@ -183,7 +183,8 @@ def test_the_coarse_levels_in_one_launch_give_the_launches_result():
     threads' shares taken in turn (what the barrier guarantees: the division of the cells a block makes, odd so
     that shares end unevenly), on a Dirichlet box, a singular box (the coarsest solved by CG) and a box periodic
     in x and y (wrapped stencils). The levels it takes: from 8x8x29 on the Verma grid, none above a Jacobi level
-    or a coarsest level smoothed in parallel, none in the serial form unless asked."""
+    or a coarsest level smoothed in parallel, none in the serial form unless asked. The multigrid set-up's
+    coarsenings into levels of at most as many cells go with it, one launch too (the hierarchy compared)."""
     cases = [((16, 16, 20), (False,) * 3, ("z+",), False), ((16, 16, 20), (False,) * 3, (), True),
              ((16, 8, 24), (True, True, False), (), True)]
     for shape, per, faces, singular in cases:
@@ -201,12 +202,18 @@ def test_the_coarse_levels_in_one_launch_give_the_launches_result():
             mg.set_system(*ts, b=b, x0=0.0)
             info = mg.solve(1e-9, 100, singular=singular)
             assert info.converged, (shape, block, mode, info)
-            out.append((info.iterations, mg.solution()))
-        for its, x in out[1:]:
+            out.append((info.iterations, mg.solution(), mg.mg.trans.to_numpy(), mg.mg.diag.to_numpy()))
+        for its, x, trans, diag in out[1:]:
             assert its == out[0][0] and np.array_equal(x, out[0][1]), shape
+            # the set-up's coarsenings of the small levels in one launch (coarse_cycle.k_coarsen_levels, with the
+            # cycle) build every level's transmissibilities and diagonal to the bit
+            assert np.array_equal(trans, out[0][2]) and np.array_equal(diag, out[0][3]), shape
         r = b.ravel() - cell_operator(shape, ts, per) @ out[1][1].ravel()
         assert np.max(np.abs(r)) <= 1e-9 * np.max(np.abs(b)), shape
     assert MGPCG((32, 32, 116), serial=False).block_from == 2  # 8x8x29 (1856 cells) down to the 1x1x29 line
+    assert MGPCG((32, 32, 116), serial=False).coarsen_from == 1  # set-up: 16x16x58 into 8x8x29, and on down
+    assert MGPCG((16, 16, 20), serial=False).coarsen_from == 0  # 8x8x10 (640 cells) and below
+    assert MGPCG((33, 33, 33), serial=False).coarsen_from is None  # a 33^3 coarsest
     assert MGPCG((12, 12, 40), (True, False, False), serial=False).block_from is None  # 3x3x10: Jacobi
     assert MGPCG((33, 33, 33), serial=False).block_from is None  # the coarsest smoothed in parallel
     assert MGPCG((32, 32, 116), serial=True).block_from is None
@@ -219,8 +226,10 @@ def test_the_coarse_cycle_can_be_turned_off_from_the_environment(monkeypatch):
 
     monkeypatch.setenv("FBED_COARSE_CELLS", "0")
     assert MGPCG((32, 32, 116), serial=False).block_from is None
+    assert MGPCG((32, 32, 116), serial=False).coarsen_from is None
     monkeypatch.setenv("FBED_COARSE_CELLS", "500")  # 4x4x29 (464 cells) and below
     assert MGPCG((32, 32, 116), serial=False).block_from == 3
+    assert MGPCG((32, 32, 116), serial=False).coarsen_from == 2
     monkeypatch.setenv("FBED_COARSE_CELLS", "many")
     with pytest.raises(ConfigError, match="FBED_COARSE_CELLS"):
         MGPCG((32, 32, 116), serial=False)

@@ -19,6 +19,11 @@ inside each pass, which is what the barrier guarantees, so the CPU tests check t
 
 Used for levels m..L-1 when each is red-black and has at most :func:`max_cells` cells and the coarsest is solved on
 one thread (``MGPCG.block_from``, :mod:`app.sim.gas.linsolve`).
+
+The multigrid set-up of every solve (the transmissibilities and diagonal of each coarse level from the one above,
+``multigrid.k_coarsen``: a launch of 5 tasks a level) takes the same block for the levels of at most
+:func:`max_cells` cells, :func:`k_coarsen_levels` (``MGPCG.coarsen_from``; Verma grid: 5 launches and 25 tasks a
+solve became 2 and 6), with the same per-face and per-cell functions, so the hierarchy is the same to the bit.
 """
 import os
 
@@ -27,7 +32,7 @@ import taichi as ti
 from ...config.errors import ConfigError
 from ..launch import kernel
 from .coarse import coarse_solve
-from .multigrid import POST_SWEEPS, PRE_SWEEPS, Multigrid, on
+from .multigrid import POST_SWEEPS, PRE_SWEEPS, Hierarchy, Multigrid, coarsen_constants, coarsen_face_at, diag_at, on
 from .passes import colour_at, first_red_at, level_pair, prolong_black_at, restrict_at
 
 #: threads of the one block on CUDA (256: any kernel's registers fit; 1024 would need at most 64 a thread)
@@ -38,7 +43,8 @@ MAX_CELLS = 4096
 
 def max_cells() -> int:
     """:data:`MAX_CELLS`, or the environment's ``FBED_COARSE_CELLS`` where set (0: no level qualifies, a launch down
-    and up per level, the same results; for a device whose check of this cycle failed, benchmarks/device_run.sh)."""
+    and up per level and a set-up launch per level, the same results; for a device whose check of this cycle
+    failed, benchmarks/device_run.sh)."""
     v = os.environ.get("FBED_COARSE_CELLS", "").strip()
     if not v:
         return MAX_CELLS
@@ -48,8 +54,8 @@ def max_cells() -> int:
         n = -1
     if n < 0:
         raise ConfigError("not a whole number of cells >= 0", "environment", "FBED_COARSE_CELLS",
-                          hint=f"0 turns the pressure solver's one-launch coarse cycle off (a launch down and up per "
-                               f"level, the same results); unset it for the default, {MAX_CELLS}")
+                          hint=f"0 turns the pressure solver's one-launch coarse cycle and set-up off (a launch "
+                               f"down and up per level, the same results); unset it for the default, {MAX_CELLS}")
     return n
 
 
@@ -108,3 +114,31 @@ def k_coarse_cycle(mg: Multigrid, m: ti.i32, L: ti.i32, singular: ti.i32, thread
         ti.loop_config(serialize=True)
         for _ in range(1):
             _cycle(mg, m, L, singular, 0, threads, emulate, False)
+
+
+@ti.func
+def _coarsen_levels(mg: ti.template(), m, L, t, nt: ti.template(), emulate: ti.template(), barrier: ti.template()):
+    """Levels m+1..L from level m down, one after the other (``multigrid._coarsen`` of each: the x, y and z faces,
+    then the diagonal, which reads them)."""
+    for l in range(m, L):
+        Lc, r, N, nfx, nfy, nfz, mx, my, mz, co, nc = coarsen_constants(mg, l)
+        _pass(t, nt, emulate, barrier, mx, coarsen_face_at, (mg, l, Lc, r, N, nfx, 0))
+        _pass(t, nt, emulate, barrier, my, coarsen_face_at, (mg, l, Lc, r, N, nfy, 1))
+        _pass(t, nt, emulate, barrier, mz, coarsen_face_at, (mg, l, Lc, r, N, nfz, 2))
+        _pass(t, nt, emulate, barrier, nc, diag_at, (mg, Lc, N, co))
+
+
+@kernel
+def k_coarsen_levels(mg: Hierarchy, m: ti.i32, L: ti.i32, threads: ti.template(), emulate: ti.template(),
+                     barrier: ti.template()):
+    """The multigrid set-up's coarsenings from level m to the coarsest L in one launch (``multigrid.k_coarsen`` a
+    level, the same per-face and per-cell functions): one block of ``threads`` threads with ``barrier`` (CUDA),
+    else one thread (``emulate``: the shares of ``threads`` threads in turn), as :func:`k_coarse_cycle`."""
+    if ti.static(barrier):
+        ti.loop_config(block_dim=threads)
+        for t in range(threads):
+            _coarsen_levels(mg, m, L, t, threads, False, True)
+    else:
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _coarsen_levels(mg, m, L, 0, threads, emulate, False)

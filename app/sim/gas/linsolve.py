@@ -60,6 +60,8 @@ class MGPCG:
         # anyway; ``coarse_block`` False keeps a launch down and up per level (A/B), True asks for it in either form
         use = (not self.serial) if coarse_block is None else bool(coarse_block)
         self.block_from = self._block_from() if use else None
+        #: the first level the set-up coarsens in one launch (coarse_cycle.k_coarsen_levels), with the cycle's block
+        self.coarsen_from = self._coarsen_from() if use else None
         cuda = runtime.on_cuda()
         #: (threads, emulate, barrier) of coarse_cycle.k_coarse_cycle: one block on CUDA, else one thread
         self.block_mode = (coarse_cycle.BLOCK_THREADS, False, True) if cuda else (1, False, False)
@@ -101,6 +103,18 @@ class MGPCG:
         limit = coarse_cycle.max_cells()
         for l in range(L - 1, 0, -1):
             if self.level_jacobi[l] or int(np.prod(self.level_shapes[l])) > limit:
+                break
+            m = l
+        return m
+
+    def _coarsen_from(self) -> int | None:
+        """The finest level l whose coarsening into l+1 and every one after it the set-up makes in one launch: the
+        levels l+1..L each have at most ``coarse_cycle.max_cells()`` cells (the faces of a pass about as many);
+        None if the coarsest has more, or there is one level only."""
+        limit = coarse_cycle.max_cells()
+        m = None
+        for l in range(self.nlevels - 2, -1, -1):
+            if int(np.prod(self.level_shapes[l + 1])) > limit:
                 break
             m = l
         return m
@@ -203,8 +217,11 @@ class MGPCG:
         self._launched = 0
         if not same_matrix:
             mgm.k_diag(self._mg_setup, 0, self.serial)
-            for l in range(self.nlevels - 1):
+            top = self.nlevels - 1 if self.coarsen_from is None else self.coarsen_from
+            for l in range(top):
                 mgm.k_coarsen(self._mg_setup, l, self.serial)
+            if self.coarsen_from is not None:
+                coarse_cycle.k_coarsen_levels(self._mg_setup, top, self.nlevels - 1, *self.block_mode)
         mode = 2 if device_scale else (0 if scale is None else 1)
         pcg.k_pcg_begin(*self._begin_args, int(self._singular), float(tol), mode, float(scale or 0.0), self.serial)
         self._precondition()

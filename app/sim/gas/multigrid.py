@@ -223,9 +223,9 @@ def k_coarsen(mg: Hierarchy, l: ti.i32, serial: ti.template()):
 
 
 @ti.func
-def _coarsen(mg: ti.template(), l):
-    # every constant first, then the four loops back to back (template arguments, nothing copied between them):
-    # in the parallel form a statement between two loops is a one-thread task of its own
+def coarsen_constants(mg: ti.template(), l):
+    """Every constant of the coarsening of level l into l+1: (L = l+1, the ratio r, L's dims N, its x, y and z face
+    grids and their counts, its cell offset and cells)."""
     L = l + 1
     r = _ratio(mg, l)
     N = dims(mg, L)
@@ -235,8 +235,14 @@ def _coarsen(mg: ti.template(), l):
     mx = nfx[0] * nfx[1] * nfx[2]
     my = nfy[0] * nfy[1] * nfy[2]
     mz = nfz[0] * nfz[1] * nfz[2]
-    co = mg.lev[L, L_CO]
-    nc = mg.lev[L, L_NCELL]
+    return L, r, N, nfx, nfy, nfz, mx, my, mz, mg.lev[L, L_CO], mg.lev[L, L_NCELL]
+
+
+@ti.func
+def _coarsen(mg: ti.template(), l):
+    # every constant first, then the four loops back to back (template arguments, nothing copied between them):
+    # in the parallel form a statement between two loops is a one-thread task of its own
+    L, r, N, nfx, nfy, nfz, mx, my, mz, co, nc = coarsen_constants(mg, l)
     _coarsen_faces(mg, l, L, r, N, nfx, mx, 0)
     _coarsen_faces(mg, l, L, r, N, nfy, my, 1)
     _coarsen_faces(mg, l, L, r, N, nfz, mz, 2)
@@ -247,34 +253,48 @@ def _coarsen(mg: ti.template(), l):
 def _coarsen_faces(mg: ti.template(), l: ti.template(), L: ti.template(), r: ti.template(), N: ti.template(),
                    nfa: ti.template(), m: ti.template(), a: ti.template()):
     """Transmissibilities of level L's m faces of axis a (shape nfa) from level l's."""
+    for c in range(m):
+        coarsen_face_at(c, mg, l, L, r, N, nfa, a)
+
+
+@ti.func
+def coarsen_face_at(c, mg: ti.template(), l: ti.template(), L: ti.template(), r: ti.template(), N: ti.template(),
+                    nfa: ti.template(), a: ti.template()):
+    """Face c of axis a (face grid nfa) of level L (dims N): the sum of the fine faces of level l (coarsening
+    ratio r) it covers, over r[a]."""
     b1 = ti.static((a + 1) % 3)
     b2 = ti.static((a + 2) % 3)
-    for c in range(m):
-        K = decode(nfa, c)
+    K = decode(nfa, c)
+    s = 0.0
+    for d in range(4):
+        o1 = d & 1
+        o2 = (d >> 1) & 1
+        if o1 < r[b1] and o2 < r[b2]:
+            F = K * r
+            F[b1] += o1
+            F[b2] += o2
+            s += mg.trans[face(mg, l, a, F)]
+    s /= r[a]
+    if mg.periodic[a] == 1 and N[a] == 1:
         s = 0.0
-        for d in range(4):
-            o1 = d & 1
-            o2 = (d >> 1) & 1
-            if o1 < r[b1] and o2 < r[b2]:
-                F = K * r
-                F[b1] += o1
-                F[b2] += o2
-                s += mg.trans[face(mg, l, a, F)]
-        s /= r[a]
-        if mg.periodic[a] == 1 and N[a] == 1:
-            s = 0.0
-        mg.trans[face(mg, L, a, K)] = s
+    mg.trans[face(mg, L, a, K)] = s
 
 
 @ti.func
 def _diag_loop(mg: ti.template(), l: ti.template(), n: ti.template(), co: ti.template(), nc: ti.template()):
     """:func:`level_diag` with the level's constants given."""
     for c in range(nc):
-        I = decode(n, c)
-        d = 0.0
-        for a in ti.static(range(3)):
-            for side in ti.static(range(2)):
-                F = I
-                F[a] += side
-                d += mg.trans[face(mg, l, a, F)]
-        mg.diag[co + c] = d
+        diag_at(c, mg, l, n, co)
+
+
+@ti.func
+def diag_at(c, mg: ti.template(), l: ti.template(), n: ti.template(), co: ti.template()):
+    """The diagonal of cell c of level l (dims n, cell offset co): the sum of its six faces' transmissibilities."""
+    I = decode(n, c)
+    d = 0.0
+    for a in ti.static(range(3)):
+        for side in ti.static(range(2)):
+            F = I
+            F[a] += side
+            d += mg.trans[face(mg, l, a, F)]
+    mg.diag[co + c] = d
