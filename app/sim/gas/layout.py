@@ -232,10 +232,11 @@ def k_copy(src: ti.types.ndarray(), dst: ti.types.ndarray(), zero: ti.i32):
 
 # ---- loops over faces and cells: nested in the serial form, one parallel loop otherwise
 @ti.func
-def each_face(g: ti.template(), nf, body: ti.template(), ctx: ti.template(), serial: ti.template()):
+def each_face(g: ti.template(), nf: ti.template(), body: ti.template(), ctx: ti.template(), serial: ti.template()):
     """body(ctx, f, a, I) for every face, or none when nf = 0 (nf: g.nfaces or 0). ``serial`` (inside one
     serial loop): nested loops over a, i, j, k, no index decoding by division; else one loop over f, a
-    top-level parallel loop of the kernel, with :func:`fdecode`. ctx: a tuple of the body's bundles and values."""
+    top-level parallel loop of the kernel, with :func:`fdecode`. ctx: a tuple of the body's bundles and values.
+    ``nf`` is a template (not copied: a caller's variable set ahead of its loops leaves no statement between them)."""
     if ti.static(serial):
         for a in range(3 * ti.cast(nf > 0, ti.i32)):
             d = fdims(g, a)
@@ -327,6 +328,33 @@ def face_colour_max_into(m: ti.template(), g: ti.template(), nf: ti.template(), 
     ``m`` (by reference, as is every argument: a kernel that sets several accumulators first and then runs such
     loops back to back makes no serial task between them in the parallel form; see passes.py, ``level_pair``)."""
     each_face_colour(g, nf, colour, _face_max_body, (m, body, ctx), serial)
+
+
+@ti.func
+def face_max_into(m: ti.template(), g: ti.template(), nf: ti.template(), body: ti.template(), ctx: ti.template(),
+                  serial: ti.template()):
+    """:func:`face_max` into the caller's variable ``m`` (as :func:`face_colour_max_into`)."""
+    each_face(g, nf, _face_max_body, (m, body, ctx), serial)
+
+
+@ti.func
+def cell_max2_into(m1: ti.template(), m2: ti.template(), g: ti.template(), count: ti.template(), body: ti.template(),
+                   ctx: ti.template(), serial: ti.template()):
+    """:func:`cell_max2` over :func:`each_cell_of`'s cells into the caller's variables ``m1``, ``m2``."""
+    each_cell_of(g, count, _cell_max2_body, (m1, m2, body, ctx), serial)
+
+
+@ti.func
+def each_cell_of(g: ti.template(), count: ti.template(), body: ti.template(), ctx: ti.template(),
+                 serial: ti.template()):
+    """:func:`each_cell` over ``count`` cells (g.ncells, or 0 for none), a template: in the parallel form one loop
+    over the cell index, its bound the caller's variable, so no statement stands between it and the loop before."""
+    if ti.static(serial):
+        each_cell(g, ti.cast(count > 0, ti.i32), body, ctx, serial)
+    else:
+        for c in range(count):
+            n = g.dims
+            body(ctx, ti.Vector([c // (n[1] * n[2]), (c // n[2]) % n[1], c % n[2]]))
 
 
 @ti.func

@@ -108,6 +108,15 @@ def _true_residual(mg: ti.template(), ks: ti.template(), nc, serial: ti.template
     n = mgm.dims(mg, 0)
     fo = mgm.face_offsets(mg, 0)
     rmax = 0.0
+    _true_residual_into(rmax, mg, ks, nc, n, fo, serial)
+    mg.ctrl[S_TRUE] = rmax
+
+
+@ti.func
+def _true_residual_into(rmax: ti.template(), mg: ti.template(), ks: ti.template(), nc: ti.template(), n: ti.template(),
+                        fo: ti.template(), serial: ti.template()):
+    """:func:`_true_residual`'s loop, its level-0 dims n and face offsets fo and its maximum ``rmax`` (by reference)
+    the caller's: set at a kernel's head, they leave no statement between this loop and the one before."""
     if ti.static(serial):
         for i in range(n[0] * ti.cast(nc > 0, ti.i32)):
             for j in range(n[1]):
@@ -117,24 +126,14 @@ def _true_residual(mg: ti.template(), ks: ti.template(), nc, serial: ti.template
     else:
         for c in range(nc):
             ti.atomic_max(rmax, _true_residual_cell(mg, ks, n, fo, decode(n, c), c))
-    mg.ctrl[S_TRUE] = rmax
-
-
-@ti.func
-def _active_sum(mg: ti.template(), values: ti.template(), nc):
-    """Sum of values over the active cells (diag > 0) among the first nc cells into S_SUM, their count into
-    S_CNT (nc = 0: both zero): the mean a singular system's solution and right-hand side lose."""
-    total = 0.0
-    cnt = 0.0
-    _active_sum_into(total, cnt, mg, values, nc)
-    mg.ctrl[S_SUM] = total
-    mg.ctrl[S_CNT] = cnt
 
 
 @ti.func
 def _active_sum_into(total: ti.template(), cnt: ti.template(), mg: ti.template(), values: ti.template(),
                      nc: ti.template()):
-    """:func:`_active_sum`'s loop into the caller's accumulators (by reference)."""
+    """Sum of values over the active cells (diag > 0) among the first nc cells into ``total``, their count into
+    ``cnt`` (the caller's accumulators, by reference; nc = 0: both stay zero): the mean a singular system's
+    solution and right-hand side lose."""
     for c in range(nc):
         if mg.diag[c] > 0.0:
             total += values[c]
@@ -159,16 +158,27 @@ def k_pcg_begin(mg: BeginMultigrid, ks: BeginKrylov, singular: ti.i32, tol: floa
 
 @ti.func
 def _pcg_begin(mg: ti.template(), ks: ti.template(), singular, tol, scale_mode, scale, serial: ti.template()):
+    # the counts and accumulators first, the three loops back to back (each reads the sums where they were reduced),
+    # then the scalars: in the parallel form 5 tasks, not 7
     nc = mg.ncell0
-    _active_sum(mg, ks.rhs, nc * singular)
+    nsing = nc * singular
+    n = mgm.dims(mg, 0)
+    fo = mgm.face_offsets(mg, 0)
+    total = 0.0
+    cnt = 0.0
     bmax = 0.0
+    rmax = 0.0
+    _active_sum_into(total, cnt, mg, ks.rhs, nsing)
     for c in range(nc):
         if mg.diag[c] > 0.0:
-            if singular and mg.ctrl[S_CNT] > 0.0:
-                ks.rhs[c] -= mg.ctrl[S_SUM] / mg.ctrl[S_CNT]
+            if singular and cnt > 0.0:
+                ks.rhs[c] -= total / cnt
             ti.atomic_max(bmax, ti.abs(ks.rhs[c]))
+    _true_residual_into(rmax, mg, ks, nc, n, fo, serial)
+    mg.ctrl[S_SUM] = total
+    mg.ctrl[S_CNT] = cnt
     mg.ctrl[S_BNORM] = bmax
-    _true_residual(mg, ks, nc, serial)
+    mg.ctrl[S_TRUE] = rmax
     if scale_mode == 0:
         mg.ctrl[S_SCALE] = mg.ctrl[S_BNORM]
     elif scale_mode == 1:
@@ -330,17 +340,20 @@ def k_pcg_finish(mg: FinishMultigrid, ks: FinishKrylov, singular: ti.i32, serial
 
 @ti.func
 def _pcg_finish(mg: ti.template(), ks: ti.template(), singular):
-    fin = 0
-    if mg.ctrl[S_ACTIVE] == 0.0 and mg.ctrl[S_DONE] == 0.0:
-        fin = 1
+    # as _pcg_begin: counts and sums first, the two loops back to back, the scalars last (4 tasks, not 5)
+    fin = ti.cast(mg.ctrl[S_ACTIVE] == 0.0, ti.i32) * ti.cast(mg.ctrl[S_DONE] == 0.0, ti.i32)
     nc = mg.ncell0 * fin * singular
-    _active_sum(mg, ks.sol, nc)
+    total = 0.0
+    cnt = 0.0
+    _active_sum_into(total, cnt, mg, ks.sol, nc)
     for c in range(nc):
         m = 0.0
-        if mg.ctrl[S_CNT] > 0.0:
-            m = mg.ctrl[S_SUM] / mg.ctrl[S_CNT]
+        if cnt > 0.0:
+            m = total / cnt
         if mg.diag[c] > 0.0:
             ks.sol[c] -= m
+    mg.ctrl[S_SUM] = total
+    mg.ctrl[S_CNT] = cnt
     if fin == 1:
         mg.ctrl[S_DONE] = 1.0
 

@@ -14,8 +14,8 @@ from . import multigrid as mgm
 from .boundary import face_grad, grad_across, has_grad
 from .config import OUTLET
 from .layout import (P_H, P_RHO, P_TRACE, SC_CORR, SC_DMAX, SC_NSW, SC_SMAX, SC_SPRED, SC_SREF, SC_UMAX, SC_UOLD,
-                     SC_VACT, Cells, Grid, Inputs, State, cell_max, cell_max2, cidx, each_cell, each_face, face_max, fdecode,
-                     fidx, is_boundary, solved)
+                     SC_VACT, Cells, Grid, Inputs, State, cell_max, cell_max2, cell_max2_into, cidx, each_cell_of,
+                     each_face, face_max_into, fidx, is_boundary, solved)
 from .multigrid import Multigrid
 from .pcg import Krylov, solve_record
 from ..tasks import one_task
@@ -83,10 +83,11 @@ def k_build(g: Grid, inp: RateInputs, cl: PresCells, st: BuildState, mg: BuildMu
 @ti.func
 def _build(g: ti.template(), inp: ti.template(), cl: ti.template(), st: ti.template(), mg: ti.template(),
            ks: ti.template(), dt, again, serial: ti.template()):
+    # the face count in one assignment (one set in a branch is read by a task of its own before the second loop). The
+    # cell loop stays an ndrange: as a loop over the cell index (no task before it) it gave the f64 parallel form
+    # other round-off (the same arithmetic, compiled differently)
     live = ti.cast(st.gsc[SC_VACT] == 0.0, ti.i32)  # 0: the predictor is not done (a void round)
-    nfo = g.nfaces * live
-    if again:
-        nfo = 0
+    nfo = g.nfaces * live * ti.cast(again == 0, ti.i32)
     each_face(g, nfo, _outlet_at, (g, cl, st, dt), serial)
     each_face(g, nfo, _trans_at, (g, st, mg, dt), serial)  # a refinement round's are the first round's
     st.gsc[SC_SMAX] = cell_max(g, 1, _rhs_at, (g, inp, st, ks, live), serial)
@@ -278,35 +279,42 @@ def k_correct(g: Grid, inp: RateInputs, mg: CtrlMultigrid, ks: SolKrylov, st: Co
 @ti.func
 def _correct(g: ti.template(), inp: ti.template(), mg: ti.template(), ks: ti.template(), st: ti.template(),
              cl: ti.template(), dt, again, serial: ti.template()):
+    # every count and accumulator first, then the five loops back to back, then the scalars: in the parallel form
+    # a statement between two loops is a one-thread task of its own (7 tasks, not 11)
     on = 0
     if mg.ctrl[mgm.S_DONE] > 0.0 and st.gsc[SC_CORR] == 0.0 and st.gsc[SC_VACT] == 0.0:  # not in a void round
         on = 1
     nf = g.nfaces * on
+    nc = g.ncells * on
+    nper = nf * ti.max(g.wrap[0], g.wrap[1], g.wrap[2])  # one assignment: a bound set in a branch costs a task
+    umax = 0.0
+    dmax = 0.0
+    smax = 0.0
     each_face(g, nf, _project_at, (g, ks, st, dt, again), serial)
-    each_cell(g, on, _pressure_at, (g, ks, cl), serial)
-    n = g.dims
-    nper = 0
-    if g.wrap[0] == 1 or g.wrap[1] == 1 or g.wrap[2] == 1:
-        nper = nf
-    for f in range(nper):  # periodic duplicates (the parallel form's own pass: every face, as before)
-        a = 0
-        if f >= g.face_off[2]:
-            a = 2
-        elif f >= g.face_off[1]:
-            a = 1
-        if g.wrap[a] == 1:
-            _, I = fdecode(g, f)
-            if I[a] == n[a]:
-                J = I
-                J[a] = 0
-                st.vel[f] = st.vel[fidx(g, a, J)]
-    umax = face_max(g, nf, _accel_at, (g, st, dt), serial)
+    each_cell_of(g, nc, _pressure_at, (g, ks, cl), serial)
+    each_face(g, nper, _periodic_at, (g, st), serial)  # periodic duplicates (every face of a periodic grid)
+    face_max_into(umax, g, nf, _accel_at, (g, st, dt), serial)
+    cell_max2_into(dmax, smax, g, nc, _outputs_at, (g, inp, st, cl), serial)
     if on:
         st.gsc[SC_UMAX] = umax
-    cell_outputs(g, inp, st, cl, on, serial)
-    if on:
-        st.gsc[SC_SREF] = ti.max(st.gsc[SC_SREF], st.gsc[SC_SMAX])
+        st.gsc[SC_DMAX] = dmax
+        st.gsc[SC_SMAX] = smax
+        st.gsc[SC_SREF] = ti.max(st.gsc[SC_SREF], smax)
         st.gsc[SC_CORR] = 1.0
+
+
+@ti.func
+def _periodic_at(c: ti.template(), f, a, I):
+    """A periodic grid's duplicate face (index n along a periodic axis a) takes its twin's (index 0) velocity."""
+    _periodic_at_in(c[0], c[1], f, a, I)
+
+
+@ti.func
+def _periodic_at_in(g: ti.template(), st: ti.template(), f, a, I):
+    if g.wrap[a] == 1 and I[a] == g.dims[a]:
+        J = I
+        J[a] = 0
+        st.vel[f] = st.vel[fidx(g, a, J)]
 
 
 # the record's f64: fixed at import, maybe before ti.init
