@@ -108,12 +108,13 @@ def test_serial_and_parallel_steps_agree(make):
     if make is _bed_scene:
         # the parallel form's task structure (on CUDA each task is a kernel launch; a statement between two
         # top-level loops is a one-thread task of its own): a red-black level's launch down or up computes its
-        # constants once, then runs its loops back to back (passes.level_pair): 5 down, 4 up (the prolongation rides
-        # on the first sweep up); the multigrid set-up its 4 a level; the levels below the first (4x4x8 down to
-        # 1x1x2 here) are one launch of one task (coarse_cycle.py), and so is the set-up of every level here, so the
-        # step launches no k_up and no k_coarsen, whose structure a solve without that cycle shows. The projection's
-        # correction: its counts first, its five loops back to back, its scalars last (2 serial tasks, not 6)
-        for kernel, serials, loops, names in (("k_down", 1, 5, tasks), ("k_coarsen", 1, 4, levels_tasks),
+        # constants once, then runs its loops back to back (passes.level_pair): 5 down, 4 up (the prolongation
+        # rides on the first sweep up); the multigrid set-up its 5 a level (level 0's diagonal, empty past the
+        # first); the levels below the first (4x4x8 down to 1x1x2 here) are one launch of one task
+        # (coarse_cycle.py), and so is the set-up of every level here, so the step launches no k_up and no
+        # k_coarsen, whose structure a solve without that cycle shows. The projection's correction: its counts
+        # first, its five loops back to back, its scalars last (2 serial tasks, not 6)
+        for kernel, serials, loops, names in (("k_down", 1, 5, tasks), ("k_coarsen", 1, 5, levels_tasks),
                                               ("k_up", 1, 4, levels_tasks), ("k_coarse_cycle", 1, 0, tasks),
                                               ("k_coarsen_levels", 1, 0, tasks), ("k_correct", 2, 5, tasks)):
             n, serial, ranges = _per_launch(names, kernel)

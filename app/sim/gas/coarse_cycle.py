@@ -22,8 +22,9 @@ one thread (``MGPCG.block_from``, :mod:`app.sim.gas.linsolve`).
 
 The multigrid set-up of every solve (the transmissibilities and diagonal of each coarse level from the one above,
 ``multigrid.k_coarsen``: a launch of 5 tasks a level) takes the same block for the levels of at most
-:func:`max_cells` cells, :func:`k_coarsen_levels` (``MGPCG.coarsen_from``; Verma grid: 5 launches and 25 tasks a
-solve became 2 and 6), with the same per-face and per-cell functions, so the hierarchy is the same to the bit.
+:func:`max_cells` cells, :func:`k_coarsen_levels` (``MGPCG.coarsen_from``), with the same per-face and per-cell
+functions, so the hierarchy is the same to the bit. With level 0's diagonal in the first ``k_coarsen`` (no
+``k_diag`` launch of its own), the Verma grid's set-up went from 6 launches and 27 tasks a solve to 2 and 7.
 """
 import os
 

@@ -216,8 +216,9 @@ class MGPCG:
         self._max_iter = int(max_iter)
         self._launched = 0
         if not same_matrix:
-            mgm.k_diag(self._mg_setup, 0, self.serial)
             top = self.nlevels - 1 if self.coarsen_from is None else self.coarsen_from
+            if top == 0:  # level 0's diagonal rides on the first k_coarsen where there is one
+                mgm.k_diag(self._mg_setup, 0, self.serial)
             for l in range(top):
                 mgm.k_coarsen(self._mg_setup, l, self.serial)
             if self.coarsen_from is not None:

@@ -218,7 +218,8 @@ def k_diag(mg: Hierarchy, l: ti.i32, serial: ti.template()):
 
 @kernel
 def k_coarsen(mg: Hierarchy, l: ti.i32, serial: ti.template()):
-    """Transmissibilities and diagonal of level l+1 from level l."""
+    """Transmissibilities and diagonal of level l+1 from level l; of level 0, its diagonal too (the set-up's first
+    launch: no launch of :func:`k_diag` of its own)."""
     one_task(serial, _coarsen, (mg, l))
 
 
@@ -240,9 +241,13 @@ def coarsen_constants(mg: ti.template(), l):
 
 @ti.func
 def _coarsen(mg: ti.template(), l):
-    # every constant first, then the four loops back to back (template arguments, nothing copied between them):
+    # every constant first, then the five loops back to back (template arguments, nothing copied between them):
     # in the parallel form a statement between two loops is a one-thread task of its own
     L, r, N, nfx, nfy, nfz, mx, my, mz, co, nc = coarsen_constants(mg, l)
+    n0 = dims(mg, 0)
+    co0 = mg.lev[0, L_CO]
+    nc0 = mg.lev[0, L_NCELL] * ti.cast(l == 0, ti.i32)  # level 0's diagonal: in the first launch only
+    _diag_loop(mg, 0, n0, co0, nc0)
     _coarsen_faces(mg, l, L, r, N, nfx, mx, 0)
     _coarsen_faces(mg, l, L, r, N, nfy, my, 1)
     _coarsen_faces(mg, l, L, r, N, nfz, mz, 2)
