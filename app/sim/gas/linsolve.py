@@ -63,7 +63,8 @@ class MGPCG:
         #: the first level the set-up coarsens in one launch (coarse_cycle.k_coarsen_levels), with the cycle's block
         self.coarsen_from = self._coarsen_from() if use else None
         cuda = runtime.on_cuda()
-        #: (threads, emulate, barrier) of coarse_cycle.k_coarse_cycle: one block on CUDA, else one thread
+        #: (threads, emulate, barrier) of coarse_cycle.k_coarse_cycle and k_coarsen_levels: one block on CUDA, else
+        #: one thread
         self.block_mode = (coarse_cycle.BLOCK_THREADS, False, True) if cuda else (1, False, False)
         self._lev = ti.ndarray(ti.i32, shape=lev.shape)
         self._lev.from_numpy(lev)
