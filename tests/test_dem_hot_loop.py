@@ -133,3 +133,47 @@ def test_prepare_does_the_set_up_ahead_and_changes_nothing(serial):
     assert np.abs(a["tangential"]).max() > 0
     for key in a:
         assert np.array_equal(a[key], b[key]), key
+
+
+def _packed_bed(poly: bool):
+    """scrambled_bed's 300 grains in a box just large enough for them (its cell list 3 cells a grain, so a
+    build's counts are zeroed by the substep's loop over grains: ``DemModel.bins_zeroed_after``)."""
+    scene, pos, vel, radius = scrambled_bed(poly)
+    particles = {"count": len(pos)}
+    if poly:
+        particles.update(diameter=0.0, diameters=[1.8e-3, 2.0e-3, 2.4e-3], fractions=[0.34, 0.33, 0.33])
+    packed, _ = make(domain={"gravity": [0.0, 0.0, -9.81], "lo": [-0.0115, -0.0115, -0.0106],
+                             "hi": [0.0115, 0.0115, 0.0115]}, particles=particles, vessel={"shape": "box"},
+                     contact={"friction": 0.4, "rolling_friction": 0.05, "rolling_model": "epsd"})
+    return packed.model, pos, vel, radius
+
+
+@pytest.mark.parametrize("poly", [False, True])
+def test_bins_zeroed_by_the_force_loop_give_the_same_substeps(poly):
+    """Where a build leaves its cell counts for the substep's loop over grains to zero (no zeroing loop before the
+    count: one launch a substep fewer on CUDA), every kernel must leave every count zero (else the next build counts
+    on top of them; the last entry, the total, the scan overwrites) and the state must be the one the zeroing loop gives, bit for bit on one thread: through
+    builds, sorts by cell, ``prepare`` and grains leaving the box. The parallel form leaves the counts zero too."""
+    model, pos, vel, radius = _packed_bed(poly)
+    model = dataclasses.replace(model, sort_interval=2, sort_min_grains=0, serial=True)
+    assert model.bins_zeroed_after and model.n < model.n_cells  # more than one cell a grain: shares of several
+    after, before = DemSolver(model), DemSolver(dataclasses.replace(model, zero_share=0))
+    assert not before.m.bins_zeroed_after
+    for dem in (after, before):
+        dem.set_grains(pos, vel, radius)
+        dem.prepare()
+    assert not after.nlist.cell_start.to_numpy()[:-1].any() and not after.nlist.block_sum.to_numpy().any()
+    for _ in range(20):
+        for dem in (after, before):
+            dem.advance(15)
+        assert not after.nlist.cell_start.to_numpy()[:-1].any() and not after.nlist.block_sum.to_numpy().any()
+    assert after.nlist.builds == before.nlist.builds >= 8
+    a, b = after.state_arrays(), before.state_arrays()
+    for key in a:
+        assert np.array_equal(a[key], b[key]), key
+    parallel = DemSolver(dataclasses.replace(model, serial=False))
+    parallel.set_grains(pos, vel, radius)
+    for _ in range(10):
+        parallel.advance(15)
+        assert not parallel.nlist.cell_start.to_numpy()[:-1].any()
+    assert parallel.nlist.builds >= 4

@@ -83,10 +83,19 @@ class DemModel:
     # on a scrambled bed ~2.9x one on a sorted bed; every 10 builds the sorts add ~6% to the builds' cost
     sort_interval: int = 10
     sort_min_grains: int = 4096
+    # a build's cell counts are zeroed after it by the substep's loop over grains (each grain a share of the cells:
+    # no zeroing loop before the count, a launch every substep on CUDA) where that share is at most this many cells
+    # (a settled bed in its column: ~2; the poppy column ~3); else, or with 0, by a loop of their own before the count
+    zero_share: int = 4
 
     @property
     def has_history(self) -> bool:
         return self.friction or self.rolling == ROLL_EPSD
+
+    @property
+    def bins_zeroed_after(self) -> bool:
+        """A build's cell counts are left for the next loop over grains to zero (see ``zero_share``)."""
+        return self.n > 0 and self.zero_share > 0 and self.n_cells <= self.zero_share * self.n
 
     @property
     def sorts(self) -> bool:

@@ -89,10 +89,9 @@ def bin_by_cell(model: ti.template(), state: ti.template(), nlist: ti.template()
     n_cells = g * model.n_cells
     n_grains = g * model.n
     n_blocks = g * nb
-    for c in range(n_cells):
-        nlist.cell_start[c] = 0
-        if c < nb:
-            nlist.block_sum[c] = 0
+    if ti.static(not gated or not model.bins_zeroed_after):  # (else a build counts from the zeros it left)
+        for c in range(n_cells):
+            clear_bins_at(model, nlist, c)
     for i in range(n_grains):  # each cell's count, and each block's (integers: the same sums in any order)
         if state.alive[i]:
             ci = cell_index(model, cell_of(model, state.x[i]))
@@ -124,12 +123,43 @@ def bin_by_cell(model: ti.template(), state: ti.template(), nlist: ti.template()
 
 
 @ti.func
+def clear_bins_at(model: ti.template(), nlist: ti.template(), c):
+    """Cell c's count (and block c's sum, for c below the block count) back to zero."""
+    nlist.cell_start[c] = 0
+    if c < (model.n_cells + SCAN_BLOCK - 1) // SCAN_BLOCK:
+        nlist.block_sum[c] = 0
+
+
+@ti.func
+def clear_bins_of(model: ti.template(), nlist: ti.template(), i):
+    """Item i's share of zeroing the bins after a build (cells i, i + n, ...; at most ``model.zero_share``), run by
+    the loop over grains that follows the rows (the substep's pair forces): a build's counting then starts from zeros
+    without a zeroing loop of its own, a launch every substep on CUDA (empty unless flagged)."""
+    for t in ti.static(range((model.n_cells + model.n - 1) // model.n)):
+        c = i + t * model.n
+        if c < model.n_cells:
+            clear_bins_at(model, nlist, c)
+
+
+@ti.func
+def clear_bins(model: ti.template(), nlist: ti.template(), g: ti.template()):
+    """Every bin back to zero when ``g`` (a build or a sort ran), where builds count from the zeros the last one left
+    (``model.bins_zeroed_after``): for kernels with no loop over grains after it."""
+    if ti.static(model.bins_zeroed_after):
+        for c in range(g * model.n_cells):
+            clear_bins_at(model, nlist, c)
+
+
+@ti.func
 def rebuild_if_flagged(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                        nlist: ti.template()):
     """The whole rebuild as top-level loops of the calling kernel; each runs empty unless flagged. The flag is
     cleared (and the build counted) by the rows' first item: the loop's count was taken before it, nothing in the
     loop reads the flag, and only the integration after it raises the flag again (a one-thread task of its own
-    after the loop cost a launch a substep on CUDA)."""
+    after the loop cost a launch a substep on CUDA). Where ``model.bins_zeroed_after``, the bins are left counted
+    and the caller zeroes them after the rows (:func:`clear_bins_of` in its next loop over grains, or
+    :func:`clear_bins`), so between kernels every bin is zero. Returns the gate (1 if it built)."""
+    g = gate(nlist, True)
     bin_by_cell(model, state, nlist, True)
     for i in range(nlist.counters[REBUILD] * ti.static(max(model.n, 1))):  # (one item with no grains: the flag)
         if i == 0:
@@ -137,6 +167,7 @@ def rebuild_if_flagged(model: ti.template(), sizes: ti.template(), state: ti.tem
             nlist.counters[REBUILD] = 0
         if ti.static(model.n > 0):
             build_row(model, sizes, state, history, nlist, i)
+    return g
 
 
 @ti.func
@@ -294,6 +325,7 @@ def sort_by_cell(model: ti.template(), sizes: ti.template(), state: ti.template(
 def sort_parts(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                nlist: ti.template()):
     bin_by_cell(model, state, nlist, False)
+    clear_bins(model, nlist, 1)  # the sort's bins back to zero where builds count from zeros (sorted[] is its use)
     for p in range(model.n):  # the new slot of the grain now in slot o
         state.force[nlist.sorted[p]][2] = p
     each_chunk(model.serial, (model.slots + 1) // 2, move_partners, (model, nlist, state.force))

@@ -23,7 +23,7 @@ from ..fields import NO_SPRING, ROLL_EPSD
 from ..geometry import wall_clearance_normal
 from .contact import contact
 from .grains import grain_mass, grain_radius, min_image, scatter_add, wrap_position
-from .neighbors import REBUILD, REMOVED, SPRING_OVERFLOW, rebuild_if_flagged
+from .neighbors import REBUILD, REMOVED, SPRING_OVERFLOW, clear_bins, clear_bins_of, rebuild_if_flagged
 from ..tasks import one_task
 
 
@@ -167,12 +167,16 @@ def wall_contacts(model: ti.template(), history: ti.template(), walls: ti.templa
 
 @ti.func
 def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
-                nlist: ti.template(), walls: ti.template()):
+                nlist: ti.template(), walls: ti.template(), built: ti.template()):
     """Contact forces and torques: each grain's row of the half list (the partner's share scattered),
-    then the walls."""
+    then the walls. ``built``: the list was built this substep, whose bins item i helps zero
+    (``neighbors.clear_bins_of``: the rows that read them are done)."""
     # one CPU thread: a serial loop lets Taichi demote the partner atomics to plain adds
     ti.loop_config(serialize=model.serial)
     for i in range(model.n):
+        if ti.static(model.bins_zeroed_after):
+            if built:
+                clear_bins_of(model, nlist, i)
         if state.alive[i]:
             xi = state.x[i]
             vi = state.v[i]
@@ -272,14 +276,21 @@ def dem_substeps(model: ti.template(), sizes: ti.template(), state: ti.template(
 def dem_build(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
               nlist: ti.template()):
     """The list build that the next substep would start with, done ahead (nothing when no build is flagged)."""
-    one_task(model.serial, rebuild_if_flagged, (model, sizes, state, history, nlist))
+    one_task(model.serial, _build_alone, (model, sizes, state, history, nlist))
+
+
+@ti.func
+def _build_alone(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
+                 nlist: ti.template()):
+    built = rebuild_if_flagged(model, sizes, state, history, nlist)
+    clear_bins(model, nlist, built)
 
 
 @ti.func
 def substep_parts(model: ti.template(), sizes: ti.template(), state: ti.template(), history: ti.template(),
                   nlist: ti.template(), walls: ti.template()):
-    rebuild_if_flagged(model, sizes, state, history, nlist)
-    pair_forces(model, sizes, state, history, nlist, walls)
+    built = rebuild_if_flagged(model, sizes, state, history, nlist)
+    pair_forces(model, sizes, state, history, nlist, walls, built)
     integrate(model, sizes, state, nlist)
 
 
