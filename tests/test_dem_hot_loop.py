@@ -153,7 +153,7 @@ def test_bins_zeroed_by_the_force_loop_give_the_same_substeps(poly):
     """Where a build leaves its cell counts for the substep's loop over grains to zero (no zeroing loop before the
     count: one launch a substep fewer on CUDA), every kernel must leave every count zero (else the next build counts
     on top of them; the last entry, the total, the scan overwrites) and the state must be the one the zeroing loop gives, bit for bit on one thread: through
-    builds, sorts by cell, ``prepare`` and grains leaving the box. The parallel form leaves the counts zero too."""
+    builds, sorts by cell and ``prepare``. The parallel form leaves the counts zero too (monodisperse)."""
     model, pos, vel, radius = _packed_bed(poly)
     model = dataclasses.replace(model, sort_interval=2, sort_min_grains=0, serial=True)
     assert model.bins_zeroed_after and model.n < model.n_cells  # more than one cell a grain: shares of several
@@ -171,6 +171,8 @@ def test_bins_zeroed_by_the_force_loop_give_the_same_substeps(poly):
     a, b = after.state_arrays(), before.state_arrays()
     for key in a:
         assert np.array_equal(a[key], b[key]), key
+    if poly:  # the parallel form's kernels compile once more (~10 s cold): the monodisperse bed checks them
+        return
     parallel = DemSolver(dataclasses.replace(model, serial=False))
     parallel.set_grains(pos, vel, radius)
     for _ in range(10):
