@@ -176,15 +176,20 @@ def _bc_prep_in(g: ti.template(), inp: ti.template(), st: ti.template(), f, a, I
     st.vel[f] = v
 
 
+@ti.func
+def periodic_twin(g: ti.template(), st: ti.template(), f, a, I):
+    """A periodic grid's duplicate face f (index n along a periodic axis a) takes its twin's (index 0) velocity."""
+    if g.wrap[a] == 1 and I[a] == g.dims[a]:
+        J = I
+        J[a] = 0
+        st.vel[f] = st.vel[fidx(g, a, J)]
+
+
 @kernel
 def k_periodic_copy(g: Grid, st: State):
     """Periodic duplicates of the first faces and zero on closed faces (after the host set velocities)."""
-    n = g.dims
     for f in range(g.nfaces):
         a, I = fdecode(g, f)
-        if g.wrap[a] == 1 and I[a] == n[a]:
-            J = I
-            J[a] = 0
-            st.vel[f] = st.vel[fidx(g, a, J)]
+        periodic_twin(g, st, f, a, I)
         if g.aperture[f] <= 0.0:
             st.vel[f] = 0.0

@@ -11,7 +11,7 @@ import taichi as ti
 
 from ..launch import kernel, narrowed
 from . import multigrid as mgm
-from .boundary import face_grad, grad_across, has_grad
+from .boundary import face_grad, grad_across, has_grad, periodic_twin
 from .config import OUTLET
 from .layout import (P_H, P_RHO, P_TRACE, SC_CORR, SC_DMAX, SC_NSW, SC_SMAX, SC_SPRED, SC_SREF, SC_UMAX, SC_UOLD,
                      SC_VACT, Cells, Grid, Inputs, State, cell_max, cell_max2, cell_max2_into, cidx, each_cell_of,
@@ -305,16 +305,8 @@ def _correct(g: ti.template(), inp: ti.template(), mg: ti.template(), ks: ti.tem
 
 @ti.func
 def _periodic_at(c: ti.template(), f, a, I):
-    """A periodic grid's duplicate face (index n along a periodic axis a) takes its twin's (index 0) velocity."""
-    _periodic_at_in(c[0], c[1], f, a, I)
-
-
-@ti.func
-def _periodic_at_in(g: ti.template(), st: ti.template(), f, a, I):
-    if g.wrap[a] == 1 and I[a] == g.dims[a]:
-        J = I
-        J[a] = 0
-        st.vel[f] = st.vel[fidx(g, a, J)]
+    """each_face's body for :func:`boundary.periodic_twin` (c = (g, st))."""
+    periodic_twin(c[0], c[1], f, a, I)
 
 
 # the record's f64: fixed at import, maybe before ti.init
