@@ -132,7 +132,7 @@ In the parallel form a run of statements between two loops is a task too (one th
 times a step (the V-cycle's levels, the viscous sweeps) compute their constants at their head and run their loops
 back to back through functions with template arguments (``passes.level_pair``). Every max and sum of the step
 accumulates in a kernel-scope variable (thread-local, then one atomic per warp on CUDA), never with an atomic per
-cell into an array element (``layout.face_max``).
+cell into an array element (``layout.face_max_into``).
 """
 from .config import (ALIASES, BC, CONVECTION, EPS_MIN, FACES, GAS_KEYS, INLET, KIND_ALIASES, KINDS, MOVING, OUTLET,
                      PERIODIC, PRESSURE_FORMS, SLIP, THETA_MIN, VISCOUS_REDUCTION, WALL, FlowConfig, StepInfo,

@@ -222,7 +222,7 @@ def _finish_at(g: ti.template(), inp: ti.template(), st: ti.template(), dt, cdt,
 def _advect(g: ti.template(), inp: ti.template(), st: ti.template(), dt, serial: ti.template()):
     nf = g.nfaces
     cdt = dt / g.par[P_H]
-    uold = 0.0  # a kernel-scope reduction, not an atomic per face into gsc (layout.face_max)
+    uold = 0.0  # a kernel-scope reduction, not an atomic per face into gsc (layout.face_max_into)
     for f in range(nf):
         u = st.vel[f]
         st.vel_old[f] = u

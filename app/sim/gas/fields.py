@@ -18,7 +18,7 @@ def _k_gas_extremes(u: ti.types.ndarray(), p: ti.types.ndarray(), out: ti.types.
     """out = [largest |u|^2 over the cells, number of cells with a non-finite velocity or pressure]: the
     per-step diagnostics reduced on the device (copying u and p to the host every step cost more). Both reduce
     into kernel-scope variables, stored once (an atomic per cell into ``out`` is one atomic per cell on one
-    address: layout.face_max)."""
+    address: layout.face_max_into)."""
     vmax = 0.0
     nbad = 0.0
     for I in ti.grouped(p):

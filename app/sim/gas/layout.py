@@ -314,14 +314,6 @@ def _cell_max2_in(m1: ti.template(), m2: ti.template(), body: ti.template(), ctx
 
 
 @ti.func
-def face_max(g: ti.template(), nf, body: ti.template(), ctx: ti.template(), serial: ti.template()):
-    """The largest body(ctx, f, a, I) over the faces :func:`each_face` visits (0 with none)."""
-    m = 0.0
-    each_face(g, nf, _face_max_body, (m, body, ctx), serial)
-    return m
-
-
-@ti.func
 def face_colour_max_into(m: ti.template(), g: ti.template(), nf: ti.template(), colour: ti.template(),
                          body: ti.template(), ctx: ti.template(), serial: ti.template()):
     """The largest body(ctx, f, a, I) over the faces :func:`each_face_colour` visits, into the caller's variable
@@ -333,7 +325,8 @@ def face_colour_max_into(m: ti.template(), g: ti.template(), nf: ti.template(), 
 @ti.func
 def face_max_into(m: ti.template(), g: ti.template(), nf: ti.template(), body: ti.template(), ctx: ti.template(),
                   serial: ti.template()):
-    """:func:`face_max` into the caller's variable ``m`` (as :func:`face_colour_max_into`)."""
+    """The largest body(ctx, f, a, I) over the faces :func:`each_face` visits, into the caller's variable ``m``
+    (by reference, as :func:`face_colour_max_into`)."""
     each_face(g, nf, _face_max_body, (m, body, ctx), serial)
 
 

@@ -86,7 +86,7 @@ class SolveInfo:
 # ============================================================================ kernels
 # Every reduction below (max|r|, the dot products, the active sums) accumulates in a kernel-scope variable that
 # is stored once: Taichi 1.7.4 reduces such a variable per thread (then per warp on CUDA), where an atomic into
-# an element of ``ctrl`` is one atomic per cell on one address (see app/sim/gas/layout.py, face_max).
+# an element of ``ctrl`` is one atomic per cell on one address (see app/sim/gas/layout.py, face_max_into).
 @ti.func
 def _true_residual_cell(mg: ti.template(), ks: ti.template(), n, fo, I, c):
     """r = b - A x at cell c into res and bs; returns |r| (0 at an inactive cell, whose x is zeroed)."""
