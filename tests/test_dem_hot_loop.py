@@ -138,14 +138,8 @@ def test_prepare_does_the_set_up_ahead_and_changes_nothing(serial):
 def _packed_bed(poly: bool):
     """scrambled_bed's 300 grains in a box just large enough for them (its cell list 3 cells a grain, so a
     build's counts are zeroed by the substep's loop over grains: ``DemModel.bins_zeroed_after``)."""
-    scene, pos, vel, radius = scrambled_bed(poly)
-    particles = {"count": len(pos)}
-    if poly:
-        particles.update(diameter=0.0, diameters=[1.8e-3, 2.0e-3, 2.4e-3], fractions=[0.34, 0.33, 0.33])
-    packed, _ = make(domain={"gravity": [0.0, 0.0, -9.81], "lo": [-0.0115, -0.0115, -0.0106],
-                             "hi": [0.0115, 0.0115, 0.0115]}, particles=particles, vessel={"shape": "box"},
-                     contact={"friction": 0.4, "rolling_friction": 0.05, "rolling_model": "epsd"})
-    return packed.model, pos, vel, radius
+    scene, pos, vel, radius = scrambled_bed(poly, half_width=0.0115)
+    return scene.model, pos, vel, radius
 
 
 @pytest.mark.parametrize("poly", [False, True])

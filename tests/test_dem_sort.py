@@ -19,9 +19,10 @@ N = 300
 CONTACT = {"friction": 0.4, "rolling_friction": 0.05, "rolling_model": "epsd"}
 
 
-def scrambled_bed(poly: bool):
+def scrambled_bed(poly: bool, half_width: float = 0.05):
     """300 grains in a box on a jittered lattice, ids shuffled (memory order has nothing to do with
-    space), moving fast enough to rebuild the list every few substeps; tri-disperse when ``poly``."""
+    space), moving fast enough to rebuild the list every few substeps; tri-disperse when ``poly``. The box spans
+    +-``half_width`` [m] across and up to ``half_width`` (the default is dem_helpers' domain)."""
     rng = np.random.default_rng(7)
     side = 7
     grid = np.stack(np.meshgrid(*[np.arange(side)] * 3, indexing="ij"), -1).reshape(-1, 3)[:N]
@@ -33,8 +34,8 @@ def scrambled_bed(poly: bool):
     if poly:
         particles.update(diameter=0.0, diameters=[1.8e-3, 2.0e-3, 2.4e-3], fractions=[0.34, 0.33, 0.33])
     # the floor just below the lowest grains: they land on it within the run (wall springs)
-    scene, _ = make(domain={"gravity": [0.0, 0.0, -9.81], "lo": [-0.05, -0.05, -0.0106]}, particles=particles, vessel={"shape": "box"},
-                    contact=CONTACT)
+    domain = {"gravity": [0.0, 0.0, -9.81], "lo": [-half_width, -half_width, -0.0106], "hi": [half_width] * 3}
+    scene, _ = make(domain=domain, particles=particles, vessel={"shape": "box"}, contact=CONTACT)
     return scene, pos, vel, radius
 
 
