@@ -15,7 +15,8 @@
 # grid_ab (the gas step and the DEM substep with Taichi's CUDA launch width saturating_grid_dim at its default,
 # 2112 and 1056 blocks: A/B in one call), gas_profile (the same scene under Taichi's kernel profiler: each kernel's tasks and device time per step, sorted),
 # coarse (the pressure V-cycle's coarse levels in one launch, one block on CUDA, checked against a launch per
-# level: run it first), coarse_ab (the gas step timed without that cycle), series (issue 21: verma_small on the GPU, its summary.json wall_split with the callbacks' share, then the host
+# level: run it first), dem_scan (the DEM build's cell-list scan as one block on CUDA, checked against the one-thread
+# scan, with the cost of a build and the substep's tasks by device time: run it first too), coarse_ab (the gas step timed without that cycle), series (issue 21: verma_small on the GPU, its summary.json wall_split with the callbacks' share, then the host
 # reads per fluid step of its first 0.1 s, the step's and the callbacks', by benchmarks/series_reads.py).
 # Before a call that runs the cavity or the Verma analysis: `mkdir -p runs && cp -r ../shared/reference runs/`
 # here, and carry [".devkit", "runs/reference"] (../shared is not copied to the device).
@@ -67,6 +68,11 @@ for stage in "$@"; do
       # gas step on CUDA uses that cycle, and where the check fails the later stages of the call run without it
       $T bash -c 'python3 benchmarks/coarse_cycle_check.py --arch cuda --precision float64 &&
         python3 benchmarks/coarse_cycle_check.py --arch cuda --precision float32 --tol 1e-5' ;;
+    dem_scan)  # the DEM list build's cell-list scan as one block of threads at barriers (app/sim/dem/scan.py), CUDA's
+      # default and a path no CPU test can run: the same lists as the one-thread scan, the cost of a forced build with
+      # each, and the substep's tasks by device time (kernel profiler). Run it first with coarse: where the lists
+      # differ, the later stages of the call run with the one-thread scan (FBED_DEM_SCAN=serial); ~1 min
+      $T python3 benchmarks/dem_scan_check.py --arch cuda --sizes 1000000 --substeps 40 --repeats 3 --profile ;;
     coarse_ab)  # the gas step without that cycle (a launch down and up per level), to set against gas / gas_profile
       $T bash -c 'python3 benchmarks/flow_throughput.py --arch cuda --grids 32x32x116 32x32x64 --steps 30 --warmup 5 \
           --coarse-block off && python3 benchmarks/gas_counts.py --arch cuda --grids 32x32x116 --coarse-block off \
@@ -152,6 +158,11 @@ for stage in "$@"; do
   esac > "$L/$stage.log" 2>&1
   rc=$?
   echo "$stage: exit $rc in $(( $(date +%s) - start )) s" | tee -a "$L/stages.txt"
+  if [ "$stage" = dem_scan ] && [ $rc -ne 0 ]; then  # every later DEM build on CUDA would use the block scan
+    export FBED_DEM_SCAN=serial  # the one-thread scan of 1,024-cell blocks instead (the same lists)
+    echo "dem_scan: the DEM's block scan failed its check on CUDA: later stages run without it (FBED_DEM_SCAN=serial)" \
+      | tee -a "$L/stages.txt"
+  fi
   if [ "$stage" = coarse ] && [ $rc -ne 0 ]; then  # every later gas step on CUDA would run that cycle: not trusted
     export FBED_COARSE_CELLS=0  # a launch down and up per level instead (the same results; app/sim/gas/coarse_cycle.py)
     echo "coarse: the one-launch coarse cycle failed its check on CUDA: later stages run without it" \

@@ -23,7 +23,8 @@ kernels receive as ``ti.template()`` arguments; nothing here computes physics.
 Memory per grain, float32, K neighbour slots, H history slots, W walls (see ``bytes_per_grain``):
 state 12*4 + 1 (x, v, x_ref, force, alive), with friction +24 (omega, torque), polydisperse +8,
 coupled +28, sorted +4 (grain id); neighbour list 4*K + 8 (partners, count, cell-sorted id); with history K + 4
-(slot numbers, mask) and 12*(H + W) per spring kind, plus 4 bytes per cell of the cell list.
+(slot numbers, mask) and 12*(H + W) per spring kind, plus 4 bytes per cell of the cell list (and per block of its
+scan, ``DemModel.scan_block`` cells).
 """
 
 import dataclasses
@@ -87,6 +88,12 @@ class DemModel:
     # no zeroing loop before the count, a launch every substep on CUDA) where that share is at most this many cells
     # (a settled bed in its column: ~2; the poppy column ~3); else, or with 0, by a loop of their own before the count
     zero_share: int = 4
+    # the cell list's scan (``dem/scan.py``, which picks these for the device: ``scan.layout``): cells in blocks of
+    # ``scan_block``, the blocks' sums scanned by one thread (``scan_threads`` 0, the CPU) or by one block of
+    # ``scan_threads`` threads at barriers (CUDA); ``scan_emulate``: one CPU thread takes those threads' shares (tests)
+    scan_block: int = 1024
+    scan_threads: int = 0
+    scan_emulate: bool = False
 
     @property
     def has_history(self) -> bool:
@@ -111,9 +118,13 @@ class DemModel:
     def n_cells(self) -> int:
         return self.cells[0] * self.cells[1] * self.cells[2]
 
+    @property
+    def scan_blocks(self) -> int:
+        """Blocks of ``scan_block`` cells in the cell list."""
+        return (self.n_cells + self.scan_block - 1) // self.scan_block
+
 
 ROLL_NONE, ROLL_CONSTANT, ROLL_EPSD = 0, 1, 2
-SCAN_BLOCK = 1024
 NO_SPRING = 255
 HISTORY_SLOTS = 12
 
@@ -186,7 +197,9 @@ class NeighborList:
         nc = m.n_cells
         self.cell_start = ti.field(ti.i32, nc + 1)
         self.sorted = ti.field(ti.i32, m.n)
-        self.block_sum = ti.field(ti.i32, (nc + SCAN_BLOCK - 1) // SCAN_BLOCK + 1)
+        self.block_sum = ti.field(ti.i32, m.scan_blocks + 1)
+        if m.scan_threads:
+            self.scan_tmp = ti.field(ti.i32, 2 * m.scan_threads)  # the block scan's two buffers
         # [rebuild flag, overflow (largest row asked for), grains removed, builds, history slots short]: the rebuild decision
         # lives here on the device; the host reads the counters once per DemSolver.advance
         self.counters = ti.field(ti.i32, 6)  # [5]: dead grains placed by a sort
@@ -235,5 +248,5 @@ def bytes_per_grain(m: DemModel, precision_bytes: int = 4) -> float:
     b += 4 * m.slots + 4 + 4  # partner slots, count, cell-sorted id
     if m.sorts:
         b += 4  # grain id per memory slot (the sort's scratch is the force accumulator, zero between substeps)
-    b += (4 * m.n_cells) / max(1, m.n)
+    b += 4 * (m.n_cells + m.scan_blocks + 1 + 2 * m.scan_threads) / max(1, m.n)  # counts, block sums, scan buffers
     return b

@@ -1,6 +1,7 @@
 """One task a launch on one CPU thread: :func:`one_task`, the whole body of a kernel that takes a compile-time
 ``serial`` flag (:func:`app.sim.runtime.serial` says when to set it: Taichi makes each top-level loop of a kernel a
-task of its own, ~70 us each on one thread)."""
+task of its own, ~70 us each on one thread); :func:`each_chunk`; and :func:`block_pass`, one pass of a kernel that a
+single block of threads runs, meeting at barriers (CUDA), or one thread that takes their shares in turn."""
 import taichi as ti
 
 
@@ -28,3 +29,22 @@ def each_chunk(serial: ti.template(), chunks: ti.template(), body: ti.template()
     else:
         for c in ti.static(range(chunks)):
             body(c, *args)
+
+
+@ti.func
+def block_pass(t, nt: ti.template(), emulate: ti.template(), barrier: ti.template(), count, body: ti.template(),
+               args: ti.template()):
+    """One pass of a one-block kernel (:mod:`app.sim.gas.coarse_cycle`, :mod:`app.sim.dem.scan`): ``body(i, *args)``
+    for i in 0..count-1, thread t of ``nt`` taking i = t, t + nt, ...; then the block's barrier (``barrier``: CUDA,
+    ``ti.simt.block.sync``), so the next pass sees every write of this one. ``emulate``: one thread takes every
+    thread's share in turn (the CPU, which has no barrier; what a barrier guarantees, the shares in one order)."""
+    lo = t
+    hi = t + 1
+    if ti.static(emulate):
+        lo = 0
+        hi = nt
+    for tt in range(lo, hi):
+        for q in range((count - tt + nt - 1) // nt):
+            body(tt + q * nt, *args)
+    if ti.static(barrier):
+        ti.simt.block.sync()

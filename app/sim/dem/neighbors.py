@@ -20,8 +20,9 @@ so no second list buffer is needed."""
 import taichi as ti
 
 from ..launch import kernel
-from ..fields import NO_SPRING, ROLL_EPSD, SCAN_BLOCK
+from ..fields import NO_SPRING, ROLL_EPSD
 from .grains import grain_id, grain_radius, min_image
+from .scan import exclusive_scan
 from ..tasks import each_chunk, one_task
 
 REBUILD, OVERFLOW, REMOVED, BUILDS, SPRING_OVERFLOW, DEAD = 0, 1, 2, 3, 4, 5  # nlist.counters
@@ -84,7 +85,7 @@ def bin_by_cell(model: ti.template(), state: ti.template(), nlist: ti.template()
     # grain takes its slot from the end of its cell downwards). The flag is read once, ahead of the loops: in the
     # parallel form a statement between two loops is a one-thread task of its own (a kernel launch on CUDA), and
     # nothing here writes the flag
-    nb = (model.n_cells + SCAN_BLOCK - 1) // SCAN_BLOCK
+    nb = ti.static(model.scan_blocks)
     g = gate(nlist, gated)
     n_cells = g * model.n_cells
     n_grains = g * model.n
@@ -96,20 +97,12 @@ def bin_by_cell(model: ti.template(), state: ti.template(), nlist: ti.template()
         if state.alive[i]:
             ci = cell_index(model, cell_of(model, state.x[i]))
             ti.atomic_add(nlist.cell_start[ci], 1)
-            ti.atomic_add(nlist.block_sum[ci // SCAN_BLOCK], 1)
-    ti.loop_config(serialize=True)
-    for _ in range(g):
-        run = 0
-        for k in range(nb):
-            v = nlist.block_sum[k]
-            nlist.block_sum[k] = run
-            run += v
-        nlist.cell_start[model.n_cells] = run
-        nlist.counters[DEAD] = 0
+            ti.atomic_add(nlist.block_sum[ci // model.scan_block], 1)
+    scan_block_sums(model, nlist, g)
     for b in range(n_blocks):
         run = nlist.block_sum[b]
-        for t in range(SCAN_BLOCK):
-            c = b * SCAN_BLOCK + t
+        for t in range(model.scan_block):
+            c = b * model.scan_block + t
             if c < model.n_cells:
                 run += nlist.cell_start[c]
                 nlist.cell_start[c] = run  # the end of cell c
@@ -123,10 +116,44 @@ def bin_by_cell(model: ti.template(), state: ti.template(), nlist: ti.template()
 
 
 @ti.func
+def scan_block_sums(model: ti.template(), nlist: ti.template(), g):
+    """The blocks' counts replaced by their exclusive running sums (each block's first entry), the total into
+    ``cell_start[n_cells]``, the dead-grain counter zeroed; nothing unless ``g``. One thread (``model.scan_threads``
+    0), else one block of that many threads (CUDA; ``model.scan_emulate``: one CPU thread taking their shares)."""
+    nb = ti.static(model.scan_blocks)
+    if ti.static(model.scan_threads == 0):
+        ti.loop_config(serialize=True)
+        for _ in range(g):
+            run = 0
+            for k in range(nb):
+                v = nlist.block_sum[k]
+                nlist.block_sum[k] = run
+                run += v
+            nlist.cell_start[model.n_cells] = run
+            nlist.counters[DEAD] = 0
+    else:
+        nt = ti.static(model.scan_threads)
+        if ti.static(model.scan_emulate):
+            ti.loop_config(serialize=True)
+            for _ in range(g):
+                total = exclusive_scan(0, nlist.block_sum, nb, nlist.scan_tmp, nt, True, False)
+                nlist.cell_start[model.n_cells] = total
+                nlist.counters[DEAD] = 0
+        else:  # CUDA: one block (a loop of constant length nt is one block of nt threads); g is the same in all
+            ti.loop_config(block_dim=nt)
+            for t in range(nt):
+                if g != 0:
+                    total = exclusive_scan(t, nlist.block_sum, nb, nlist.scan_tmp, nt, False, True)
+                    if t == 0:
+                        nlist.cell_start[model.n_cells] = total
+                        nlist.counters[DEAD] = 0
+
+
+@ti.func
 def clear_bins_at(model: ti.template(), nlist: ti.template(), c):
     """Cell c's count (and block c's sum, for c below the block count) back to zero."""
     nlist.cell_start[c] = 0
-    if c < (model.n_cells + SCAN_BLOCK - 1) // SCAN_BLOCK:
+    if c < model.scan_blocks:
         nlist.block_sum[c] = 0
 
 

@@ -7,6 +7,8 @@ import taichi as ti
 
 from ...config.derived import grain_mass
 from ..fields import NO_SPRING, ROLL_EPSD, ContactHistory, DemModel, GrainModel, GrainState, NeighborList, WallData
+from .. import runtime
+from . import scan
 from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW, sort_by_cell
 from .step import DIAG_COLUMNS, dem_build, dem_substep, dem_substeps, measure
 
@@ -25,6 +27,7 @@ class DemSolver:
     def __init__(self, model: DemModel):
         if model.sorts and model.n >= 2 ** 24 and ti.lang.impl.current_cfg().default_fp == ti.f32:
             model = dataclasses.replace(model, sort_interval=0)  # the sort's scratch holds slots in float32
+        model = scan.layout(model, runtime.on_cuda())  # the cell list's scan: one block of threads on CUDA
         self.m = self.model = model
         self.fixed = GrainModel(model)
         self.state = GrainState(model)

@@ -32,6 +32,7 @@ import taichi as ti
 
 from ...config.errors import ConfigError
 from ..launch import kernel
+from ..tasks import block_pass
 from .coarse import coarse_solve
 from .multigrid import POST_SWEEPS, PRE_SWEEPS, Hierarchy, Multigrid, coarsen_constants, coarsen_face_at, diag_at, on
 from .passes import colour_at, first_red_at, level_pair, prolong_black_at, restrict_at
@@ -61,23 +62,6 @@ def max_cells() -> int:
 
 
 @ti.func
-def _pass(t, nt: ti.template(), emulate: ti.template(), barrier: ti.template(), count, body: ti.template(),
-          args: ti.template()):
-    """``body(i, *args)`` for i in 0..count-1: thread t takes i = t, t + nt, ... (``emulate``: one thread takes
-    every thread's share in turn); then the block's barrier (``barrier``, CUDA only)."""
-    lo = t
-    hi = t + 1
-    if ti.static(emulate):
-        lo = 0
-        hi = nt
-    for tt in range(lo, hi):
-        for q in range((count - tt + nt - 1) // nt):
-            body(tt + q * nt, *args)
-    if ti.static(barrier):
-        ti.simt.block.sync()
-
-
-@ti.func
 def _cycle(mg: ti.template(), m, L, singular, t, nt: ti.template(), emulate: ti.template(), barrier: ti.template()):
     """Levels m..L-1 down (x = 0 and a red sweep, black, red, black, restriction: ``vcycle._down``), the coarsest
     level L's one-thread solve (thread 0), levels L-1..m up (prolongation with black, red, black, red:
@@ -85,10 +69,10 @@ def _cycle(mg: ti.template(), m, L, singular, t, nt: ti.template(), emulate: ti.
     act = on(mg)
     for l in range(m, L):
         n, fo, co, nc, h2, nq, r, N, cb, NC = level_pair(mg, l, act)
-        _pass(t, nt, emulate, barrier, nc, first_red_at, (mg, n, co))
+        block_pass(t, nt, emulate, barrier, nc, first_red_at, (mg, n, co))
         for s in range(2 * PRE_SWEEPS - 1):
-            _pass(t, nt, emulate, barrier, nq, colour_at, (mg, n, fo, co, h2, (s + 1) % 2))
-        _pass(t, nt, emulate, barrier, NC, restrict_at, (mg, n, fo, co, r, N, cb))
+            block_pass(t, nt, emulate, barrier, nq, colour_at, (mg, n, fo, co, h2, (s + 1) % 2))
+        block_pass(t, nt, emulate, barrier, NC, restrict_at, (mg, n, fo, co, r, N, cb))
     if t == 0:
         coarse_solve(mg, L, singular, 1)
     if ti.static(barrier):
@@ -96,9 +80,9 @@ def _cycle(mg: ti.template(), m, L, singular, t, nt: ti.template(), emulate: ti.
     for q in range(L - m):
         l = L - 1 - q
         n, fo, co, nc, h2, nq, r, N, cb, _ = level_pair(mg, l, act)
-        _pass(t, nt, emulate, barrier, nq, prolong_black_at, (mg, n, fo, co, h2, r, N, cb))
+        block_pass(t, nt, emulate, barrier, nq, prolong_black_at, (mg, n, fo, co, h2, r, N, cb))
         for s in range(1, 2 * POST_SWEEPS):
-            _pass(t, nt, emulate, barrier, nq, colour_at, (mg, n, fo, co, h2, (s + 1) % 2))
+            block_pass(t, nt, emulate, barrier, nq, colour_at, (mg, n, fo, co, h2, (s + 1) % 2))
 
 
 @kernel
@@ -123,10 +107,10 @@ def _coarsen_levels(mg: ti.template(), m, L, t, nt: ti.template(), emulate: ti.t
     then the diagonal, which reads them)."""
     for l in range(m, L):
         Lc, r, N, nfx, nfy, nfz, mx, my, mz, co, nc = coarsen_constants(mg, l)
-        _pass(t, nt, emulate, barrier, mx, coarsen_face_at, (mg, l, Lc, r, N, nfx, 0))
-        _pass(t, nt, emulate, barrier, my, coarsen_face_at, (mg, l, Lc, r, N, nfy, 1))
-        _pass(t, nt, emulate, barrier, mz, coarsen_face_at, (mg, l, Lc, r, N, nfz, 2))
-        _pass(t, nt, emulate, barrier, nc, diag_at, (mg, Lc, N, co))
+        block_pass(t, nt, emulate, barrier, mx, coarsen_face_at, (mg, l, Lc, r, N, nfx, 0))
+        block_pass(t, nt, emulate, barrier, my, coarsen_face_at, (mg, l, Lc, r, N, nfy, 1))
+        block_pass(t, nt, emulate, barrier, mz, coarsen_face_at, (mg, l, Lc, r, N, nfz, 2))
+        block_pass(t, nt, emulate, barrier, nc, diag_at, (mg, Lc, N, co))
 
 
 @kernel
