@@ -27,12 +27,12 @@ def measure(a) -> dict:
 
     import taichi as ti
 
-    sys.path.insert(1, str(HERE.parent))
-    from dem_substep import scene_for
-
-    from app.sim import runtime
+    from app.sim import runtime  # the tree's own app, imported before dem_substep puts this tree first on the path
     from app.sim.dem import DemSolver
     from app.sim.dem.neighbors import REBUILD
+
+    sys.path.insert(1, str(HERE.parent))
+    from dem_substep import scene_for
 
     arch = runtime.init("cpu", a.precision, a.threads)
     scene, pos, r = scene_for(a.n, a.poly, a.precision, a.threads, arch)
