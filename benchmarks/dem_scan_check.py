@@ -1,9 +1,10 @@
 """The DEM list build with the cell list's scan as one block of threads (CUDA's default, app/sim/dem/scan.py) against
 the one-thread scan (``FBED_DEM_SCAN=serial``): the same lists, then what a build costs with each.
 
-On CUDA the block scan's barrier path runs nowhere else before a run: run this first in a device call
-(``device_run.sh dem_scan``; where the lists differ it exits 1 and the script's later stages run with the one-thread
-scan). On the CPU both solvers use the CPU's layout unless ``--emulate`` (the block scan's shares on one thread), so
+On CUDA the block scan's barrier path is checked at start-up on 40,000 counts (``scan.block_scan_works``; a
+device that fails it falls back to the one-thread scan); here on the real lists too: run this first in a device call
+(``device_run.sh dem_scan``; where the lists differ or the start-up check failed it exits 1, and the script's later
+stages run with the one-thread scan). On the CPU both solvers use the CPU's layout unless ``--emulate`` (the block scan's shares on one thread), so
 the check there only exercises the script.
 
 1. Lists: both solvers from the same grains (the squeezed lattice of dem_substep.py, or its tri-disperse bed with
@@ -104,6 +105,9 @@ def main(argv=None) -> int:
         layouts = {m: (d.m.scan_block, d.m.scan_threads) for m, d in dems.items()}
         same = np.array_equal(rows_by_id(dems["serial"]), rows_by_id(dems["block"]))
         ok &= bool(same)
+        if arch == "cuda" and dems["block"].m.scan_threads == 0:  # scan.layout fell back: its start-up check failed
+            print(f"N={n} the block scan failed its start-up check (app/sim/dem/scan.py: block_scan_works)", flush=True)
+            ok = False
         print(f"N={n} lists {'equal' if same else 'DIFFER'}: scan layouts (cells a block, threads) {layouts}",
               flush=True)
         for dem in dems.values():

@@ -75,17 +75,40 @@ def test_the_block_scan_builds_the_same_lists(serial):
 
 
 def test_the_scan_layout_follows_the_device(monkeypatch):
-    """CUDA's layout (small blocks, a block of threads) only on CUDA and in the parallel form; FBED_DEM_SCAN=serial
-    keeps the one-thread scan there; a wrong value is named."""
+    """CUDA's layout (small blocks, a block of threads) only on CUDA and in the parallel form, once the block scan
+    has passed its start-up check there; where the check fails, the one-thread scan with a warning;
+    FBED_DEM_SCAN=serial keeps the one-thread scan; a wrong value is named."""
     scene, *_ = scrambled_bed(False)
     model = dataclasses.replace(scene.model, serial=False)
+    monkeypatch.setattr(scan, "block_scan_works", lambda threads: True)  # (the barrier path needs CUDA)
     assert scan.layout(model, cuda=False) is model
     assert scan.layout(dataclasses.replace(model, serial=True), cuda=True).scan_threads == 0
     on = scan.layout(model, cuda=True)
     assert (on.scan_block, on.scan_threads, on.scan_emulate) == (scan.CUDA_BLOCK, scan.CUDA_THREADS, False)
+    monkeypatch.setattr(scan, "block_scan_works", lambda threads: False)
+    with pytest.warns(RuntimeWarning, match="start-up check"):
+        failed = scan.layout(model, cuda=True)
+    assert (failed.scan_block, failed.scan_threads) == (scan.CPU_BLOCK, 0)
     monkeypatch.setenv("FBED_DEM_SCAN", "serial")
     off = scan.layout(model, cuda=True)
     assert (off.scan_block, off.scan_threads) == (scan.CPU_BLOCK, 0)
     monkeypatch.setenv("FBED_DEM_SCAN", "blocks")
     with pytest.raises(Exception, match="FBED_DEM_SCAN"):
         scan.layout(model, cuda=True)
+
+
+def test_the_start_up_check_passes_a_right_scan_and_fails_a_wrong_one(monkeypatch):
+    """``block_scan_works`` (run once per process on CUDA before a DEM takes the block scan), here on the emulated
+    shares: true for the scan as it is; false for one whose first entry is off by one."""
+    assert scan.block_scan_works(512, emulate=True)
+    right = scan.exclusive_scan
+
+    @ti.func
+    def off_by_one(t, values: ti.template(), n: ti.template(), tmp: ti.template(), nt: ti.template(),
+                   emulate: ti.template(), barrier: ti.template()):
+        total = right(t, values, n, tmp, nt, emulate, barrier)
+        values[0] += 1
+        return total
+
+    monkeypatch.setattr(scan, "exclusive_scan", off_by_one)  # (a new item count: the check's kernel compiles anew)
+    assert not scan.block_scan_works(512, emulate=True, n=4321)

@@ -10,10 +10,14 @@ another ~0.3 ms for each block's 1,024 cells in turn (a prediction from the late
 and their sums are scanned by one block of ``scan_threads`` threads meeting at barriers (:func:`exclusive_scan`):
 each thread sums a contiguous chunk, the chunk sums are scanned in log2(threads) Hillis-Steele steps, and each
 thread writes its chunk's running sums. Integers, so the result is the same in any order and on any device.
+The barrier path runs on no CPU: on CUDA it is checked once per process against numpy (:func:`block_scan_works`)
+before a DEM takes it, and a device that fails gets the one-thread scan (the same lists) and a warning.
 """
 import dataclasses
 import os
+import warnings
 
+import numpy as np
 import taichi as ti
 
 from ...config.errors import ConfigError
@@ -38,9 +42,47 @@ def layout(model, cuda: bool):
                                "unset it for the device's default")
     if not cuda or model.serial:
         return model
+    if mode == "block" and not block_scan_works(CUDA_THREADS):
+        warnings.warn("the DEM's block scan failed its start-up check on this device: the one-thread scan is used "
+                      "(the same lists, slower builds; FBED_DEM_SCAN=serial says so without the check)", RuntimeWarning)
+        mode = "serial"
     if mode == "serial":
         return dataclasses.replace(model, scan_block=CPU_BLOCK, scan_threads=0, scan_emulate=False)
     return dataclasses.replace(model, scan_block=CUDA_BLOCK, scan_threads=CUDA_THREADS, scan_emulate=False)
+
+
+_works: dict = {}
+
+
+def block_scan_works(threads: int, emulate: bool = False, n: int = 40000) -> bool:
+    """Once per process and thread count: :func:`exclusive_scan` as one block of ``threads`` threads at barriers
+    (CUDA; ``emulate``: their shares on one thread, the CPU) on ``n`` random counts, against numpy. The barrier path
+    runs on no CPU: a device where it misbehaves gets the one-thread scan instead of wrong neighbour lists."""
+    key = (threads, emulate, n)
+    if key not in _works:
+        values, tmp, total = ti.field(ti.i32, n), ti.field(ti.i32, 2 * threads), ti.field(ti.i32, ())
+        counts = np.random.default_rng(5).integers(0, 9, n).astype(np.int32)
+        values.from_numpy(counts)
+        _k_scan_check(values, tmp, total, n, threads, emulate)
+        got = values.to_numpy()
+        _works[key] = bool(np.array_equal(got[1:], np.cumsum(counts)[:-1]) and got[0] == 0
+                           and total[None] == counts.sum())
+    return _works[key]
+
+
+@ti.kernel
+def _k_scan_check(values: ti.template(), tmp: ti.template(), total: ti.template(), n: ti.template(),
+                  nt: ti.template(), emulate: ti.template()):
+    if ti.static(emulate):
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            total[None] = exclusive_scan(0, values, n, tmp, nt, True, False)
+    else:
+        ti.loop_config(block_dim=nt)
+        for t in range(nt):
+            s = exclusive_scan(t, values, n, tmp, nt, False, True)
+            if t == 0:
+                total[None] = s
 
 
 @ti.func
