@@ -22,7 +22,7 @@ import taichi as ti
 from ..launch import kernel
 from ..fields import NO_SPRING, ROLL_EPSD
 from .grains import grain_id, grain_radius, min_image
-from .scan import exclusive_scan
+from .scan import block_scan
 from ..tasks import each_chunk, one_task
 
 REBUILD, OVERFLOW, REMOVED, BUILDS, SPRING_OVERFLOW, DEAD = 0, 1, 2, 3, 4, 5  # nlist.counters
@@ -129,24 +129,17 @@ def scan_block_sums(model: ti.template(), nlist: ti.template(), g):
                 v = nlist.block_sum[k]
                 nlist.block_sum[k] = run
                 run += v
-            nlist.cell_start[model.n_cells] = run
-            nlist.counters[DEAD] = 0
+            _scanned(run, model, nlist)
     else:
-        nt = ti.static(model.scan_threads)
-        if ti.static(model.scan_emulate):
-            ti.loop_config(serialize=True)
-            for _ in range(g):
-                total = exclusive_scan(0, nlist.block_sum, nb, nlist.scan_tmp, nt, True, False)
-                nlist.cell_start[model.n_cells] = total
-                nlist.counters[DEAD] = 0
-        else:  # CUDA: one block (a loop of constant length nt is one block of nt threads); g is the same in all
-            ti.loop_config(block_dim=nt)
-            for t in range(nt):
-                if g != 0:
-                    total = exclusive_scan(t, nlist.block_sum, nb, nlist.scan_tmp, nt, False, True)
-                    if t == 0:
-                        nlist.cell_start[model.n_cells] = total
-                        nlist.counters[DEAD] = 0
+        block_scan(nlist.block_sum, nb, nlist.scan_tmp, model.scan_threads, model.scan_emulate, g, _scanned,
+                   (model, nlist))
+
+
+@ti.func
+def _scanned(total, model: ti.template(), nlist: ti.template()):
+    """After the blocks' scan (one thread): the total (the alive grains) ends the cell list; no dead grain placed."""
+    nlist.cell_start[model.n_cells] = total
+    nlist.counters[DEAD] = 0
 
 
 @ti.func

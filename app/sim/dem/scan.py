@@ -70,19 +70,35 @@ def block_scan_works(threads: int, emulate: bool = False, n: int = 40000) -> boo
     return _works[key]
 
 
+@ti.func
+def _store(total, out: ti.template()):
+    out[None] = total
+
+
 @ti.kernel
 def _k_scan_check(values: ti.template(), tmp: ti.template(), total: ti.template(), n: ti.template(),
                   nt: ti.template(), emulate: ti.template()):
+    block_scan(values, n, tmp, nt, emulate, 1, _store, (total,))
+
+
+@ti.func
+def block_scan(values: ti.template(), n: ti.template(), tmp: ti.template(), nt: ti.template(),
+               emulate: ti.template(), g, done: ti.template(), done_args: ti.template()):
+    """:func:`exclusive_scan` as a top-level loop of the calling kernel, nothing unless ``g``: one block of ``nt``
+    threads (CUDA: a loop of constant length nt is one block; ``g`` is the same in all its threads), or with
+    ``emulate`` one thread taking their shares; then ``done(total, *done_args)`` once. The DEM's build
+    (``neighbors.scan_block_sums``) and the start-up check (:func:`block_scan_works`) both run this."""
     if ti.static(emulate):
         ti.loop_config(serialize=True)
-        for _ in range(1):
-            total[None] = exclusive_scan(0, values, n, tmp, nt, True, False)
+        for _ in range(g):
+            done(exclusive_scan(0, values, n, tmp, nt, True, False), *done_args)
     else:
         ti.loop_config(block_dim=nt)
         for t in range(nt):
-            s = exclusive_scan(t, values, n, tmp, nt, False, True)
-            if t == 0:
-                total[None] = s
+            if g != 0:
+                total = exclusive_scan(t, values, n, tmp, nt, False, True)
+                if t == 0:
+                    done(total, *done_args)
 
 
 @ti.func
