@@ -23,15 +23,12 @@ HERE = pathlib.Path(__file__).resolve()
 def measure(a) -> dict:
     """In this process (the tree on sys.path first): ms per substep with and without a forced build."""
     import dataclasses
-    import time
-
-    import taichi as ti
 
     from app.sim import runtime  # the tree's own app, imported before dem_substep puts this tree first on the path
     from app.sim.dem import DemSolver
-    from app.sim.dem.neighbors import REBUILD
 
     sys.path.insert(1, str(HERE.parent))
+    from dem_scan_check import forced
     from dem_substep import scene_for
 
     arch = runtime.init("cpu", a.precision, a.threads)
@@ -40,22 +37,11 @@ def measure(a) -> dict:
     dem.set_grains(pos, radius=r)
     dem.prepare()
     dem.advance(100)
-
-    def block(build: bool) -> float:
-        ti.sync()
-        t0 = time.perf_counter()
-        for _ in range(a.substeps):
-            if build:
-                dem.nlist.counters[REBUILD] = 1
-            dem.substep()
-        ti.sync()
-        return 1e3 * (time.perf_counter() - t0) / a.substeps
-
-    block(True), block(False)
+    forced(dem, a.substeps, True), forced(dem, a.substeps, False)
     built, plain = [], []
     for _ in range(a.repeats):
-        built.append(block(True))
-        plain.append(block(False))
+        built.append(1e3 * forced(dem, a.substeps, True))
+        plain.append(1e3 * forced(dem, a.substeps, False))
     return {"built": statistics.median(built), "plain": statistics.median(plain), "slots": dem.m.slots}
 
 
