@@ -1,7 +1,8 @@
 """One task a launch on one CPU thread: :func:`one_task`, the whole body of a kernel that takes a compile-time
 ``serial`` flag (:func:`app.sim.runtime.serial` says when to set it: Taichi makes each top-level loop of a kernel a
-task of its own, ~70 us each on one thread); :func:`each_chunk`; and :func:`block_pass`, one pass of a kernel that a
-single block of threads runs, meeting at barriers (CUDA), or one thread that takes their shares in turn."""
+task of its own, ~70 us each on one thread); :func:`each_chunk`; and a kernel that a single block of threads runs,
+meeting at barriers (CUDA), or one thread that takes their shares in turn: :func:`one_block` launches it,
+:func:`block_pass` is one of its passes."""
 import taichi as ti
 
 
@@ -48,3 +49,21 @@ def block_pass(t, nt: ti.template(), emulate: ti.template(), barrier: ti.templat
             body(tt + q * nt, *args)
     if ti.static(barrier):
         ti.simt.block.sync()
+
+
+@ti.func
+def one_block(nt: ti.template(), emulate: ti.template(), barrier: ti.template(), g, body: ti.template(),
+              args: ti.template()):
+    """``body(t, nt, emulate, barrier, *args)`` as a top-level loop of the calling kernel, nothing unless ``g``:
+    with ``barrier`` (CUDA) one block of ``nt`` threads (a loop of constant length nt is one block; ``g`` is the same
+    in all its threads), else one thread, t = 0 (``emulate``: it takes the nt threads' shares in turn, see
+    :func:`block_pass`). The body's passes are :func:`block_pass` calls."""
+    if ti.static(barrier):
+        ti.loop_config(block_dim=nt)
+        for t in range(nt):
+            if g != 0:
+                body(t, nt, False, True, *args)
+    else:
+        ti.loop_config(serialize=True)
+        for _ in range(g):
+            body(0, nt, emulate, False, *args)

@@ -21,7 +21,7 @@ import numpy as np
 import taichi as ti
 
 from ...config.errors import ConfigError
-from ..tasks import block_pass
+from ..tasks import block_pass, one_block
 
 #: the CPU's layout: blocks of 1,024 cells, their sums scanned by one thread
 CPU_BLOCK = 1024
@@ -85,20 +85,18 @@ def _k_scan_check(values: ti.template(), tmp: ti.template(), total: ti.template(
 def block_scan(values: ti.template(), n: ti.template(), tmp: ti.template(), nt: ti.template(),
                emulate: ti.template(), g, done: ti.template(), done_args: ti.template()):
     """:func:`exclusive_scan` as a top-level loop of the calling kernel, nothing unless ``g``: one block of ``nt``
-    threads (CUDA: a loop of constant length nt is one block; ``g`` is the same in all its threads), or with
-    ``emulate`` one thread taking their shares; then ``done(total, *done_args)`` once. The DEM's build
-    (``neighbors.scan_block_sums``) and the start-up check (:func:`block_scan_works`) both run this."""
-    if ti.static(emulate):
-        ti.loop_config(serialize=True)
-        for _ in range(g):
-            done(exclusive_scan(0, values, n, tmp, nt, True, False), *done_args)
-    else:
-        ti.loop_config(block_dim=nt)
-        for t in range(nt):
-            if g != 0:
-                total = exclusive_scan(t, values, n, tmp, nt, False, True)
-                if t == 0:
-                    done(total, *done_args)
+    threads (CUDA), or with ``emulate`` one thread taking their shares (:func:`app.sim.tasks.one_block`); then
+    ``done(total, *done_args)`` once. The DEM's build (``neighbors.scan_block_sums``) and the start-up check
+    (:func:`block_scan_works`) both run this."""
+    one_block(nt, emulate, not emulate, g, _scan_then, (values, n, tmp, done, done_args))
+
+
+@ti.func
+def _scan_then(t, nt: ti.template(), emulate: ti.template(), barrier: ti.template(), values: ti.template(),
+               n: ti.template(), tmp: ti.template(), done: ti.template(), done_args: ti.template()):
+    total = exclusive_scan(t, values, n, tmp, nt, emulate, barrier)
+    if t == 0:
+        done(total, *done_args)
 
 
 @ti.func
@@ -137,7 +135,8 @@ def exclusive_scan(t, values: ti.template(), n: ti.template(), tmp: ti.template(
     """``values[0..n)`` replaced by their exclusive running sums; returns the total (to thread t = 0 at least).
     Thread t of ``nt`` (``tmp`` holds 2 nt integers): its chunk's sum, the chunks' sums scanned in
     log2(nt) steps (double-buffered: each step reads one half of ``tmp`` and writes the other), its chunk written.
-    ``barrier``: one CUDA block; ``emulate``: one thread taking the shares in turn (:func:`app.sim.tasks.block_pass`)."""
+    ``barrier``: one CUDA block; ``emulate``: one thread taking the shares in turn
+    (:func:`app.sim.tasks.block_pass`)."""
     chunk = ti.static((n + nt - 1) // nt)
     block_pass(t, nt, emulate, barrier, nt, _chunk_sum, (values, tmp, n, chunk))
     steps = ti.static(max(0, (nt - 1).bit_length()))

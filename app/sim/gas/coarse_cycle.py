@@ -32,7 +32,7 @@ import taichi as ti
 
 from ...config.errors import ConfigError
 from ..launch import kernel
-from ..tasks import block_pass
+from ..tasks import block_pass, one_block
 from .coarse import coarse_solve
 from .multigrid import POST_SWEEPS, PRE_SWEEPS, Hierarchy, Multigrid, coarsen_constants, coarsen_face_at, diag_at, on
 from .passes import colour_at, first_red_at, level_pair, prolong_black_at, restrict_at
@@ -62,7 +62,7 @@ def max_cells() -> int:
 
 
 @ti.func
-def _cycle(mg: ti.template(), m, L, singular, t, nt: ti.template(), emulate: ti.template(), barrier: ti.template()):
+def _cycle(t, nt: ti.template(), emulate: ti.template(), barrier: ti.template(), mg: ti.template(), m, L, singular):
     """Levels m..L-1 down (x = 0 and a red sweep, black, red, black, restriction: ``vcycle._down``), the coarsest
     level L's one-thread solve (thread 0), levels L-1..m up (prolongation with black, red, black, red:
     ``vcycle._up``). Nothing once the solve has stopped (every count is x on)."""
@@ -91,18 +91,11 @@ def k_coarse_cycle(mg: Multigrid, m: ti.i32, L: ti.i32, singular: ti.i32, thread
     """Levels m..L (L the coarsest) of a V-cycle whose level m's right-hand side the launch before restricted.
     ``barrier`` (CUDA): one block of ``threads`` threads; else one thread (``emulate``: taking the shares of
     ``threads`` threads in turn, the division of the cells a block makes)."""
-    if ti.static(barrier):
-        ti.loop_config(block_dim=threads)
-        for t in range(threads):
-            _cycle(mg, m, L, singular, t, threads, False, True)
-    else:
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _cycle(mg, m, L, singular, 0, threads, emulate, False)
+    one_block(threads, emulate, barrier, 1, _cycle, (mg, m, L, singular))
 
 
 @ti.func
-def _coarsen_levels(mg: ti.template(), m, L, t, nt: ti.template(), emulate: ti.template(), barrier: ti.template()):
+def _coarsen_levels(t, nt: ti.template(), emulate: ti.template(), barrier: ti.template(), mg: ti.template(), m, L):
     """Levels m+1..L from level m down, one after the other (``multigrid._coarsen`` of each: the x, y and z faces,
     then the diagonal, which reads them)."""
     for l in range(m, L):
@@ -119,11 +112,4 @@ def k_coarsen_levels(mg: Hierarchy, m: ti.i32, L: ti.i32, threads: ti.template()
     """The multigrid set-up's coarsenings from level m to the coarsest L in one launch (``multigrid.k_coarsen`` a
     level, the same per-face and per-cell functions): one block of ``threads`` threads with ``barrier`` (CUDA),
     else one thread (``emulate``: the shares of ``threads`` threads in turn), as :func:`k_coarse_cycle`."""
-    if ti.static(barrier):
-        ti.loop_config(block_dim=threads)
-        for t in range(threads):
-            _coarsen_levels(mg, m, L, t, threads, False, True)
-    else:
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            _coarsen_levels(mg, m, L, 0, threads, emulate, False)
+    one_block(threads, emulate, barrier, 1, _coarsen_levels, (mg, m, L))
