@@ -8,7 +8,9 @@ stages run with the one-thread scan). On the CPU both solvers use the CPU's layo
 the check there only exercises the script.
 
 1. Lists: both solvers from the same grains (the squeezed lattice of dem_substep.py, or its tri-disperse bed with
-   ``--poly``), sorted by cell and built (``prepare``); every grain's neighbours, as a set of grain ids, equal.
+   ``--poly``), sorted by cell and built (``prepare``); every grain's neighbours, as a set of grain ids, equal. And the
+   step's diagnostics record, whose 95% height bin the block of threads finds where the serial layout has one thread
+   run through the bins (``step._record_block``): its counts and bed height equal, and the cost of one record each.
 2. Cost: ``--substeps`` substeps with a build forced before each (the device flag set from the host) and as many
    without, interleaved in ``--repeats`` blocks per solver: ms per substep, and the build's share (their difference).
 3. ``--profile``: Taichi's kernel profiler over forced-build substeps: each task's device time (the substep's tasks
@@ -78,6 +80,24 @@ def forced(dem, substeps: int, build: bool) -> float:
     return (time.perf_counter() - t0) / substeps
 
 
+def record_cost(dem, repeats: int, calls: int = 20) -> float:
+    """Seconds per ``record_diagnostics`` (the step's diagnostics record, written on the device), median of
+    ``repeats`` blocks of ``calls``."""
+    import taichi as ti
+
+    ring = ti.ndarray(ti.f64, shape=(calls, len(dem.diag_columns)))
+    dem.record_diagnostics(ring, 0)
+    times = []
+    for _ in range(repeats):
+        ti.sync()
+        t0 = time.perf_counter()
+        for row in range(calls):
+            dem.record_diagnostics(ring, row)
+        ti.sync()
+        times.append((time.perf_counter() - t0) / calls)
+    return statistics.median(times)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--arch", default="cpu", choices=("cpu", "cuda"))
@@ -110,6 +130,16 @@ def main(argv=None) -> int:
             ok = False
         print(f"N={n} lists {'equal' if same else 'DIFFER'}: scan layouts (cells a block, threads) {layouts}",
               flush=True)
+        rec = {m: dem.diagnostics() for m, dem in dems.items()}
+        keys = ("grains_alive", "contacts", "non_finite", "grains_removed", "bed_height")
+        same_record = all(rec["serial"][k] == rec["block"][k] for k in keys)
+        ok &= same_record
+        print(f"N={n} diagnostics record (the 95% height bin by one thread / by the block) "
+              f"{'equal' if same_record else 'DIFFER'}: " + ", ".join(f"{k} {rec['serial'][k]} / {rec['block'][k]}"
+                                                                    for k in keys), flush=True)
+        cost = {m: record_cost(dem, a.repeats) for m, dem in dems.items()}
+        print(f"N={n} diagnostics record, ms per call (median): " + ", ".join(f"{m} {1e3 * c:.4f}"
+                                                                          for m, c in cost.items()), flush=True)
         for dem in dems.values():
             forced(dem, 5, True)  # compile and warm both paths
             forced(dem, 5, False)

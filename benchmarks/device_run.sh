@@ -70,8 +70,9 @@ for stage in "$@"; do
         python3 benchmarks/coarse_cycle_check.py --arch cuda --precision float32 --tol 1e-5' ;;
     dem_scan)  # the DEM list build's cell-list scan as one block of threads at barriers (app/sim/dem/scan.py), CUDA's
       # default and a path no CPU test can run: the same lists as the one-thread scan, the cost of a forced build with
-      # each, and the substep's tasks by device time (kernel profiler). Run it first with coarse: where the lists
-      # differ, the later stages of the call run with the one-thread scan (FBED_DEM_SCAN=serial); ~1 min
+      # each, and the substep's tasks by device time (kernel profiler); and the diagnostics record, whose height
+      # bin that block finds, against one thread's. Run it first with coarse: where the lists or the records differ,
+      # the later stages of the call run with the one-thread scan (FBED_DEM_SCAN=serial); ~1 min
       $T python3 benchmarks/dem_scan_check.py --arch cuda --sizes 1000000 --substeps 40 --repeats 3 --profile ;;
     coarse_ab)  # the gas step without that cycle (a launch down and up per level), to set against gas / gas_profile
       $T bash -c 'python3 benchmarks/flow_throughput.py --arch cuda --grids 32x32x116 32x32x64 --steps 30 --warmup 5 \

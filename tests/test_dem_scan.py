@@ -74,6 +74,34 @@ def test_the_block_scan_builds_the_same_lists(serial):
             assert np.array_equal(sa[key], sb[key]), key
 
 
+@pytest.mark.parametrize("serial", [True, False])
+def test_the_diagnostics_record_by_a_block_of_threads_is_the_one_threads(serial):
+    """The step's diagnostics record (``DemSolver.diagnostics``), whose bed height comes from the first bin of a
+    1,024-bin height histogram where the running count reaches 95% of the grains: on CUDA the bins are scanned by
+    the block of threads and each thread tests its own bins (emulated here, 8 threads), on the CPU one thread runs
+    through them. The scrambled bed (300 grains, about one a bin in its top layers, so the 95% target, 285 grains
+    exactly, is met in the bin of the 285th grain from below and a search that stopped one bin late would differ),
+    before and after 40 substeps: on one thread every figure the same; in the parallel form the integer counts and
+    the bed height (from integer bins; the float sums there follow the threads' order)."""
+    scene, pos, vel, radius = scrambled_bed(True, half_width=0.0115)
+    plain = dataclasses.replace(scene.model, serial=serial)
+    block = dataclasses.replace(plain, scan_block=4, scan_threads=8, scan_emulate=True)
+    a, b = DemSolver(plain), DemSolver(block)
+    for dem in (a, b):
+        dem.set_grains(pos, vel, radius)
+    for _ in range(2):
+        da, db = a.diagnostics(), b.diagnostics()
+        assert da["grains_alive"] == 300 and np.isfinite(da["bed_height"])
+        z = np.sort(a.read("position")[:, 2])
+        width = (a.m.hi[2] - a.m.lo[2]) / 1024
+        assert abs(da["bed_height"] - z[284]) <= width  # in the bin of the 285th grain
+        keys = da if serial else ("grains_alive", "grains_removed", "non_finite", "contacts", "bed_height")
+        for key in keys:
+            assert da[key] == db[key], key
+        for dem in (a, b):
+            dem.advance(40)
+
+
 def test_the_scan_layout_follows_the_device(monkeypatch):
     """CUDA's layout (small blocks, a block of threads) only on CUDA and in the parallel form, once the block scan
     has passed its start-up check there; where the check fails, the one-thread scan with a warning;

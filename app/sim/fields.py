@@ -90,7 +90,8 @@ class DemModel:
     zero_share: int = 4
     # the cell list's scan (``dem/scan.py``, which picks these for the device: ``scan.layout``): cells in blocks of
     # ``scan_block``, the blocks' sums scanned by one thread (``scan_threads`` 0, the CPU) or by one block of
-    # ``scan_threads`` threads at barriers (CUDA); ``scan_emulate``: one CPU thread takes those threads' shares (tests)
+    # ``scan_threads`` threads at barriers (CUDA; that block also scans the diagnostics' height histogram, step.measure);
+    # ``scan_emulate``: one CPU thread takes those threads' shares (tests)
     scan_block: int = 1024
     scan_threads: int = 0
     scan_emulate: bool = False

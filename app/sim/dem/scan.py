@@ -12,6 +12,7 @@ each thread sums a contiguous chunk, the chunk sums are scanned in log2(threads)
 thread writes its chunk's running sums. Integers, so the result is the same in any order and on any device.
 The barrier path runs on no CPU: on CUDA it is checked once per process against numpy (:func:`block_scan_works`)
 before a DEM takes it, and a device that fails gets the one-thread scan (the same lists) and a warning.
+The same block scans the height histogram of the step's diagnostics record (``step.measure``).
 """
 import dataclasses
 import os

@@ -24,7 +24,8 @@ from ..geometry import wall_clearance_normal
 from .contact import contact
 from .grains import grain_mass, grain_radius, min_image, scatter_add, wrap_position
 from .neighbors import REBUILD, REMOVED, SPRING_OVERFLOW, clear_bins, clear_bins_of, rebuild_if_flagged
-from ..tasks import one_task
+from .scan import exclusive_scan
+from ..tasks import block_pass, one_block, one_task
 
 
 @ti.func
@@ -316,7 +317,9 @@ def measure(model: ti.template(), sizes: ti.template(), state: ti.template(), hi
     then write the step's record (``DemSolver.diag_columns``) into ``ring[row, col:]`` (float64): nothing is
     returned, so the host waits for nothing. The wall forces are the contact law's at this instant, with the
     springs as they stand (read, not stepped). On one CPU thread (``model.serial``) one serial task (the loops
-    nested in one loop, in the same order)."""
+    nested in one loop, in the same order). The record's bed-height bin: one thread's running sum where the list
+    build's scan has one thread (``model.scan_threads`` 0, the CPU), else the same block of threads
+    (:func:`_record_block`)."""
     one_task(model.serial, measure_parts, (model, sizes, state, history, nlist, walls, out, hist, ring, row, col))
 
 
@@ -399,23 +402,64 @@ def measure_parts(model: ti.template(), sizes: ti.template(), state: ti.template
     out[4] = alive
     out[5] = n_bad
     out[6] = n_touch
-    ti.loop_config(serialize=True)
-    for _ in range(1):  # one thread: the record, and the first bin where the cumulative count reaches 95%
-        for k in ti.static(range(4)):
-            ring[row, col + k] = ti.cast(out[k], ti.f64)
-        ring[row, col + 4] = ti.cast(alive, ti.f64)
-        ring[row, col + 5] = ti.cast(out[5], ti.f64)
-        ring[row, col + 6] = ti.cast(out[6], ti.f64)
-        ring[row, col + 7] = ti.cast(nlist.counters[REMOVED], ti.f64)
-        target = 0.95 * ti.cast(alive, ti.f64)
-        cum = 0
-        found = 0
-        for b in range(nb):
-            if found == 0 and ti.cast(cum + hist[b], ti.f64) >= target:
-                found = 1
-                ring[row, col + 8] = ti.cast(b, ti.f64)
-                ring[row, col + 9] = ti.cast(cum, ti.f64)
-                ring[row, col + 10] = ti.cast(hist[b], ti.f64)
-            cum += hist[b]
-        for w in ti.static(range(len(model.walls))):
-            ring[row, col + 11 + w] = ti.cast(out[7 + w], ti.f64)
+    if ti.static(model.scan_threads == 0):  # one thread (the CPU): the record, and the 95% bin by a running sum
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            _record_head(model, nlist, out, ring, row, col, alive)
+            target = 0.95 * ti.cast(alive, ti.f64)
+            cum = 0
+            found = 0
+            for b in range(nb):
+                if found == 0 and ti.cast(cum + hist[b], ti.f64) >= target:
+                    found = 1
+                    ring[row, col + 8] = ti.cast(b, ti.f64)
+                    ring[row, col + 9] = ti.cast(cum, ti.f64)
+                    ring[row, col + 10] = ti.cast(hist[b], ti.f64)
+                cum += hist[b]
+    else:  # one block of threads (CUDA; see _record_block)
+        one_block(model.scan_threads, model.scan_emulate, not model.scan_emulate, 1, _record_block,
+                  (model, nlist, out, hist, ring, row, col))
+
+
+@ti.func
+def _record_head(model: ti.template(), nlist: ti.template(), out: ti.template(), ring: ti.template(), row, col,
+                 alive):
+    """The record's columns but the height bin's: the sums, counts and wall forces of ``out``."""
+    for k in ti.static(range(4)):
+        ring[row, col + k] = ti.cast(out[k], ti.f64)
+    ring[row, col + 4] = ti.cast(alive, ti.f64)
+    ring[row, col + 5] = ti.cast(out[5], ti.f64)
+    ring[row, col + 6] = ti.cast(out[6], ti.f64)
+    ring[row, col + 7] = ti.cast(nlist.counters[REMOVED], ti.f64)
+    for w in ti.static(range(len(model.walls))):
+        ring[row, col + 11 + w] = ti.cast(out[7 + w], ti.f64)
+
+
+@ti.func
+def _record_block(t, nt: ti.template(), emulate: ti.template(), barrier: ti.template(), model: ti.template(),
+                  nlist: ti.template(), out: ti.template(), hist: ti.template(), ring: ti.template(), row, col):
+    """The record by one block of threads (CUDA; ``emulate``: their shares on one CPU thread), as the one-thread
+    loop writes it: on CUDA that loop is a chain of 1,024 loads, ~0.2-0.3 ms a fluid step (a prediction from load
+    latencies, not measured). The histogram is scanned in place (:func:`scan.exclusive_scan`, in the list build's
+    buffer ``nlist.scan_tmp``; its total is the alive grains, each binned once), then each thread looks at its bins:
+    the 95% bin is the first whose running sum reaches 0.95 alive, the one bin where it does and the sum before it
+    does not (the histogram is zeroed by the next measure)."""
+    total = exclusive_scan(t, hist, ti.static(hist.shape[0]), nlist.scan_tmp, nt, emulate, barrier)
+    block_pass(t, nt, emulate, barrier, ti.static(hist.shape[0]), _bin_at_95, (hist, total, ring, row, col))
+    if t == 0:
+        _record_head(model, nlist, out, ring, row, col, total)
+
+
+@ti.func
+def _bin_at_95(b, hist: ti.template(), total, ring: ti.template(), row, col):
+    """Bin b's share of the search: ``hist`` holds the counts' exclusive running sums."""
+    nb = ti.static(hist.shape[0])
+    below = hist[b]
+    upto = total
+    if b + 1 < nb:
+        upto = hist[b + 1]
+    target = 0.95 * ti.cast(total, ti.f64)
+    if ti.cast(upto, ti.f64) >= target and (b == 0 or ti.cast(below, ti.f64) < target):
+        ring[row, col + 8] = ti.cast(b, ti.f64)
+        ring[row, col + 9] = ti.cast(below, ti.f64)
+        ring[row, col + 10] = ti.cast(upto - below, ti.f64)
