@@ -7,8 +7,14 @@ tri-disperse with epsd rolling). Blocks of ``--substeps`` alternate A B, B A, ..
 CPU time (not counting time spent descheduled) and wall time per substep are kept. Prints and appends the
 medians and the median of the per-pair ratios A/B (> 1: B is faster).
 
+``--build``: what one neighbour-list build costs instead. Each tree's block is ``--substeps`` substeps with a build
+forced before each (the device flag set from the host) and then as many without; a build's cost is their
+difference, and the ratio is taken pair by pair. A bubbling bed builds every few tens of substeps (verma_small: 316
+builds in 10,400 substeps), a settled one almost never: the substep timings do not see this cost.
+
     git worktree add /tmp/old e7a1a90   # or: git archive e7a1a90 | tar -x -C /tmp/old
     python benchmarks/dem_ab.py --a /tmp/old --b . --n 10000 50000 --precision float32
+    python benchmarks/dem_ab.py --a /tmp/old --b . --n 20000 --build --substeps 20 --blocks 11
 """
 from __future__ import annotations
 
@@ -46,7 +52,7 @@ def settled(beds: pathlib.Path, n: int, shuffle: bool) -> dict:
     return bed
 
 
-def settled_solver(pkg: str, n: int, precision: str, bed: dict):
+def settled_solver(pkg: str, n: int, precision: str, bed: dict, serial: bool = True):
     """dem_throughput.py's fair scene (2 mm grains, skin 0.1 d, Hertz-Mindlin + friction) on the settled bed."""
     cfgmod = importlib.import_module(pkg + ".config")
     scenemod = importlib.import_module(pkg + ".scene")
@@ -60,13 +66,13 @@ def settled_solver(pkg: str, n: int, precision: str, bed: dict):
             f"[dem]\ndt = {bench.DT}\nskin = {0.1 * bench.D}\n")
     r = np.full(n, bench.D / 2)
     scene = scenemod.Scene(cfgmod.load_text(text, "bench.toml"), "bench.toml",
-                           initial={"position": pos, "velocity": bed["velocity"], "radius": r}, serial=True)
+                           initial={"position": pos, "velocity": bed["velocity"], "radius": r}, serial=serial)
     dem = demmod.DemSolver(scene.model)
     dem.set_grains(pos, bed["velocity"], r, bed["omega"])
     return dem
 
 
-def solver(pkg: str, n: int, poly: bool, precision: str, rolling: bool = False):
+def solver(pkg: str, n: int, poly: bool, precision: str, rolling: bool = False, serial: bool = True):
     cfgmod = importlib.import_module(pkg + ".config")
     scenemod = importlib.import_module(pkg + ".scene")
     demmod = importlib.import_module(pkg + ".sim.dem")
@@ -87,10 +93,25 @@ def solver(pkg: str, n: int, poly: bool, precision: str, rolling: bool = False):
             f"dt = {bench.DT}\n")
     r = np.random.default_rng(1).choice(np.asarray(sizes) / 2, n) if poly else np.full(n, bench.D / 2)
     scene = scenemod.Scene(cfgmod.load_text(text, "bench.toml"), "bench.toml",
-                           initial={"position": pos, "velocity": np.zeros_like(pos), "radius": r}, serial=True)
+                           initial={"position": pos, "velocity": np.zeros_like(pos), "radius": r}, serial=serial)
     dem = demmod.DemSolver(scene.model)
     dem.set_grains(pos, radius=r)
     return dem
+
+
+def timed(dem, substeps: int, build: bool, rebuild: int) -> tuple[float, float]:
+    """Process CPU and wall ms per substep over ``substeps`` single substeps, a build forced before each when
+    ``build`` (``rebuild``: the tree's index of the flag in ``nlist.counters``)."""
+    import taichi as ti
+
+    ti.sync()
+    c0, w0 = time.process_time(), time.perf_counter()
+    for _ in range(substeps):
+        if build:
+            dem.nlist.counters[rebuild] = 1
+        dem.substep()
+    ti.sync()
+    return 1e3 * (time.process_time() - c0) / substeps, 1e3 * (time.perf_counter() - w0) / substeps
 
 
 def main(argv=None):
@@ -107,6 +128,9 @@ def main(argv=None):
     ap.add_argument("--shuffle", action="store_true", help="shuffle the grain ids of the settled bed (both trees)")
     ap.add_argument("--blocks", type=int, default=9)
     ap.add_argument("--substeps", type=int, default=100)
+    ap.add_argument("--build", action="store_true", help="time a forced neighbour-list build, not the substep")
+    ap.add_argument("--threads", type=int, default=1, help="CPU threads: 1, the serial form a run on 2 cores uses; "
+                                                           "more, the parallel form (CUDA's kernels)")
     ap.add_argument("--no-append", action="store_true")
     a = ap.parse_args(argv)
     tmp = pathlib.Path(tempfile.mkdtemp(prefix="dem_ab_"))
@@ -117,47 +141,70 @@ def main(argv=None):
 
     run_a = importlib.import_module("app_a.sim.runtime")
     run_b = importlib.import_module("app_b.sim.runtime")
-    run_b.init("cpu", a.precision, 1)
+    run_b.init("cpu", a.precision, a.threads)
+    serial = a.threads == 1
     run_a._current = run_b._current  # one Taichi for both: a second ti.init would drop the first's fields
     rows = []
     for n in a.n:
         if a.bed == "settled":
             bed = settled(pathlib.Path(a.beds), n, a.shuffle)
-            dems = {k: settled_solver(k, n, a.precision, bed) for k in ("app_a", "app_b")}
+            dems = {k: settled_solver(k, n, a.precision, bed, serial) for k in ("app_a", "app_b")}
         else:
-            dems = {k: solver(k, n, a.poly, a.precision, a.rolling) for k in ("app_a", "app_b")}
+            dems = {k: solver(k, n, a.poly, a.precision, a.rolling, serial) for k in ("app_a", "app_b")}
         for dem in dems.values():
             dem.advance(200)
         ti.sync()
+        rebuild = {k: importlib.import_module(k + ".sim.dem.neighbors").REBUILD for k in dems}
+        if a.build:
+            for k, dem in dems.items():  # compile the substep on its own, with and without a build
+                timed(dem, 2, True, rebuild[k]), timed(dem, 2, False, rebuild[k])
         cpu = {k: [] for k in dems}
         wall = {k: [] for k in dems}
+        plain = {k: [] for k in dems}
         for b in range(a.blocks):
             order = list(dems) if b % 2 == 0 else list(dems)[::-1]
             for k in order:
-                c0, w0 = time.process_time(), time.perf_counter()
-                dems[k].advance(a.substeps)
-                ti.sync()
-                cpu[k].append(1e3 * (time.process_time() - c0) / a.substeps)
-                wall[k].append(1e3 * (time.perf_counter() - w0) / a.substeps)
+                if a.build:
+                    (c1, w1), (c0, w0) = (timed(dems[k], a.substeps, f, rebuild[k]) for f in (True, False))
+                    cpu[k].append(c1 - c0)
+                    wall[k].append(w1 - w0)
+                    plain[k].append(c0)
+                else:
+                    c0, w0 = time.process_time(), time.perf_counter()
+                    dems[k].advance(a.substeps)
+                    ti.sync()
+                    cpu[k].append(1e3 * (time.process_time() - c0) / a.substeps)
+                    wall[k].append(1e3 * (time.perf_counter() - w0) / a.substeps)
         rc = [x / y for x, y in zip(cpu["app_a"], cpu["app_b"])]
         rw = [x / y for x, y in zip(wall["app_a"], wall["app_b"])]
         kind = "tri-disperse epsd" if a.poly else ("monodisperse epsd" if a.rolling else "monodisperse")
         if a.bed == "settled":
             kind = "settled (LIGGGHTS), ids shuffled" if a.shuffle else "settled (LIGGGHTS)"
-        rows.append({"N": n, "bed": kind,
-                     "A cpu ms/substep": f"{statistics.median(cpu['app_a']):.3f}",
-                     "B cpu ms/substep": f"{statistics.median(cpu['app_b']):.3f}",
-                     "A/B cpu (median of pairs, min-max)": f"{statistics.median(rc):.3f} ({min(rc):.2f}-{max(rc):.2f})",
-                     "A/B wall": f"{statistics.median(rw):.3f}",
-                     "B contacts": dems["app_b"].diagnostics().get("contacts", "-")})
+        what = "build" if a.build else "substep"
+        row = {"N": n, "bed": kind,
+               f"A cpu ms/{what}": f"{statistics.median(cpu['app_a']):.3f}",
+               f"B cpu ms/{what}": f"{statistics.median(cpu['app_b']):.3f}",
+               "A/B cpu (median of pairs, min-max)": f"{statistics.median(rc):.3f} ({min(rc):.2f}-{max(rc):.2f})",
+               "A/B wall": f"{statistics.median(rw):.3f}"}
+        if a.build:
+            rp = [x / y for x, y in zip(plain["app_a"], plain["app_b"])]
+            row.update({"A / B cpu ms/substep without": f"{statistics.median(plain['app_a']):.3f} / "
+                                                         f"{statistics.median(plain['app_b']):.3f}",
+                        "A/B without": f"{statistics.median(rp):.3f}"})
+        row["B contacts"] = dems["app_b"].diagnostics().get("contacts", "-")
+        rows.append(row)
         print(rows[-1], flush=True)
     shutil.rmtree(tmp, ignore_errors=True)
     bed_text = "squeezed-lattice bed"
     if a.bed == "settled":
         bed_text = "settled LIGGGHTS bed (skin 0.1 d" + (", ids shuffled)" if a.shuffle else ")")
-    title = (f"DEM substep, two commits in one process (cpu, {a.precision}, threads 1; A = {a.a}, B = {a.b}; "
+    title = (f"DEM substep, two commits in one process (cpu, {a.precision}, threads {a.threads}; A = {a.a}, B = {a.b}; "
              f"{bed_text} in a cylinder, Hertz-Mindlin + friction, dt = 2e-06 s; {a.blocks} interleaved "
              f"blocks of {a.substeps} substeps after 200 warm-up)")
+    if a.build:
+        title = (f"DEM list build, two commits in one process (cpu, {a.precision}, threads {a.threads}; A = {a.a}, B = {a.b}; "
+                 f"{bed_text} in a cylinder; {a.blocks} interleaved blocks, each {a.substeps} substeps with a build "
+                 f"forced before each and {a.substeps} without, after 200 warm-up; a build = their difference)")
     append_results(title, rows, "cpu", dry=a.no_append)
 
 
