@@ -26,7 +26,7 @@ def test_a_gpu_sized_scene_on_the_cpu_says_its_time_and_its_small_variant():
     # verma.toml: 965,000 grains, 106 DEM substeps per step, 6500 steps
     note = cpu_estimate_note(ROOT / "presets" / "verma.toml", 965_000, 106, 6500)
     assert note and "GPU-sized" in note and "presets/verma_small.toml" in note and " h " in note
-    # its small variant (14,000 grains, 52 substeps, 1000 steps: 3 min measured) gets no note
+    # its small variant (14,000 grains, 52 substeps, 1000 steps: 90 s of stepping measured) gets no note
     assert cpu_estimate_note(ROOT / "presets" / "verma_small.toml", 14_000, 52, 1000) is None
 
 

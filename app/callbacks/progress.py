@@ -92,8 +92,9 @@ class Progress:
 
 
 # GPU-sized scenes on the CPU: the time is estimated from a measured CPU rate (verma_small: 14,000 grains x 52
-# substeps x 1000 steps in 3.0 min on 2 CPU cores, gas included), so a run of hours says so before it starts
-CPU_PARTICLE_SUBSTEPS_PER_S = 4.0e6
+# substeps x 1000 steps stepped in 90 s on 2 idle CPU cores, gas included; 2026-12-06, benchmarks/RESULTS.md), so a
+# run of hours says so before it starts. A million grains outgrow the CPU's caches: read it as a lower bound
+CPU_PARTICLE_SUBSTEPS_PER_S = 8.0e6
 LONG_ON_CPU = 3600.0  # s
 
 
