@@ -43,9 +43,25 @@ export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"  # the scripts import app as
 L=runs/devout; mkdir -p $L  # inside runs/ (git-ignored): the device keeps it between calls
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$L/gpu.txt" 2>&1
 [ -d runs/reference ] && export FBED_REFERENCE=$PWD/runs/reference  # X-ray, Ghia: for the analyses' reference columns
+# BUDGET=<s>: the whole call's seconds (the run tool's timeout_s less its start, e.g. 540 of 600). Each stage's limit
+# is then cut to what is left of it less 45 s for the packing below, and a stage with under 30 s left is skipped, so a
+# call whose stages all run to their limits still packs its results instead of being killed first. After each stage
+# its exit and the tail of its log go into $OUT/progress.txt (one file): that much comes back even from a call killed
+# by the run tool's timeout.
+BUDGET=${BUDGET:-0}
+call_start=$(date +%s)
 for stage in "$@"; do
   start=$(date +%s)
   lim=$(eval echo "\${LIMIT_$stage:-590}")  # e.g. LIMIT_boyce=300: SIGTERM stops the run cleanly in time
+  if [ "$BUDGET" -gt 0 ]; then
+    left=$(( BUDGET - (start - call_start) - 45 ))
+    if [ "$left" -lt 30 ]; then
+      echo "$stage: skipped, ${left} s of BUDGET=$BUDGET left" | tee -a "$L/stages.txt"
+      [ -n "${OUT:-}" ] && echo "== $stage: skipped (budget)" >> "$OUT/progress.txt"
+      continue
+    fi
+    [ "$lim" -gt "$left" ] && lim=$left
+  fi
   T="timeout -k 15 -s TERM $lim"  # -k: a bench whose scenes run in child processes is killed 15 s after
   case "$stage" in
     gas)
@@ -158,7 +174,9 @@ for stage in "$@"; do
         --set boundary.bottom.jet_duration=0.1542,0.0667,0.0514,0.025 --set video.enabled=false ;;
   esac > "$L/$stage.log" 2>&1
   rc=$?
-  echo "$stage: exit $rc in $(( $(date +%s) - start )) s" | tee -a "$L/stages.txt"
+  echo "$stage: exit $rc in $(( $(date +%s) - start )) s (limit $lim s)" | tee -a "$L/stages.txt"
+  [ -n "${OUT:-}" ] && { echo "== $stage: exit $rc in $(( $(date +%s) - start )) s (limit $lim s)"
+    tail -n 80 "$L/$stage.log"; } >> "$OUT/progress.txt"
   if [ "$stage" = dem_scan ] && [ $rc -ne 0 ]; then  # every later DEM build on CUDA would use the block scan
     export FBED_DEM_SCAN=serial  # the one-thread scan of 1,024-cell blocks instead (the same lists)
     echo "dem_scan: the DEM's block scan failed its check on CUDA: later stages run without it (FBED_DEM_SCAN=serial)" \
