@@ -55,6 +55,20 @@ def test_bad_preset_clear_message_exit_2(case, tmp_path):
     assert not (tmp_path / "out" / "run.h5").exists()
 
 
+@pytest.mark.skipif(__import__("app.sim.runtime", fromlist=["gpu_available"]).gpu_available(),
+                    reason="this machine has a CUDA driver: --arch cuda would run there")
+def test_cuda_asked_for_without_a_gpu_is_an_error_not_a_cpu_run_labelled_cuda(tmp_path):
+    """Taichi falls back to the CPU when CUDA is missing; a run would then step on the CPU while its log and
+    summary.json said cuda (and a benchmark would record CPU timings as the GPU's). It stops instead, names the
+    flag and the way out, and writes nothing."""
+    r = fbed("run", ROOT / "presets" / "settle.toml", "--arch", "cuda", "--set", "run.duration=0.001",
+             "--out", tmp_path / "o")
+    assert r.returncode == 2, r.stderr
+    assert "--arch" in r.stderr and "no usable CUDA device" in r.stderr and "--arch cpu" in r.stderr
+    assert "Traceback" not in r.stderr
+    assert not (tmp_path / "o").exists()
+
+
 def test_missing_preset_and_bad_override(tmp_path):
     r = fbed("run", ROOT / "presets" / "setle.toml")
     assert r.returncode == 2 and "no such preset" in r.stderr and "settle.toml" in r.stderr

@@ -12,6 +12,8 @@ import time
 
 import taichi as ti
 
+from ..config.errors import ConfigError
+
 _current: tuple | None = None
 #: Taichi wrappers (ndarrays, argpacks) still referenced when Taichi restarted, by id: kept alive for good (see
 #: :func:`_keep_survivors`)
@@ -113,6 +115,11 @@ def init(arch: str = "auto", precision: str = "float32", threads: int | None = N
         ti.init(arch=ti.cpu, **kwargs)
     elif arch == "cuda":
         ti.init(arch=ti.cuda, device_memory_fraction=0.9, **kwargs)
+        if ti.lang.impl.current_cfg().arch != ti.cuda:  # Taichi fell back to the CPU: a run would say 'cuda'
+            ti.reset()
+            raise ConfigError("CUDA was asked for, but Taichi found no usable CUDA device here (it would have run on "
+                              "the CPU while its outputs said cuda)", "--arch", "cuda",
+                              hint="--arch cpu, or --arch auto (the GPU when there is one, else the CPU)")
     else:
         raise ValueError(f"unknown arch {arch!r}")
     _current = key
