@@ -69,6 +69,19 @@ def test_cuda_asked_for_without_a_gpu_is_an_error_not_a_cpu_run_labelled_cuda(tm
     assert not (tmp_path / "o").exists()
 
 
+def test_auto_takes_the_cpu_where_a_cuda_driver_has_no_usable_device():
+    """``--arch auto`` tries CUDA where the driver library loads; where Taichi then finds no device it runs on the
+    CPU (set up as the CPU, and said so), not an error: the probe is told here that a driver is present."""
+    code = ("import app.sim.runtime as r; r.gpu_available = lambda: True; a = r.init('auto'); "
+            "import taichi as ti; print(a, ti.lang.impl.current_cfg().arch.name)")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
+                       env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=120)
+    if "cuda cuda" in r.stdout:
+        pytest.skip("this machine has a usable CUDA device")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split()[-2:] == ["cpu", "x64"], r.stdout
+
+
 def test_missing_preset_and_bad_override(tmp_path):
     r = fbed("run", ROOT / "presets" / "setle.toml")
     assert r.returncode == 2 and "no such preset" in r.stderr and "settle.toml" in r.stderr

@@ -95,11 +95,13 @@ def init(arch: str = "auto", precision: str = "float32", threads: int | None = N
     """Start Taichi on ``arch`` ('auto', 'cpu', 'cuda') with ``precision`` ('float32'|'float64').
 
     Re-initialises only when the settings change (re-init drops every field and kernel).
-    Returns the arch actually used ('cpu' or 'cuda'). ``kernel_profiler``: Taichi's kernel profiler on
+    Returns the arch actually used ('cpu' or 'cuda'). 'cuda' where Taichi finds no usable CUDA device is a
+    ConfigError (Taichi itself would fall back to the CPU); 'auto' then takes the CPU. ``kernel_profiler``: Taichi's kernel profiler on
     (benchmarks only: it records every offloaded task, :func:`profiled_tasks`).
     """
     global _current
-    if arch == "auto":
+    auto = arch == "auto"
+    if auto:
         arch = "cuda" if gpu_available() else "cpu"
     key = (arch, precision, threads, debug) + ((True,) if kernel_profiler else ())
     if _current == key:
@@ -117,6 +119,9 @@ def init(arch: str = "auto", precision: str = "float32", threads: int | None = N
         ti.init(arch=ti.cuda, device_memory_fraction=0.9, **kwargs)
         if ti.lang.impl.current_cfg().arch != ti.cuda:  # Taichi fell back to the CPU: a run would say 'cuda'
             ti.reset()
+            _current = None
+            if auto:  # a CUDA driver without a usable device: the CPU, set up as such (its threads)
+                return init("cpu", precision, threads, debug, kernel_profiler)
             raise ConfigError("CUDA was asked for, but Taichi found no usable CUDA device here (it would have run on "
                               "the CPU while its outputs said cuda)", "--arch", "cuda",
                               hint="--arch cpu, or --arch auto (the GPU when there is one, else the CPU)")
