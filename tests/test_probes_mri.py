@@ -9,7 +9,7 @@ import pytest
 
 from app.config import load_text
 from app.probes_mri import MriImage, slab_volume
-from dem_helpers import merged, toml_text
+from dem_helpers import make, merged, toml_text
 from test_cli import fbed
 
 pytestmark = pytest.mark.unit
@@ -69,6 +69,38 @@ def test_binning_keeps_the_grains_volume():
     i, k = int((0.001 + 0.048) / 0.004), int(0.013 / 0.008)
     assert 1.0 - one[i, k] == pytest.approx(4 / 3 * math.pi * 1e-9 / (0.004 * 0.008 * 0.01), rel=1e-12)
     assert np.count_nonzero(one < 1.0) == 1
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_the_device_binning_is_numpys(precision, session_runtime_after):
+    """``DemSolver.slab_volumes`` (the probe's frame, binned on the device in float64 whatever the run's precision)
+    against ``MriImage.volumes`` (numpy) on the same grains, the DEM's own positions read back: a tri-disperse bed of
+    4,000 grains in the 96 mm cylinder, many straddling the slab's faces, some beyond the pixel grid's top (z over
+    0.24 m: nothing), a tenth of them dead (nothing). Equal to rounding (the sums in another order: 1e-12 relative);
+    in float32 too, where a constant taken in the run's precision (pi: 2.8e-8) would show."""
+    from app.sim import runtime
+
+    runtime.init("cpu", precision, 1)
+    im = image()
+    rng = np.random.default_rng(5)
+    n = 4000
+    r = rng.choice([0.46e-3, 0.525e-3, 0.635e-3], n)
+    x = np.column_stack([rng.uniform(-0.03, 0.03, n), rng.uniform(-0.007, 0.007, n), rng.uniform(0.0, 0.3, n)])
+    alive = rng.uniform(size=n) > 0.1
+    _, dem = make(x, radius=r, domain={"lo": [-0.048, -0.048, 0.0], "hi": [0.048, 0.048, 0.3]},
+                  vessel={"shape": "cylinder", "radius": 0.048},
+                  particles={"count": n, "diameter": 0.0, "diameters": [0.92e-3, 1.05e-3, 1.27e-3],
+                             "fractions": [0.34, 0.33, 0.33]})
+    dem.set_grains(x, radius=r, alive=alive)
+    got = dem.slab_volumes(im.yc, 0.5 * im.width, (im.x0, im.z0), (im.dx, im.dz), (im.nx, im.nz))
+    pos = dem.read("position").astype(np.float64)
+    rad = dem.radii().astype(np.float64)  # as stored: float32 in a float32 run
+    live = dem.read("alive").astype(bool)
+    want = im.volumes(pos[live], rad[live])
+    assert got.shape == (im.nx, im.nz) and got.dtype == np.float64
+    assert np.allclose(got, want, rtol=1e-12, atol=1e-22) and want.sum() > 0
+    assert not np.allclose(want, im.volumes(pos, rad), rtol=1e-3, atol=0.0)  # the dead grains would have counted
+    assert np.any(pos[live, 2] > im.z0 + im.nz * im.dz)  # live grains above the grid, which count nowhere
 
 
 def test_every_probe_on_keeps_each_records_attributes(tmp_path):

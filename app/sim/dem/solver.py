@@ -10,6 +10,7 @@ from ..fields import NO_SPRING, ROLL_EPSD, ContactHistory, DemModel, GrainModel,
 from .. import runtime
 from . import scan
 from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW, sort_by_cell
+from .slab import slab_volumes
 from .step import DIAG_COLUMNS, dem_build, dem_substep, dem_substeps, measure
 
 
@@ -37,6 +38,7 @@ class DemSolver:
         self._diag = ti.field(float, 7 + len(model.walls))
         self._hist = ti.field(ti.i32, 1024)
         self._diag_row = None  # diagnostics()' one-row ring
+        self._slab_out = None  # slab_volumes()' image
         self.substeps_done = 0
         self._ids = None  # host copy of fixed.grain_id (dropped at every sort)
         self._builds_seen = self._builds_at_sort = 0
@@ -166,6 +168,18 @@ class DemSolver:
         if self.m.polydisperse:
             return self._by_id(self.fixed.radius.to_numpy())
         return np.full(self.m.n, self.m.radius)
+
+    def slab_volumes(self, y_center: float, half_width: float, origin: tuple, pixel: tuple,
+                     shape: tuple) -> np.ndarray:
+        """The alive grains' volume [m^3] within the vertical slab |y - y_center| < half_width [m], binned by
+        centre onto ``shape`` = (nx, nz) pixels of ``pixel`` = (dx, dz) [m] from ``origin`` = (x0, z0) [m]: an
+        (nx, nz) float64 array, computed on the device (``slab.slab_volumes``), one small array read back."""
+        shape = tuple(int(v) for v in shape)
+        if self._slab_out is None or self._slab_out.shape != shape:
+            self._slab_out = ti.ndarray(ti.f64, shape=shape)
+        slab_volumes(self.m, self.fixed, self.state, float(y_center), float(half_width), float(origin[0]),
+                     float(origin[1]), float(pixel[0]), float(pixel[1]), self._slab_out)
+        return self._slab_out.to_numpy()
 
     def masses(self) -> np.ndarray:
         if self.m.polydisperse:
