@@ -94,6 +94,9 @@ for stage in "$@"; do
       $T bash -c 'python3 benchmarks/flow_throughput.py --arch cuda --grids 32x32x116 32x32x64 --steps 30 --warmup 5 \
           --coarse-block off && python3 benchmarks/gas_counts.py --arch cuda --grids 32x32x116 --coarse-block off \
           --label "coarse block off"' ;;
+    mri_frame)  # one synthetic-MRI frame of 1e6 grains: read back and binned in numpy (the probe before 2026-12-06)
+      # against binned on the device (DemSolver.slab_volumes, the probe now); exits 1 if the images differ; ~30 s
+      $T python3 benchmarks/mri_frame_cost.py --arch cuda --n 1000000 ;;
     gas_profile)  # where the gas step's time goes on the device: per kernel, tasks and summed task time a step
       $T python3 benchmarks/gas_counts.py --arch cuda --profile --grids 32x32x116 32x32x64 --steps 10 --warmup 3 ;;
     series)
