@@ -51,6 +51,24 @@ def read_solvers(sim, what: str):
     raise KeyError(what)
 
 
+def shift_sums(c0: np.ndarray, c1: np.ndarray, vol: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The frame's volume shifts: the distinct pairs (c0, c1) of the grains' cells at its start and end as keys
+    c0 n + c1, ascending, and each pair's summed grain volume, added in grain order: exactly
+    ``np.unique(c0 * n + c1, return_inverse=True)`` and ``np.bincount(inverse, weights=vol)``. Most grains end a
+    frame in the cell they started it in: those pairs are summed by a bincount over the cells, and only the others go
+    through np.unique's sort (1e6 grains: the sort took ~100 ms a frame on the CPU)."""
+    stay = c0 == c1
+    c_stay = c0[stay]
+    present = np.bincount(c_stay, minlength=n) > 0
+    w_stay = np.bincount(c_stay, weights=vol[stay], minlength=n)[present]
+    diag = np.nonzero(present)[0].astype(np.int64)
+    keys_move, inv = np.unique(c0[~stay].astype(np.int64) * n + c1[~stay], return_inverse=True)
+    w_move = np.bincount(inv, weights=vol[~stay], minlength=keys_move.size)
+    keys = np.concatenate([diag * n + diag, keys_move])
+    order = np.argsort(keys, kind="stable")
+    return keys[order], np.concatenate([w_stay, w_move])[order]
+
+
 def face_eps(eps: np.ndarray, axis: int) -> np.ndarray:
     """eps on the faces normal to ``axis``: the mean of the two cells inside, the cell's own value on the
     domain faces (as the gas solver's boundary flux uses it). The recorded fluxes use the solver's own face
@@ -282,9 +300,7 @@ class RcfdRecorder:
             self._append(f[f"boundary/{name}"], np.bincount(cells, weights=w, minlength=self.n).astype(np.float32))
         if self.open_frame is not None:
             b_start, c_start = self.open_frame
-            pair = c_start * self.n + cells
-            keys, inv = np.unique(pair, return_inverse=True)
-            w = np.bincount(inv, weights=vol)
+            keys, w = shift_sums(c_start, cells, vol, self.n)
             off = f["frame/offset"]
             self._append(f["shift/c0"], (keys // self.n).astype(np.int32))
             self._append(f["shift/c1"], (keys % self.n).astype(np.int32))

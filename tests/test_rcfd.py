@@ -344,3 +344,24 @@ def test_octant_is_the_half_cell_within_the_cell_with_the_cells_clipping():
     fine = np.unravel_index(db.fine_cells(0), db.fine_shape)
     half = np.clip(np.floor((x - rec_.origin) / (0.5 * rec_.h)).astype(int), 0, np.array(db.fine_shape) - 1)
     assert np.array_equal(np.stack(fine, 1), half)
+
+
+@pytest.mark.parametrize("moved", [0.0, 0.1, 1.0])
+def test_shift_sums_are_the_unique_pairs_sums_bit_for_bit(moved):
+    """The recording probe's volume shifts of a frame (``rcfd_probe.shift_sums``: the grains that stay in their cell
+    summed by a bincount, only the others sorted) against the plain np.unique of all pairs and the bincount over its
+    inverse: the same keys in the same order and the same sums to the last bit (each pair's volumes added in grain
+    order), whether no grain, a tenth of them or all may change cell; and an empty frame."""
+    from app.rcfd_probe import shift_sums
+
+    rng = np.random.default_rng(int(10 * moved))
+    n, m = 500, 20000
+    c0 = rng.integers(0, n, m)
+    c1 = np.where(rng.uniform(size=m) < moved, np.clip(c0 + rng.integers(-3, 4, m), 0, n - 1), c0)
+    vol = rng.choice([4.07e-10, 6.06e-10, 1.07e-9], m) * rng.uniform(0.9, 1.1, m)
+    keys, inv = np.unique(c0 * n + c1, return_inverse=True)
+    got_keys, got_w = shift_sums(c0, c1, vol, n)
+    assert np.array_equal(got_keys, keys) and np.array_equal(got_w, np.bincount(inv, weights=vol))
+    assert (moved == 0.0) == np.all(keys // n == keys % n)
+    empty = shift_sums(c0[:0], c1[:0], vol[:0], n)
+    assert empty[0].size == 0 and empty[1].size == 0
