@@ -33,7 +33,7 @@ def read_solvers(sim, what: str):
     'geometry' -> (shape, h [m], origin [m], open volume fraction, apertures (3 face arrays));
     'eps' -> the gas void fraction (nx, ny, nz); 'add_flux' -> adds a step's face fluxes to the gas solver's
     device sums (returns a function of dt [s]); 'flux_sum' -> those sums [m^3] (3 face arrays), then cleared;
-    'grains' -> (positions (n, 3) [m], radii [m], alive (n,) bool); 'bed_height' -> [m]."""
+    'grains' -> (positions (n, 3) [m], alive (n,) bool); 'radii' -> [m] (n,); 'bed_height' -> [m]."""
     flow, dem = sim.flow, sim.dem
     if what == "geometry":
         return (tuple(flow.shape), float(flow.h), np.asarray(flow.config.grid.origin, float),
@@ -45,7 +45,9 @@ def read_solvers(sim, what: str):
     if what == "flux_sum":
         return flow.face_flux_sum()
     if what == "grains":
-        return dem.read("position"), dem.radii(), dem.read("alive").astype(bool)
+        return dem.read("position"), dem.read("alive").astype(bool)
+    if what == "radii":
+        return dem.radii()
     if what == "bed_height":
         return float(sim.diagnostics()["bed_height"])
     raise KeyError(what)
@@ -149,6 +151,7 @@ class RcfdRecorder:
             self.tagged_ids = f["grains_tagged"][...] if "grains_tagged" in f else None
             self.counted = f["grains_counted"][...] if "grains_counted" in f else None
             self.tagged = None
+            self.vol = None
             self.last_cells = None
             return
         f.attrs.update(h=self.h, origin=self.origin, shape=self.shape, frame_interval=self.spf * self.step,
@@ -179,6 +182,7 @@ class RcfdRecorder:
         self.tagged_ids = None
         self.counted = None
         self.tagged = None
+        self.vol = None
         self.last_cells = None
 
     def _truncate(self, t: float) -> None:
@@ -259,9 +263,15 @@ class RcfdRecorder:
             self.rate_samples += 1
         self.prev_eps = eps
 
+    def volumes(self, sim) -> np.ndarray:
+        """The counted grains' volumes [m^3]: the radii read once (they do not change in a run), not every frame."""
+        if self.vol is None:
+            self.vol = grain_volume(read_solvers(sim, "radii")[self.counted])
+        return self.vol
+
     def _boundary(self, sim, eps: np.ndarray) -> None:
         f = self.f
-        x, r, alive = read_solvers(sim, "grains")
+        x, alive = read_solvers(sim, "grains")
         if self.counted is None:  # the grains counted from the first boundary on
             self.counted = np.nonzero(alive)[0]
             self.tagged_ids = self.counted[tag_mask(self.tag, x[self.counted])]
@@ -270,7 +280,7 @@ class RcfdRecorder:
             f.attrs["grains"] = int(self.counted.size)
             if self.grain_cells:
                 n = int(self.counted.size)
-                f.create_dataset("grains_volume", data=grain_volume(r[self.counted]))
+                f.create_dataset("grains_volume", data=self.volumes(sim))
                 f.create_dataset("boundary/cells", shape=(0, n), maxshape=(None, n), dtype="i4",
                                  chunks=(max(1, min(64, (1 << 20) // (4 * n))), n), compression="gzip")
                 f.create_dataset("boundary/octant", shape=(0, n), maxshape=(None, n), dtype="u1",
@@ -282,7 +292,7 @@ class RcfdRecorder:
             gone = ~alive[ids]
             cells[gone] = self.last_cells[gone]
             octant[gone] = self.last_octant[gone]
-        vol = grain_volume(r[ids])
+        vol = self.volumes(sim)
         if self.tagged is None:  # which counted grains are tagged: fixed from the first boundary on
             self.tagged = np.isin(ids, self.tagged_ids)
         tagged = self.tagged
