@@ -133,7 +133,8 @@ def _chunk_write(i, values: ti.template(), tmp: ti.template(), n: ti.template(),
 @ti.func
 def exclusive_scan(t, values: ti.template(), n: ti.template(), tmp: ti.template(), nt: ti.template(),
                    emulate: ti.template(), barrier: ti.template()):
-    """``values[0..n)`` replaced by their exclusive running sums; returns the total (to thread t = 0 at least).
+    """``values[0..n)`` replaced by their exclusive running sums; returns the total, to every thread (each reads it
+    after the last Hillis-Steele step's barrier, and nothing writes it after: ``step._record_block`` relies on it).
     Thread t of ``nt`` (``tmp`` holds 2 nt integers): its chunk's sum, the chunks' sums scanned in
     log2(nt) steps (double-buffered: each step reads one half of ``tmp`` and writes the other), its chunk written.
     ``barrier``: one CUDA block; ``emulate``: one thread taking the shares in turn
