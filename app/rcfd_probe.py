@@ -227,13 +227,6 @@ class RcfdRecorder:
         cells = (c[:, 0] * self.shape[1] + c[:, 1]) * self.shape[2] + c[:, 2]
         return cells, (((q[:, 0] & 1) << 2) | ((q[:, 1] & 1) << 1) | (q[:, 2] & 1)).astype(np.uint8)
 
-    def cells_of(self, x: np.ndarray) -> np.ndarray:
-        return self.cells_and_octants(x)[0]
-
-    def octant_of(self, x: np.ndarray) -> np.ndarray:
-        """Which eighth of its cell each point is in (bits x, y, z: 4, 2, 1; the same clipping as cells_of)."""
-        return self.cells_and_octants(x)[1]
-
     # -- every fluid step
     def __call__(self, sim) -> None:
         s = sim.step_count

@@ -337,10 +337,10 @@ def test_octant_is_the_half_cell_within_the_cell_with_the_cells_clipping():
                   [-0.0051, -0.0099, 0.0049],   # upper x, upper z half of (0, 0, 0): 4 + 1
                   [0.0099, 0.0026, 0.0074],     # cell (3, 2, 1): upper x, upper y, lower z: 6
                   [0.0, 0.0, 0.5]])             # above the region: the top layer's upper half (z bit set)
-    o = rec_.octant_of(x)
+    cells, o = rec_.cells_and_octants(x)
     assert o.tolist()[:3] == [0, 5, 6] and (o[3] & 1) == 1
     db = Database.__new__(Database)
-    db.shape, db.cells, db.octant = (4, 4, 3), rec_.cells_of(x)[None], o[None]
+    db.shape, db.cells, db.octant = (4, 4, 3), cells[None], o[None]
     fine = np.unravel_index(db.fine_cells(0), db.fine_shape)
     half = np.clip(np.floor((x - rec_.origin) / (0.5 * rec_.h)).astype(int), 0, np.array(db.fine_shape) - 1)
     assert np.array_equal(np.stack(fine, 1), half)
