@@ -48,6 +48,9 @@ nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$L/gpu.t
 # call whose stages all run to their limits still packs its results instead of being killed first. After each stage
 # its exit and the tail of its log go into $OUT/progress.txt (one file): that much comes back even from a call killed
 # by the run tool's timeout.
+# A check stage that failed in an earlier call on this warm machine turned its path off for the later calls too
+# (the app also checks both barrier paths at start-up on CUDA: app/sim/dem/scan.py, app/sim/gas/cycle_check.py)
+[ -f "$L/fallbacks.env" ] && { source "$L/fallbacks.env"; cat "$L/fallbacks.env"; }
 BUDGET=${BUDGET:-0}
 call_start=$(date +%s)
 for stage in "$@"; do
@@ -182,11 +185,13 @@ for stage in "$@"; do
     tail -n 80 "$L/$stage.log"; } >> "$OUT/progress.txt"
   if [ "$stage" = dem_scan ] && [ $rc -ne 0 ]; then  # every later DEM build on CUDA would use the block scan
     export FBED_DEM_SCAN=serial  # the one-thread scan of 1,024-cell blocks instead (the same lists)
+    echo "export FBED_DEM_SCAN=serial" >> "$L/fallbacks.env"
     echo "dem_scan: the DEM's block scan failed its check on CUDA: later stages run without it (FBED_DEM_SCAN=serial)" \
       | tee -a "$L/stages.txt"
   fi
   if [ "$stage" = coarse ] && [ $rc -ne 0 ]; then  # every later gas step on CUDA would run that cycle: not trusted
     export FBED_COARSE_CELLS=0  # a launch down and up per level instead (the same results; app/sim/gas/coarse_cycle.py)
+    echo "export FBED_COARSE_CELLS=0" >> "$L/fallbacks.env"
     echo "coarse: the one-launch coarse cycle failed its check on CUDA: later stages run without it" \
       "(FBED_COARSE_CELLS=0)" | tee -a "$L/stages.txt"
   fi

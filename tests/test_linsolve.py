@@ -233,3 +233,37 @@ def test_the_coarse_cycle_can_be_turned_off_from_the_environment(monkeypatch):
     monkeypatch.setenv("FBED_COARSE_CELLS", "many")
     with pytest.raises(ConfigError, match="FBED_COARSE_CELLS"):
         MGPCG((32, 32, 116), serial=False)
+
+
+def test_the_coarse_cycle_is_checked_on_the_device_before_a_solver_takes_it(monkeypatch, recwarn):
+    """On CUDA the cycle's barrier path runs on no CPU, so the first MGPCG of a process solves a 16x16x20 system both
+    ways (app/sim/gas/cycle_check.py) before it takes the cycle. Here on the CPU: the check passes a right cycle (7
+    threads' shares taken in turn, what the barrier guarantees: the same to the bit) and fails a wrong one (a block
+    of 7 whose thread 0 alone runs: 6/7 of each pass's cells missed, as a block whose barrier or threads misbehave),
+    with a warning; a solver on CUDA takes the cycle only where the check passed, and none is run when
+    FBED_COARSE_CELLS=0 has turned the cycle off."""
+    from app.sim import runtime
+    from app.sim.gas import cycle_check
+
+    r = cycle_check.compare(*cycle_check.CHECK_SYSTEM, 1e-8, mode=(7, True, False))
+    assert (r["block_from"], r["coarsen_from"]) == (1, 0)  # the cycle from 8x8x10, the set-up from level 0
+    assert r["iterations"][0] == r["iterations"][1] and r["x_diff"] == 0.0 and r["h_diff"] == 0.0
+    assert cycle_check.works(mode=(7, True, False)) and not recwarn.list
+    bad = cycle_check.compare(*cycle_check.CHECK_SYSTEM, 1e-8, mode=(7, False, False))
+    assert not cycle_check.passes(bad, True, "float64")  # fails CUDA's looser tolerances too (54 iterations, not 9)
+    with pytest.warns(RuntimeWarning, match="start-up check"):
+        assert not cycle_check.works(mode=(7, False, False))
+    monkeypatch.setattr(runtime, "on_cuda", lambda: True)
+    monkeypatch.setattr(cycle_check, "works", lambda: False)
+    assert MGPCG((32, 32, 116), serial=False).block_from is None
+    assert MGPCG((32, 32, 116), serial=False).coarsen_from is None
+    assert MGPCG((32, 32, 116), serial=False, coarse_block=True).block_from == 2  # asked for (the bench's A/B)
+    monkeypatch.setattr(cycle_check, "works", lambda: True)
+    assert MGPCG((32, 32, 116), serial=False).block_from == 2
+
+    def no_check():
+        raise AssertionError("checked with the cycle off")
+
+    monkeypatch.setattr(cycle_check, "works", no_check)
+    monkeypatch.setenv("FBED_COARSE_CELLS", "0")
+    assert MGPCG((32, 32, 116), serial=False).block_from is None

@@ -377,7 +377,7 @@ def _k_set_faces(mg: Multigrid, a: ti.i32, src: ti.types.ndarray()):
     # after ``d[a] += 1`` with a runtime a)
     n = mgm.dims(mg, 0)
     for i, j, k in ti.ndrange(n[0] + (a == 0), n[1] + (a == 1), n[2] + (a == 2)):
-        mg.trans[mgm.face(mg, 0, a, ti.Vector([i, j, k]))] = src[i, j, k]
+        mg.trans[mgm.face(mg, 0, a, ti.Vector([i, j, k]))] = ti.cast(src[i, j, k], float)  # (the run's precision)
 
 
 @kernel
@@ -390,7 +390,7 @@ def _k_get_faces(mg: Multigrid, a: ti.i32, dst: ti.types.ndarray()):
 @kernel
 def _k_cells_in(v: ti.types.ndarray(), src: ti.types.ndarray()):
     for i, j, k in src:
-        v[(i * src.shape[1] + j) * src.shape[2] + k] = src[i, j, k]
+        v[(i * src.shape[1] + j) * src.shape[2] + k] = ti.cast(src[i, j, k], float)
 
 
 @kernel
