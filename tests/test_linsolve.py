@@ -240,8 +240,8 @@ def test_the_coarse_cycle_is_checked_on_the_device_before_a_solver_takes_it(monk
     ways (app/sim/gas/cycle_check.py) before it takes the cycle. Here on the CPU: the check passes a right cycle (7
     threads' shares taken in turn, what the barrier guarantees: the same to the bit) and fails a wrong one (a block
     of 7 whose thread 0 alone runs: 6/7 of each pass's cells missed, as a block whose barrier or threads misbehave),
-    with a warning; a solver on CUDA takes the cycle only where the check passed, and none is run when
-    FBED_COARSE_CELLS=0 has turned the cycle off."""
+    with a warning; the gas solver's MGPCG on CUDA takes the cycle only where the check passed, and none is run in
+    the serial form or when FBED_COARSE_CELLS=0 has turned the cycle off."""
     from app.sim import runtime
     from app.sim.gas import cycle_check
 
@@ -255,15 +255,17 @@ def test_the_coarse_cycle_is_checked_on_the_device_before_a_solver_takes_it(monk
         assert not cycle_check.works(mode=(7, False, False))
     monkeypatch.setattr(runtime, "on_cuda", lambda: True)
     monkeypatch.setattr(cycle_check, "works", lambda: False)
-    assert MGPCG((32, 32, 116), serial=False).block_from is None
-    assert MGPCG((32, 32, 116), serial=False).coarsen_from is None
+    mg = MGPCG((32, 32, 116), serial=False, coarse_block=cycle_check.coarse_block(False))  # as the gas solver makes it
+    assert mg.block_from is None and mg.coarsen_from is None
     assert MGPCG((32, 32, 116), serial=False, coarse_block=True).block_from == 2  # asked for (the bench's A/B)
     monkeypatch.setattr(cycle_check, "works", lambda: True)
-    assert MGPCG((32, 32, 116), serial=False).block_from == 2
+    assert MGPCG((32, 32, 116), serial=False, coarse_block=cycle_check.coarse_block(False)).block_from == 2
 
     def no_check():
-        raise AssertionError("checked with the cycle off")
+        raise AssertionError("checked where nothing takes the cycle")
 
     monkeypatch.setattr(cycle_check, "works", no_check)
+    assert cycle_check.coarse_block(True) is None  # one CPU thread: the serial form has no cycle
     monkeypatch.setenv("FBED_COARSE_CELLS", "0")
+    assert cycle_check.coarse_block(False) is None
     assert MGPCG((32, 32, 116), serial=False).block_from is None

@@ -1,8 +1,8 @@
 """The one-launch coarse cycle checked on the device before a pressure solver takes it.
 
 On CUDA, :mod:`.coarse_cycle` runs the small levels of the V-cycle and of the multigrid set-up as one block of
-threads meeting at barriers (``ti.simt.block.sync``), a path no CPU runs. So once per process, before the first
-:class:`~app.sim.gas.linsolve.MGPCG` takes it, :func:`works` solves one pressure system both ways (the cycle, and a
+threads meeting at barriers (``ti.simt.block.sync``), a path no CPU runs. So once per process, before the gas solver's
+:class:`~app.sim.gas.linsolve.MGPCG` takes it (:func:`coarse_block`), :func:`works` solves one pressure system both ways (the cycle, and a
 launch down and up per level) and compares them: the same outer iterations, the same solution and the same hierarchy
 (every level's transmissibilities and diagonal), to the round-off the two kernels may differ by on CUDA. A device that
 fails gets a launch per level (the same results, more launches) and a warning, as the DEM's block scan does
@@ -16,6 +16,7 @@ import warnings
 import numpy as np
 
 from .. import runtime
+from . import coarse_cycle
 from .linsolve import MGPCG
 
 #: the start-up check's system: a 16 x 16 x 20 box with a Dirichlet top (the cycle from its 8 x 8 x 10 level down,
@@ -118,3 +119,12 @@ def works(mode=None) -> bool:
                           "FBED_COARSE_CELLS=0 says so without the check)", RuntimeWarning)
         _works[key] = ok
     return _works[key]
+
+
+def coarse_block(serial: bool) -> bool | None:
+    """The ``coarse_block`` argument of a solver's :class:`~app.sim.gas.linsolve.MGPCG`: False (a launch per level)
+    on CUDA where the parallel form would take the cycle and :func:`works` fails; else None (the solver's default:
+    the cycle in the parallel form). Elsewhere nothing to check: without CUDA the cycle is one thread."""
+    if serial or not runtime.on_cuda() or coarse_cycle.max_cells() == 0:
+        return None
+    return None if works() else False

@@ -57,13 +57,9 @@ class MGPCG:
         self.coarse_parallel = ncoarse > mgm.COARSE_SERIAL_MAX
         # the small red-black levels above the coarsest in one launch (coarse_cycle.py): in the parallel form
         # (CUDA: one block; several CPU threads: one thread), not on one CPU thread, where a launch is one task
-        # anyway; ``coarse_block`` False keeps a launch down and up per level (A/B), True asks for it in either form
+        # anyway; ``coarse_block`` False keeps a launch down and up per level (A/B, or a device whose start-up
+        # check of the cycle failed: cycle_check.coarse_block), True asks for it in either form
         use = (not self.serial) if coarse_block is None else bool(coarse_block)
-        if use and coarse_block is None and runtime.on_cuda() and coarse_cycle.max_cells() > 0:
-            # the barrier path, checked once per process on this device (it solves a system both ways with
-            # MGPCGs whose coarse_block is given); one that fails gets a launch per level and a warning
-            from .cycle_check import works
-            use = works()
         self.block_from = self._block_from() if use else None
         #: the first level the set-up coarsens in one launch (coarse_cycle.k_coarsen_levels), with the cycle's block
         self.coarsen_from = self._coarsen_from() if use else None

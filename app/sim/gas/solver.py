@@ -10,7 +10,7 @@ import numpy as np
 import taichi as ti
 
 from .. import runtime
-from . import advection, boundary, layout, predictor, projection
+from . import advection, boundary, cycle_check, layout, predictor, projection
 from .config import CONVECTION, FACES, INLET, KINDS, MOVING, OUTLET, PRESSURE_FORMS, THETA_MIN, VISCOUS_REDUCTION
 from .config import ALIASES, FlowConfig, StepInfo
 from .fields import GasFields, _as_cell_array, _load
@@ -49,7 +49,8 @@ class FlowSolver(SolverOutputs):
         # compile-time choice of every step kernel: its loops nested in one serial loop when Taichi runs on
         # one CPU thread (each top-level loop is then a task of ~70 us), parallel top-level loops otherwise
         self.serial = runtime.serial() if serial is None else bool(serial)
-        self.mg = MGPCG(cfg.shape, per, serial=self.serial)
+        # on CUDA the one-launch coarse cycle once checked on the device first (cycle_check.py)
+        self.mg = MGPCG(cfg.shape, per, serial=self.serial, coarse_block=cycle_check.coarse_block(self.serial))
         kinds = [KINDS[cfg.bc(f).kind] for f in FACES]
         self._kinds = kinds
         self._singular = OUTLET not in kinds
