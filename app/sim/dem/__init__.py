@@ -1,8 +1,10 @@
 """The DEM: soft-sphere grains, their contacts with each other and with the walls.
 
 - ``contact.py``   the contact law (normal, tangential, rolling), written once for pairs and walls
-- ``neighbors.py`` the Verlet half list: the device-side rebuild decision, cell list and build; the
-                   sort of the grains by cell
+- ``neighbors.py`` the Verlet half list: the device-side rebuild decision, cell list and build
+- ``sort.py``      the grains re-ordered by cell (every per-grain array), the list kept valid
+- ``scan.py``      the counting sort's scan of the cells' block sums (one thread, or one block on CUDA)
+- ``slab.py``      the grains' volume in a vertical slab binned on pixels (the synthetic MRI's frame)
 - ``step.py``      the substep (one kernel launch) and the diagnostics kernel
 - ``solver.py``    ``DemSolver``: the bundles, grains in and out by id, advance and checks
 - ``grains.py``    per-grain constants (radius, mass) and the partner scatter

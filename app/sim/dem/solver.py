@@ -9,7 +9,8 @@ from ...config.derived import grain_mass
 from ..fields import NO_SPRING, ROLL_EPSD, ContactHistory, DemModel, GrainModel, GrainState, NeighborList, WallData
 from .. import runtime
 from . import scan
-from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW, sort_by_cell
+from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW
+from .sort import sort_by_cell
 from .slab import slab_volumes
 from .step import DIAG_COLUMNS, dem_build, dem_substep, dem_substeps, measure
 

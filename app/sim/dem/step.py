@@ -12,7 +12,7 @@ substeps in one launch (``dem_substeps``): a task's start-up (~13 us on the CPU)
 cost are paid once per ``advance``, not per loop and substep; the steps run in the same order, to the
 same bits. The host only launches: nothing is read back inside ``advance``'s loop; the counters
 (overflow, removals, builds) are read once at its end, and decide whether the next ``advance``
-first re-orders the grains by cell (``neighbors.sort_by_cell``, every ``model.sort_interval``
+first re-orders the grains by cell (``sort.sort_by_cell``, every ``model.sort_interval``
 builds). Outside the DEM, grains are seen in id order only (``read``, ``state_arrays``). Diagnostics are computed only
 when asked for. No I/O, no printing.
 """
