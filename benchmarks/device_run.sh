@@ -16,7 +16,8 @@
 # 2112 and 1056 blocks: A/B in one call), gas_profile (the same scene under Taichi's kernel profiler: each kernel's tasks and device time per step, sorted),
 # coarse (the pressure V-cycle's coarse levels in one launch, one block on CUDA, checked against a launch per
 # level: run it first), dem_scan (the DEM build's cell-list scan as one block on CUDA, checked against the one-thread
-# scan, with the cost of a build and the substep's tasks by device time: run it first too), coarse_ab (the gas step timed without that cycle), series (issue 21: verma_small on the GPU, its summary.json wall_split with the callbacks' share, then the host
+# scan, with the cost of a build and the substep's tasks by device time: run it first too), coarse_ab (the gas step timed without that cycle), coarse_cells (the
+# gas step with the cycle from 0, 4096 and 16384 cells down), series (issue 21: verma_small on the GPU, its summary.json wall_split with the callbacks' share, then the host
 # reads per fluid step of its first 0.1 s, the step's and the callbacks', by benchmarks/series_reads.py).
 # Before a call that runs the cavity or the Verma analysis: `mkdir -p runs && cp -r ../shared/reference runs/`
 # here, and carry [".devkit", "runs/reference"] (../shared is not copied to the device).
@@ -97,6 +98,12 @@ for stage in "$@"; do
       $T bash -c 'python3 benchmarks/flow_throughput.py --arch cuda --grids 32x32x116 32x32x64 --steps 30 --warmup 5 \
           --coarse-block off && python3 benchmarks/gas_counts.py --arch cuda --grids 32x32x116 --coarse-block off \
           --label "coarse block off"' ;;
+    coarse_cells)  # the largest level the one-launch cycle takes (FBED_COARSE_CELLS): 0 (a launch down and up per
+      # level), 4096 (the default: from 8x8x29 on the Verma grid) and 16384 (from 16x16x58, 14,848 cells a pass for one
+      # block of 256 threads: 381 -> 267 tasks a Verma step in the CPU's parallel form, CPU time unchanged); the Verma
+      # grid's gas step each way, one process each; ~1 min with the kernels cached
+      $T bash -c 'for c in 0 4096 16384; do echo "== FBED_COARSE_CELLS=$c"; FBED_COARSE_CELLS=$c python3 \
+          benchmarks/flow_throughput.py --arch cuda --grids 32x32x116 --steps 30 --warmup 5 --dry || exit 1; done' ;;
     mri_frame)  # one synthetic-MRI frame of 1e6 grains: read back and binned in numpy (the probe before 2026-12-06)
       # against binned on the device (DemSolver.slab_volumes, the probe now); exits 1 if the images differ; ~30 s
       $T python3 benchmarks/mri_frame_cost.py --arch cuda --n 1000000 ;;
