@@ -10,7 +10,7 @@ import taichi as ti
 
 from ..launch import kernel, narrowed
 from .boundary import comp_value
-from .layout import P_H, P_TRACE, SC_UOLD, EpsInputs, Grid, State, each_face, face_pos, fdims, solved
+from .layout import P_H, P_TRACE, SC_UOLD, EpsInputs, Grid, State, each_face, face_pos, fdims, fidx, solved, wrap
 from ..tasks import one_task
 
 
@@ -179,7 +179,8 @@ def _trace_at(g: ti.template(), inp: ti.template(), st: ti.template(), dt, cdt, 
         if g.scheme > 0:
             dep, val, lo, hi = rk2_path(g, inp, st.vel_old, f, a, I, face_pos(a, I), -cdt, True)
             v = val
-            if g.par[P_TRACE] > 0.0:  # a is all zero with gas.trace_forces off: skip its trace
+            if g.par[P_TRACE] > 0.0 and inside_domain(g, dep):  # a is all zero with gas.trace_forces off
+                # (and a path that entered through an inlet or outlet has no interior start: first order there)
                 adep, _, _ = interp(g, inp, st.accel, a, dep)
                 inc = 0.5 * dt * (adep - st.accel[f])
             if g.scheme == 2:
@@ -228,7 +229,54 @@ def _advect(g: ti.template(), inp: ti.template(), st: ti.template(), dt, serial:
         st.vel_old[f] = u
         ti.atomic_max(uold, ti.abs(u))
     st.gsc[SC_UOLD] = uold
+    nt = nf * ti.cast(g.par[P_TRACE] > 0.0, ti.i32)  # the traced acceleration smoothed first (into vel_lo, back)
+    each_face(g, nt, _smooth, (g, st), serial)
+    for f in range(nt):
+        st.accel[f] = st.vel_lo[f]
     each_face(g, nf, _trace, (g, inp, st, dt, cdt), serial)
+
+
+@ti.func
+def inside_domain(g: ti.template(), X):
+    """Point X (cell units) inside the grid along every axis that does not wrap."""
+    ok = True
+    for b in ti.static(range(3)):
+        if g.wrap[b] == 0 and (X[b] < 0.0 or X[b] > ti.cast(g.dims[b], float)):
+            ok = False
+    return ok
+
+
+@ti.func
+def _smooth(c: ti.template(), f, a, I):
+    _smooth_at(c[0], c[1], f, a, I)
+
+
+@ti.func
+def _smooth_at(g: ti.template(), st: ti.template(), f, a, I):
+    """vel_lo[f] = the acceleration at face f smoothed over itself (weight 6) and its solved neighbours of the
+    same axis (weight 1 each), normalised: (6 a_f + sum a_nb) / (6 + count). The two-cell mode (signs alternating
+    along every axis) is removed, a smooth field changes by (h^2/12) lap a; a face that is not solved keeps a."""
+    v = st.accel[f]
+    if solved(g, f, a, I):
+        tot = 6.0 * v
+        wsum = 6.0
+        n = g.dims
+        for b in ti.static(range(3)):
+            for sgn in ti.static((-1, 1)):
+                J = I
+                J[b] += sgn
+                ok = True
+                if g.wrap[b] == 1:
+                    J[b] = wrap(J[b], n[b])
+                else:
+                    ok = J[b] >= 0 and J[b] <= n[b] - 1 + (b == a)
+                if ok:
+                    fn = fidx(g, a, J)
+                    if solved(g, fn, a, J):
+                        tot += st.accel[fn]
+                        wsum += 1.0
+        v = tot / wsum
+    st.vel_lo[f] = v
 
 
 @ti.func
