@@ -239,9 +239,10 @@ class GasConfig:
                                     "shear and would be a frictionless bypass)", lo=0.0, hi=0.9)
     max_viscous_sweeps: int = spec(40, doc="most Gauss-Seidel sweeps of the implicit viscous predictor", lo=1)
     trace_forces: bool = spec(True, doc="carry the last step's forces along the convection trajectory (second order "
-                              "in time: without it Taylor-Green vortices decay 10% too fast at CFL 0.4); off is first "
-                              "order and more robust: with MacCormack it fed a gas blow-up in the freeboard near the "
-                              "outlet of the million-grain bed")
+                              "in time: without it Taylor-Green vortices decay 10% too fast at CFL 0.5, 37% at CFL "
+                              "2); off is first order and the most robust: with MacCormack the trace fed a gas blow-up "
+                              "in the freeboard of the million-grain bed, cured since (its acceleration smoothed, "
+                              "benchmarks/gust_stability.py) yet with spikes left near a pressure outlet")
     max_cfl: float = spec(8.0, doc="adaptive fluid step: above this gas CFL number (largest gas speed x dt / h) the next fluid "
                           "steps split into pieces (each with its deposit, drag and DEM substeps) until the CFL is "
                           "back under it; the convection scheme is tested stable at 8", lo=0.0, lo_open=True)

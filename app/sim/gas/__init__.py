@@ -37,7 +37,9 @@ Discretisation
   "maccormack" (default), "semi_lagrangian", "none" (Stokes flow).
   Second-order splitting: dt/2 a is added at the departure point and taken off at the
   arrival face (the plain semi-Lagrangian trace of a, outside the MacCormack correction:
-  corrected together with u it fed back on itself and blew up), where a is the last step's non-advective acceleration
+  corrected together with u it fed back on itself and blew up; a is smoothed first, its
+  two-cell mode removed, and a path that entered through an inlet or outlet takes none:
+  :mod:`app.sim.gas.advection`), where a is the last step's non-advective acceleration
   (u^n - u~^(n-1))/dt weighted by the inertial share rho eps/(rho eps + beta dt) of the
   face. This is the trapezoidal rule for the forces along the path; without it the
   pressure impulse integrated along a curved trajectory is not a gradient and the

@@ -5,6 +5,18 @@ faces, :func:`app.sim.gas.boundary.comp_value`), optionally the MacCormack corre
 values of the interpolation stencil (Selle et al. 2008); dt/2 of the last step's weighted
 non-advective acceleration is added at the departure point and taken off at the arrival face (the
 trapezoidal rule for the forces along the path; see :mod:`app.sim.gas`).
+
+That acceleration is smoothed before it is traced (:func:`_smooth_at`). It holds the projection's answer to the
+divergence of the advected field, MacCormack's grid-scale corrections included; traced from a departure point more
+than a cell away (CFL > 1), whose value is unrelated to the arrival face's, that two-cell noise came back as a
+velocity increment of its own size every step, and MacCormack's anti-diffusion tipped the loop over: the gust case of
+``benchmarks/gust_stability.py`` (the Verma freeboard's blow-up, gas only) blew up (150 m/s) in 3 of 6 runs,
+after 243-767 steps, where the smoothed trace peaks at 1.0-2.3x the speed the runs without the trace reach. The
+smoothing weighs a face 6 and each solved neighbour of its axis 1, which removes the two-cell mode and changes a smooth
+field by (h^2/12) lap a: the Taylor-Green decay rate at CFL 0.5, 1, 2 and 4 moved by at most 0.3% of itself
+(tests/test_flow.py checks CFL 0.5 and 2). A trajectory that
+starts outside the domain (it entered through an inlet or outlet) has no interior acceleration at its start and takes
+no trace (first order there).
 """
 import taichi as ti
 
