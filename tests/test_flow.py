@@ -144,17 +144,13 @@ def test_plane_channel_poiseuille(walls):
 
 
 # ----------------------------------------------------------------------------- Taylor-Green
-def test_taylor_green_decay_rate():
-    """2-D Taylor-Green vortex u = sin x cos y, v = -cos x sin y on a periodic 64x64 (2 pi)^2 box
-    (one periodic cell in z). With k = 1 per axis the velocity amplitude decays as
-    exp(-2 nu k^2 t), so the kinetic energy decays as exp(-4 nu k^2 t). We fit log(KE) over t in
-    [0, 2] and test the KE rate against 4 nu k^2 (equivalently the amplitude rate against
-    2 nu k^2) within 2% (measured -0.3% at CFL 0.4, MacCormack convection)."""
-    n, nu = 64, 0.05
-    L = 2 * np.pi
-    h = L / n
-    cfg = gas.FlowConfig(shape=(n, n, 1), h=h, rho=1.0, mu=nu, gravity=(0, 0, 0), tol=1e-8,
-                          bcs={f: PER for f in gas.FACES})
+def _taylor_green(cfl, trace=True, nu=0.05, n=64):
+    """The 2-D Taylor-Green vortex u = sin x cos y, v = -cos x sin y on a periodic 64x64 (2 pi)^2 box (one periodic
+    cell in z), run to t = 2 at dt = cfl h. Returns the solver, h, the relative error of the fitted kinetic-energy
+    decay rate against 4 nu (k = 1 per axis), max|u| before the last step, and the CFL each step reported."""
+    h = 2 * np.pi / n
+    cfg = gas.FlowConfig(shape=(n, n, 1), h=h, rho=1.0, mu=nu, gravity=(0, 0, 0), tol=1e-8, trace_forces=trace,
+                         bcs={f: PER for f in gas.FACES})
     s = gas.FlowSolver(cfg)
     xu, xv = s.grid.face_centres(0), s.grid.face_centres(1)
     s.set_face_velocity(np.sin(xu[..., 0]) * np.cos(xu[..., 1]), -np.cos(xv[..., 0]) * np.sin(xv[..., 1]),
@@ -164,16 +160,26 @@ def test_taylor_green_decay_rate():
         u, v = s.face_velocity(0)[:-1], s.face_velocity(1)[:, :-1]
         return 0.5 * (np.sum(u ** 2) + np.sum(v ** 2)) * h * h
 
-    dt = 0.5 * h
-    t, k = [0.0], [ke()]
+    dt = cfl * h
+    t, k, cfls, umax = [0.0], [ke()], [], None
     for _ in range(int(round(2.0 / dt))):
         umax = max(np.abs(s.face_velocity(a)).max() for a in range(3))
-        _advance(s, 1, dt)
+        cfls.append(_advance(s, 1, dt).cfl)
         t.append(s.time)
         k.append(ke())
-    rate = -np.polyfit(t, np.log(k), 1)[0]
-    assert abs(rate / (4 * nu) - 1.0) < 0.02
+    return s, h, -np.polyfit(t, np.log(k), 1)[0] / (4 * nu) - 1.0, umax, cfls
+
+
+def test_taylor_green_decay_rate():
+    """2-D Taylor-Green vortex u = sin x cos y, v = -cos x sin y on a periodic 64x64 (2 pi)^2 box
+    (one periodic cell in z). With k = 1 per axis the velocity amplitude decays as
+    exp(-2 nu k^2 t), so the kinetic energy decays as exp(-4 nu k^2 t). We fit log(KE) over t in
+    [0, 2] and test the KE rate against 4 nu k^2 (equivalently the amplitude rate against
+    2 nu k^2) within 2% (measured -0.3% at CFL 0.4, MacCormack convection)."""
+    s, h, rate_error, umax, _ = _taylor_green(0.5)
+    assert abs(rate_error) < 0.02
     # the reported CFL is max|u| dt / h (the decaying flow is fastest at the start of the step)
+    dt = 0.5 * h
     assert s.last.cfl == pytest.approx(umax * dt / h, rel=1e-12)
 
 
@@ -272,28 +278,11 @@ def test_taylor_green_at_cfl_2_needs_the_force_trace_and_keeps_it():
     the traced acceleration was smoothed, its two-cell mode removed), without them it is first order in time and
     37% too fast. The smoothing keeps the trace's accuracy where trajectories cross more than a cell, the regime
     in which the trace's feedback used to blow up a freeboard (benchmarks/gust_stability.py)."""
-    n, nu = 64, 0.05
-    h = 2 * np.pi / n
     rates = []
     for trace in (True, False):
-        cfg = gas.FlowConfig(shape=(n, n, 1), h=h, rho=1.0, mu=nu, gravity=(0, 0, 0), tol=1e-8, trace_forces=trace,
-                             bcs={f: PER for f in gas.FACES})
-        s = gas.FlowSolver(cfg)
-        xu, xv = s.grid.face_centres(0), s.grid.face_centres(1)
-        s.set_face_velocity(np.sin(xu[..., 0]) * np.cos(xu[..., 1]), -np.cos(xv[..., 0]) * np.sin(xv[..., 1]),
-                            np.zeros(s.grid.face_shape(2)))
-
-        def ke():
-            u, v = s.face_velocity(0)[:-1], s.face_velocity(1)[:, :-1]
-            return 0.5 * (np.sum(u ** 2) + np.sum(v ** 2)) * h * h
-
-        t, k, cfl = [0.0], [ke()], []
-        for _ in range(10):
-            cfl.append(_advance(s, 1, 2 * h).cfl)
-            t.append(s.time)
-            k.append(ke())
-        assert cfl[0] == pytest.approx(2.0, rel=0.01)  # max|u| = 1 at the start, decaying by exp(-2 nu t)
-        rates.append(-np.polyfit(t, np.log(k), 1)[0] / (4 * nu) - 1.0)
+        _, _, rate_error, _, cfls = _taylor_green(2.0, trace)
+        assert len(cfls) == 10 and cfls[0] == pytest.approx(2.0, rel=0.01)  # max|u| = 1 at first, decaying
+        rates.append(rate_error)
     assert abs(rates[0]) < 0.02
     assert rates[1] > 0.3
 

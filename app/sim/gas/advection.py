@@ -273,6 +273,7 @@ def _smooth_at(g: ti.template(), st: ti.template(), f, a, I):
         tot = 6.0 * v
         wsum = 6.0
         n = g.dims
+        d = fdims(g, a)  # the faces of axis a: index 0..d[b]-1 along each axis b
         for q in range(6):  # a run-time loop: unrolled six times, the kernel's cold compile took 4 s longer
             b = q // 2
             J = I
@@ -281,7 +282,7 @@ def _smooth_at(g: ti.template(), st: ti.template(), f, a, I):
             if g.wrap[b] == 1:
                 J[b] = wrap(J[b], n[b])
             else:
-                ok = J[b] >= 0 and J[b] <= n[b] - 1 + ti.cast(b == a, ti.i32)
+                ok = 0 <= J[b] < d[b]
             if ok:
                 fn = fidx(g, a, J)
                 if solved(g, fn, a, J):
