@@ -27,10 +27,11 @@ from ..tasks import one_task
 
 
 @ti.func
-def interp(g: ti.template(), inp: ti.template(), arr: ti.template(), a, X):
+def interp(g: ti.template(), inp: ti.template(), arr: ti.template(), a, X, rate):
     """Trilinear value of component a of the face array arr at grid point X (cell units from the
     origin), with the min and max of the 8 stencil values. Interior stencils take a direct path;
-    stencils that touch the domain boundary go through :func:`comp_value` (wrapping, ghost values)."""
+    stencils that touch the domain boundary go through :func:`comp_value` (wrapping, ghost values; ``rate`` = 1
+    where arr is the acceleration, whose ghosts have no boundary value)."""
     n = g.dims
     Y = X
     for b in ti.static(range(3)):
@@ -75,7 +76,7 @@ def interp(g: ti.template(), inp: ti.template(), arr: ti.template(), a, X):
             w = 1.0
             for q in ti.static(range(3)):
                 w *= fr[q] if o[q] == 1 else 1.0 - fr[q]
-            v = comp_value(g, inp, arr, a, i0 + o)
+            v = comp_value(g, inp, arr, a, i0 + o, rate)
             val += w * v
             lo = ti.min(lo, v)
             hi = ti.max(hi, v)
@@ -134,7 +135,7 @@ def rk2_path(g: ti.template(), inp: ti.template(), arr: ti.template(), f, a, I, 
                     else:
                         direct, v = _face_centre(g, arr, b, a, I)
                 if not direct:
-                    v, lo, hi = interp(g, inp, arr, b, P)
+                    v, lo, hi = interp(g, inp, arr, b, P, 0)
                 V[b] = v
         if s == 0:  # V = U1
             P = X + 0.5 * c * V
@@ -193,7 +194,7 @@ def _trace_at(g: ti.template(), inp: ti.template(), st: ti.template(), dt, cdt, 
             v = val
             if g.par[P_TRACE] > 0.0 and inside_domain(g, dep):  # a is all zero with gas.trace_forces off
                 # (and a path that entered through an inlet or outlet has no interior start: first order there)
-                adep, _, _ = interp(g, inp, st.accel, a, dep)
+                adep, _, _ = interp(g, inp, st.accel, a, dep, 1)
                 inc = 0.5 * dt * (adep - st.accel[f])
             if g.scheme == 2:
                 st.vel_lo[f] = lo
@@ -212,7 +213,7 @@ def _correct(c: ti.template(), f, a, I):
 def _correct_at(g: ti.template(), inp: ti.template(), st: ti.template(), dt, cdt, f, a, I):
     if solved(g, f, a, I):
         end, _, _, _ = rk2_path(g, inp, st.vel_old, f, a, I, face_pos(a, I), cdt, False)
-        back, _, _ = interp(g, inp, st.vel_adv, a, end)
+        back, _, _ = interp(g, inp, st.vel_adv, a, end, 0)
         v = st.vel_adv[f] + 0.5 * (st.vel_old[f] - back)
         st.vel_lo[f] = ti.min(ti.max(v, st.vel_lo[f]), st.vel_hi[f])
 

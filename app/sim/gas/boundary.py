@@ -57,9 +57,11 @@ def ghost_coef(g: ti.template(), inp: ti.template(), b, side, a, J):
 
 
 @ti.func
-def comp_value(g: ti.template(), inp: ti.template(), arr: ti.template(), a, I):
+def comp_value(g: ti.template(), inp: ti.template(), arr: ti.template(), a, I, rate):
     """Value of component a of the face array arr at face index I (may be outside by one): periodic
-    wrap, clamping along a, boundary ghost values across the tangential domain faces."""
+    wrap, clamping along a, boundary ghost values across the tangential domain faces. ``rate`` (0 or 1): arr is a
+    rate of change of the velocity (the traced acceleration), whose ghost beyond a moving wall or inlet is
+    -a (its boundary value is steady), not the velocity's 2U - u."""
     n = g.dims
     J = I
     if g.wrap[a] == 1:
@@ -80,7 +82,7 @@ def comp_value(g: ti.template(), inp: ti.template(), arr: ti.template(), a, I):
     for b in range(3):
         if gh[b] != 0:
             al, ga = ghost_coef(g, inp, b, (gh[b] + 1) // 2, a, J)
-            v = al * v + ga
+            v = al * v + (1 - rate) * ga
     return v
 
 
