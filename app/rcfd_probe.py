@@ -27,6 +27,13 @@ from .config.derived import grain_volume
 from .rcfd.database import tag_mask
 
 
+#: HDF5 filters of the probe's compressed datasets: gzip at level 1 after the byte shuffle, as run.h5's fields
+#: (app/io/store.py) are at level 1. A million grains' cells and octants took 159 ms a frame to write with gzip's
+#: default level 4 and no shuffle (grains in random order; 33 ms in cell order), most of the probe's host work a
+#: frame; so 61 (22) ms, and the file is no larger (benchmarks/rcfd_frame_cost.py --h5, benchmarks/RESULTS.md).
+H5_FILTERS = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+
+
 # ---------------------------------------------------------------- adapter: the one place that reads the solvers
 def read_solvers(sim, what: str):
     """What the probe reads from the gas solver and the DEM, by name:
@@ -162,7 +169,7 @@ class RcfdRecorder:
         def app(name, shape, dtype, chunk=None):
             f.create_dataset(name, shape=(0,) + shape, maxshape=(None,) + shape, dtype=dtype,
                              chunks=chunk or ((max(1, min(64, (1 << 20) // max(1, 4 * int(np.prod(shape) or 1)))),)
-                                              + shape), compression="gzip" if np.prod(shape or (1,)) > 4096 else None)
+                                              + shape), **(H5_FILTERS if np.prod(shape or (1,)) > 4096 else {}))
 
         app("boundary/time", (), "f8", (1024,))
         app("boundary/eps", sh, "f4")
@@ -275,9 +282,9 @@ class RcfdRecorder:
                 n = int(self.counted.size)
                 f.create_dataset("grains_volume", data=self.volumes(sim))
                 f.create_dataset("boundary/cells", shape=(0, n), maxshape=(None, n), dtype="i4",
-                                 chunks=(max(1, min(64, (1 << 20) // (4 * n))), n), compression="gzip")
+                                 chunks=(max(1, min(64, (1 << 20) // (4 * n))), n), **H5_FILTERS)
                 f.create_dataset("boundary/octant", shape=(0, n), maxshape=(None, n), dtype="u1",
-                                 chunks=(max(1, min(64, (1 << 20) // n)), n), compression="gzip")
+                                 chunks=(max(1, min(64, (1 << 20) // n)), n), **H5_FILTERS)
         ids = self.counted
         xi = x[ids]
         cells, octant = self.cells_and_octants(xi)

@@ -7,6 +7,12 @@ The grains: ``--n`` at random in the poppy-seed column's recorded region (32 x 3
 ``--moved`` of them one to three cells from where they started the frame. Medians of ``--repeats``, alternated.
 
     python3 benchmarks/rcfd_frame_cost.py --n 1000000 --moved 0.1
+
+``--h5`` times instead the probe's whole host work at a frame boundary (``RcfdRecorder._boundary``: cells, octants,
+the three per-cell volume sums, the volume shifts and the appends to rcfd.h5, flushed) over ``--frames`` frames, with
+the datasets' HDF5 filters as they were (gzip at its default level 4) against now (``app.rcfd_probe.H5_FILTERS``),
+alternated frame set by frame set, for grains numbered at random and in cell order (as a fill numbers them), and
+checks that both files hold the same arrays. The solvers are a stand-in (positions, radii, bed height from numpy).
 """
 from __future__ import annotations
 
@@ -44,13 +50,105 @@ def after(rec, x, c_start, vol):
     return cells, octant, keys, w
 
 
+class _Stand:
+    """What the probe reads from a simulation, from numpy: the frame's grains, their radii, a bed height."""
+
+    def __init__(self, x, r):
+        self.x, self.r, self.time = x, r, 0.0
+
+    def read(self, what):
+        if what == "grains":
+            return self.x, np.ones(len(self.x), bool)
+        if what == "radii":
+            return self.r
+        if what == "bed_height":
+            return 0.13
+        raise KeyError(what)
+
+
+def h5_frames(path, filters, frames, r, eps, shape, origin, h):
+    """Run the probe's boundary work over ``frames`` (positions) into ``path`` with ``filters``; ms per frame."""
+    import app.rcfd_probe as probe
+
+    rec = RcfdRecorder.__new__(RcfdRecorder)
+    rec.origin, rec.h, rec.shape = origin, h, shape
+    rec.n = int(np.prod(shape))
+    rec.spf, rec.step, rec.t0, rec.tag, rec.axis = 5, 1e-3, 0.0, "z<0.065", np.zeros(2)
+    rec.fluxes, rec.grain_cells, rec.path = False, True, pathlib.Path(path)
+    rec.rate_sq_frame, rec.rate_samples_frame, rec.prev_boundary_eps, rec.open_frame = 0.0, 0, None, None
+    rec._flushed = time.perf_counter()
+    kept, read = probe.H5_FILTERS, probe.read_solvers
+    probe.H5_FILTERS = filters
+    probe.read_solvers = lambda sim, what: sim.read(what)
+    try:
+        rec._open(np.ones(shape, np.float32), None)
+        stand, times = _Stand(frames[0], r), []
+        for k, x in enumerate(frames):
+            stand.x, stand.time = x, 5e-3 * k
+            t0 = time.perf_counter()
+            rec._boundary(stand, eps)
+            rec.f.flush()
+            times.append(time.perf_counter() - t0)
+        rec.f.close()
+    finally:
+        probe.H5_FILTERS, probe.read_solvers = kept, read
+    return [1e3 * t for t in times]
+
+
+def h5_main(a) -> int:
+    import tempfile
+
+    import h5py
+
+    shape, origin, h = (32, 32, 84), np.array([-0.048, -0.048, 0.0]), 0.003
+    hi = np.array([0.048, 0.048, 0.252])
+    rng = np.random.default_rng(2)
+    r = rng.choice([0.4595e-3, 0.525e-3, 0.6345e-3], a.n)
+    x0 = origin + rng.uniform(0.0, 1.0, (a.n, 3)) * (hi - origin)
+    eps = rng.uniform(0.4, 1.0, shape)
+    rows, same = [], True
+    for order in ("random", "cell"):
+        x = x0 if order == "random" else x0[np.lexsort((x0[:, 2], x0[:, 1], x0[:, 0]))]
+        frames = [x]
+        for _ in range(a.frames - 1):
+            step = rng.choice([-1, 1], (a.n, 3)) * h * (rng.uniform(size=(a.n, 1)) < a.moved)
+            frames.append(np.clip(frames[-1] + step, origin, hi - 1e-9).astype(np.float32))
+        with tempfile.TemporaryDirectory() as tmp:
+            t = {"before": [], "after": []}
+            for rep in range(a.repeats):
+                for name, filt in (("before", {"compression": "gzip"}), ("after", None)):
+                    import app.rcfd_probe as probe
+                    t[name] += h5_frames(f"{tmp}/{name}.h5", filt or probe.H5_FILTERS, frames, r, eps, shape, origin, h)
+            sizes = {k: pathlib.Path(f"{tmp}/{k}.h5").stat().st_size / a.frames / 1e6 for k in t}
+            with h5py.File(f"{tmp}/before.h5") as fb, h5py.File(f"{tmp}/after.h5") as fa:
+                names = []
+                fb.visititems(lambda n, o: names.append(n) if isinstance(o, h5py.Dataset) else None)
+                eq = all(np.array_equal(fb[n][...], fa[n][...]) for n in names)
+        same &= eq
+        b, c = (statistics.median(t[k]) for k in ("before", "after"))
+        rows.append({"N": a.n, "grain order": order, "frames": a.frames, "before ms/frame": f"{b:.1f}",
+                     "after ms/frame": f"{c:.1f}", "before / after": f"{b / c:.2f}",
+                     "MB/frame before": f"{sizes['before']:.2f}", "MB/frame after": f"{sizes['after']:.2f}",
+                     "same arrays": "yes" if eq else "NO"})
+        print(rows[-1], flush=True)
+    append_results(f"rCFD recording probe, whole host work per frame boundary incl. the rcfd.h5 appends: HDF5 filters "
+                   f"gzip level 4 (before) against {' '.join(f'{k}={v}' for k, v in __import__('app.rcfd_probe').rcfd_probe.H5_FILTERS.items())} (after) "
+                   f"(numpy and h5py; grains in the poppy column's 32 x 32 x 84 cells, {a.moved:g} of them one cell "
+                   f"further each frame; median over {a.repeats} x {a.frames} frames)", rows, "cpu", dry=a.no_append)
+    return 0 if same else 1
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=1000000)
     ap.add_argument("--moved", type=float, default=0.1, help="fraction of the grains that change cell in the frame")
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--no-append", action="store_true")
+    ap.add_argument("--h5", action="store_true", help="the whole boundary work with the rcfd.h5 appends, filters before/after")
+    ap.add_argument("--frames", type=int, default=6, help="with --h5: frames per set")
     a = ap.parse_args(argv)
+    if a.h5:
+        return h5_main(a)
     rec = RcfdRecorder.__new__(RcfdRecorder)
     rec.origin, rec.h, rec.shape = np.array([-0.048, -0.048, 0.0]), 0.003, (32, 32, 84)
     rec.n = int(np.prod(rec.shape))
