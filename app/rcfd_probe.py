@@ -28,9 +28,10 @@ from .rcfd.database import tag_mask
 
 
 #: HDF5 filters of the probe's compressed datasets: gzip at level 1 after the byte shuffle, as run.h5's fields
-#: (app/io/store.py) are at level 1. A million grains' cells and octants took 159 ms a frame to write with gzip's
-#: default level 4 and no shuffle (grains in random order; 33 ms in cell order), most of the probe's host work a
-#: frame; so 61 (22) ms, and the file is no larger (benchmarks/rcfd_frame_cost.py --h5, benchmarks/RESULTS.md).
+#: (app/io/store.py) are at level 1. With gzip's default level 4 and no shuffle, writing a million grains' cells and
+#: octants was the largest part of the probe's host work at a boundary: that work took 332 ms a frame (grains
+#: numbered at random; 276 in cell order), with these filters 211 (191), the files 4% smaller
+#: (benchmarks/rcfd_frame_cost.py --h5, benchmarks/RESULTS.md).
 H5_FILTERS = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
 
 
