@@ -18,7 +18,8 @@
 # level: run it first), dem_scan (the DEM build's cell-list scan as one block on CUDA, checked against the one-thread
 # scan, with the cost of a build and the substep's tasks by device time: run it first too), coarse_ab (the gas step timed without that cycle), coarse_cells (the
 # gas step with the cycle from 0, 4096 and 16384 cells down), series (issue 21: verma_small on the GPU, its summary.json wall_split with the callbacks' share, then the host
-# reads per fluid step of its first 0.1 s, the step's and the callbacks', by benchmarks/series_reads.py).
+# reads per fluid step of its first 0.1 s, the step's and the callbacks', by benchmarks/series_reads.py), mri_frame and
+# rcfd_frame (a 1e6-grain frame of the synthetic MRI and of the rCFD probe's grain cells: host against device).
 # Before a call that runs the cavity or the Verma analysis: `mkdir -p runs && cp -r ../shared/reference runs/`
 # here, and carry [".devkit", "runs/reference"] (../shared is not copied to the device).
 # MRI poppy-seed bed (issue 19; validation/mri/README.md): mri_prepare (fill and settle the 1e6 grains, then pack
@@ -107,6 +108,9 @@ for stage in "$@"; do
     mri_frame)  # one synthetic-MRI frame of 1e6 grains: read back and binned in numpy (the probe before 2026-12-06)
       # against binned on the device (DemSolver.slab_volumes, the probe now); exits 1 if the images differ; ~30 s
       $T python3 benchmarks/mri_frame_cost.py --arch cuda --n 1000000 ;;
+    rcfd_frame)  # the rCFD probe's grain cells of a 1e6-grain frame: positions read back and numpy (the probe before
+      # 2026-12-06) against DemSolver.tracked_cells (the probe now); exits 1 if the integers differ; ~30 s
+      $T python3 benchmarks/rcfd_frame_cost.py --device --arch cuda --n 1000000 ;;
     gas_profile)  # where the gas step's time goes on the device: per kernel, tasks and summed task time a step
       $T python3 benchmarks/gas_counts.py --arch cuda --profile --grids 32x32x116 32x32x64 --steps 10 --warmup 3 ;;
     series)

@@ -13,6 +13,11 @@ the three per-cell volume sums, the volume shifts and the appends to rcfd.h5, fl
 the datasets' HDF5 filters as they were (gzip at its default level 4) against now (``app.rcfd_probe.H5_FILTERS``),
 alternated frame set by frame set, for grains numbered at random and in cell order (as a fill numbers them), and
 checks that both files hold the same arrays. The solvers are a stand-in (positions, radii, bed height from numpy).
+
+``--device`` times the probe's read of a frame's grains from a real DEM (``--arch``, float32): the positions and
+flags read back and the cells, octants and tag computed in numpy (the probe before 2026-12-06) against
+``DemSolver.tracked_cells`` (computed on the device, ~6 bytes a grain read back), on ``--n`` grains of the poppy
+seeds at random in the poppy column, nine in ten of them tracked; checks both give the same integers.
 """
 from __future__ import annotations
 
@@ -51,19 +56,36 @@ def after(rec, x, c_start, vol):
 
 
 class _Stand:
-    """What the probe reads from a simulation, from numpy: the frame's grains, their radii, a bed height."""
+    """What the probe reads from a simulation, from numpy: the tracked grains' cells (the probe's own floors),
+    their radii, a bed height."""
 
     def __init__(self, x, r):
-        self.x, self.r, self.time = x, r, 0.0
+        self.x, self.r, self.time, self.ids = x, r, 0.0, None
 
     def read(self, what):
-        if what == "grains":
-            return self.x, np.ones(len(self.x), bool)
+        if what == "alive":
+            return np.ones(len(self.x), bool)
+        if what == "track":
+            return self.track
+        if what == "cells":
+            return self.cells
         if what == "radii":
             return self.r
         if what == "bed_height":
             return 0.13
         raise KeyError(what)
+
+    def track(self, ids):
+        self.ids = ids
+
+    def cells(self, origin, h, shape, tag):
+        from app.rcfd.database import tag_mask
+
+        rec = RcfdRecorder.__new__(RcfdRecorder)
+        rec.origin, rec.h, rec.shape = origin, h, shape
+        x = self.x[self.ids]
+        c, o = rec.cells_and_octants(x)
+        return c, o, np.ones(len(x), bool), tag_mask("xyz"[tag[0]] + tag[1] + repr(tag[2]), x)
 
 
 def h5_frames(path, filters, frames, r, eps, shape, origin, h):
@@ -76,6 +98,7 @@ def h5_frames(path, filters, frames, r, eps, shape, origin, h):
     rec.spf, rec.step, rec.t0, rec.tag, rec.axis = 5, 1e-3, 0.0, "z<0.065", np.zeros(2)
     rec.fluxes, rec.grain_cells, rec.path = False, True, pathlib.Path(path)
     rec.rate_sq_frame, rec.rate_samples_frame, rec.prev_boundary_eps, rec.open_frame = 0.0, 0, None, None
+    rec._tracking = None
     rec._flushed = time.perf_counter()
     kept, read = probe.H5_FILTERS, probe.read_solvers
     probe.H5_FILTERS = filters
@@ -138,6 +161,55 @@ def h5_main(a) -> int:
     return 0 if same else 1
 
 
+def device_main(a) -> int:
+    from app.config import load
+    from app.rcfd.database import parse_tag, tag_mask
+    from app.scene import Scene
+    from app.sim import runtime
+    from app.sim.dem import DemSolver
+
+    arch = runtime.init(a.arch, "float32")
+    cfg = load(ROOT / "presets" / "mri_poppy.toml")
+    rng = np.random.default_rng(1)
+    radius = cfg.vessel.radius
+    rho = radius * np.sqrt(rng.uniform(0.0, 0.95, a.n))
+    phi = rng.uniform(0.0, 2 * np.pi, a.n)
+    pos = np.column_stack([rho * np.cos(phi), rho * np.sin(phi), rng.uniform(0.002, 0.3, a.n)])
+    r = 0.5 * rng.choice(np.asarray(cfg.particles.diameters), a.n)
+    dem = DemSolver(Scene(cfg, "mri_poppy.toml", initial={"position": pos, "radius": r}).model)
+    dem.set_grains(pos, radius=r)
+    rec = RcfdRecorder.__new__(RcfdRecorder)
+    rec.origin, rec.h, rec.shape = np.array([-0.048, -0.048, 0.0]), 0.003, (32, 32, 84)
+    tag = "z<0.065"
+    ids = np.nonzero(rng.uniform(size=a.n) < 0.9)[0]
+    dem.track(ids)
+
+    def host():
+        x, alive = dem.read("position"), dem.read("alive").astype(bool)
+        xi = x[ids]
+        c, o = rec.cells_and_octants(xi)
+        return c, o, alive[ids], tag_mask(tag, xi)
+
+    def device():
+        return dem.tracked_cells(rec.origin, rec.h, rec.shape, parse_tag(tag))
+
+    same = all(np.array_equal(u, v) for u, v in zip(host(), device()))
+    t = {"host": [], "device": []}
+    for _ in range(a.repeats):
+        for name, f in (("host", host), ("device", device)):
+            t0 = time.perf_counter()
+            f()
+            t[name].append(time.perf_counter() - t0)
+    h, d = (1e3 * statistics.median(t[k]) for k in ("host", "device"))
+    row = {"N": a.n, "tracked": ids.size, "host ms/frame": f"{h:.1f}", "device ms/frame": f"{d:.1f}",
+           "host / device": f"{h / d:.2f}", "same integers": "yes" if same else "NO"}
+    print(row, flush=True)
+    append_results(f"rCFD recording probe, a frame's grain cells: positions read back and numpy against "
+                   f"DemSolver.tracked_cells ({arch}, float32; random poppy seeds in the poppy column's 32 x 32 x 84 "
+                   f"cells of 3 mm; median of {a.repeats})", [row], arch, dry=a.no_append)
+    return 0 if same else 1
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=1000000)
@@ -146,9 +218,13 @@ def main(argv=None) -> int:
     ap.add_argument("--no-append", action="store_true")
     ap.add_argument("--h5", action="store_true", help="the whole boundary work with the rcfd.h5 appends, filters before/after")
     ap.add_argument("--frames", type=int, default=6, help="with --h5: frames per set")
+    ap.add_argument("--device", action="store_true", help="a frame's grain cells from a real DEM: host against device")
+    ap.add_argument("--arch", default="cpu", choices=("cpu", "cuda"), help="with --device")
     a = ap.parse_args(argv)
     if a.h5:
         return h5_main(a)
+    if a.device:
+        return device_main(a)
     rec = RcfdRecorder.__new__(RcfdRecorder)
     rec.origin, rec.h, rec.shape = np.array([-0.048, -0.048, 0.0]), 0.003, (32, 32, 84)
     rec.n = int(np.prod(rec.shape))

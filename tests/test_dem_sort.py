@@ -134,3 +134,41 @@ def test_rows_run_nearest_first_and_keep_that_order_through_sorts(poly):
         assert (np.diff(key) >= -1e-5 * rs2[1:]).all(), (i, key)
         rows += len(row) > 1
     assert rows >= 40  # rows with an order to check: 52 and 82 (in cell order, as built before, 37 and 49 of them fail)
+
+
+def test_tracked_cells_are_the_rcfd_probes_floors_by_grain_id_after_sorts():
+    """``DemSolver.tracked_cells`` (the rCFD probe's frame on the device) against the probe's own numpy floors
+    (``RcfdRecorder.cells_and_octants``) and tag (``tag_mask``) on the positions read back, for a tracked subset
+    of the grains in a scrambled order, after the DEM has re-ordered them by cell: the same integers. Cells of 1.3 mm
+    (a few grains each, and grains above the grid clip to its top layer); a third of the grains placed exactly on
+    half-cell faces, where a floor taken in another precision or by a reciprocal would land one off; a grain
+    removed reads alive False."""
+    from app.rcfd.database import parse_tag, tag_mask
+    from app.rcfd_probe import RcfdRecorder
+
+    scene, pos, vel, radius = scrambled_bed(True)
+    dem = solver(scene, pos, vel, radius, 1)
+    run(dem, 6)
+    assert (dem.state_arrays()["grain_order"] != np.arange(N)).mean() > 0.9
+    rec = RcfdRecorder.__new__(RcfdRecorder)
+    rec.origin, rec.h, rec.shape = np.array([-0.012, -0.0117, -0.0106]), 1.3e-3, (18, 18, 12)
+    x = dem.read("position")
+    on_face = np.arange(N) % 3 == 0  # exactly on a half-cell face along z (in the run's precision)
+    x[on_face, 2] = rec.origin[2] + 0.5 * rec.h * (np.arange(N)[on_face] % 30)
+    alive = np.ones(N, bool)
+    alive[5] = False
+    dem.set_grains(x, radius=radius, alive=alive)
+    dem.advance(1)  # sorted again at once
+    x = dem.read("position")
+    ids = np.random.default_rng(3).permutation(N)[: N - 40]
+    assert 5 in ids
+    for tag in ("z<0.0", "x>=0.001"):
+        dem.track(ids)
+        cells, octant, live, now = dem.tracked_cells(rec.origin, rec.h, rec.shape, parse_tag(tag))
+        want_cells, want_octant = rec.cells_and_octants(x[ids])
+        np.testing.assert_array_equal(cells, want_cells)
+        np.testing.assert_array_equal(octant, want_octant)
+        np.testing.assert_array_equal(now, tag_mask(tag, x[ids]))
+        np.testing.assert_array_equal(live, dem.read("alive").astype(bool)[ids])
+        assert 0 < now.sum() < ids.size and (~live).sum() == 1 and not live[list(ids).index(5)]
+    assert (want_cells // 12 % 18 == 17).any() or (want_cells % 12 == 11).any()  # some clipped to the grid's edge

@@ -11,6 +11,7 @@ from .. import runtime
 from . import scan
 from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW
 from .sort import sort_by_cell
+from .cells import TAG_OPS, grain_cells
 from .slab import slab_volumes
 from .step import DIAG_COLUMNS, dem_build, dem_substep, dem_substeps, measure
 
@@ -40,6 +41,7 @@ class DemSolver:
         self._hist = ti.field(ti.i32, 1024)
         self._diag_row = None  # diagnostics()' one-row ring
         self._slab_out = None  # slab_volumes()' image
+        self._tracked = None  # track()'s arrays: (place, cells, octant, flags)
         self.substeps_done = 0
         self._ids = None  # host copy of fixed.grain_id (dropped at every sort)
         self._builds_seen = self._builds_at_sort = 0
@@ -181,6 +183,31 @@ class DemSolver:
         slab_volumes(self.m, self.fixed, self.state, float(y_center), float(half_width), float(origin[0]),
                      float(origin[1]), float(pixel[0]), float(pixel[1]), self._slab_out)
         return self._slab_out.to_numpy()
+
+    def track(self, ids) -> None:
+        """Follow the grains ``ids`` (grain ids, in the order :meth:`tracked_cells` returns them)."""
+        ids = np.asarray(ids, np.int64)
+        place = np.full(self.m.n, -1, np.int32)
+        place[ids] = np.arange(ids.size, dtype=np.int32)
+        m = max(int(ids.size), 1)
+        arrays = (ti.ndarray(ti.i32, shape=self.m.n), ti.ndarray(ti.i32, shape=m), ti.ndarray(ti.u8, shape=m),
+                  ti.ndarray(ti.u8, shape=m))
+        arrays[0].from_numpy(place)
+        self._tracked = (int(ids.size),) + arrays
+
+    def tracked_cells(self, origin, h: float, shape, tag: tuple) -> tuple:
+        """The tracked grains' cells on the grid of ``shape`` cells of ``h`` [m] from ``origin`` [m] (flat
+        indices, clipped to the grid), each one's octant within its cell (bits x, y, z: 4, 2, 1), whether it is
+        alive and whether its centre satisfies ``tag`` = (axis, op, value [m]) (op one of <, <=, >, >=):
+        (cells int32, octant uint8, alive bool, tagged bool), computed on the device (``cells.grain_cells``)."""
+        if self._tracked is None:
+            raise RuntimeError("tracked_cells: call track(ids) first")
+        n, place, cells, octant, flags = self._tracked
+        grain_cells(self.m, self.fixed, self.state, place, float(origin[0]), float(origin[1]), float(origin[2]),
+                    0.5 * float(h), int(shape[0]), int(shape[1]), int(shape[2]), int(tag[0]), TAG_OPS[tag[1]],
+                    float(tag[2]), cells, octant, flags)
+        f = flags.to_numpy()[:n]
+        return cells.to_numpy()[:n], octant.to_numpy()[:n], (f & 2) > 0, (f & 1) > 0
 
     def masses(self) -> np.ndarray:
         if self.m.polydisperse:
