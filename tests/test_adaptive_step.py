@@ -85,8 +85,37 @@ def test_gas_speed_guard_names_the_fastest_cell():
         sim.run()
     msg = str(err.value)
     assert "guard.max_gas_speed = 20" in msg and "fastest in cell (" in msg
+    assert "trace_forces" not in msg  # not this guard's suspect: it was not told the trace is on
     i, j, k = (int(x) for x in msg.split("fastest in cell (")[1].split(")")[0].split(","))
     assert i in (7, 8) and j in (7, 8) and k < 16, msg
+
+
+def test_a_runaway_gas_names_the_force_trace_first_where_it_is_on():
+    """The one gas set-up known to run away by itself is the force trace under MacCormack convection
+    (benchmarks/gust_stability.py): a preset with it on (boyce_small, the default) gets a guard whose gas-speed and
+    non-finite messages name gas.trace_forces = false first; one with it off (verma) gets the usual knobs only."""
+    import pathlib
+
+    from app.callbacks.guard import Guard
+    from app.config import load
+    from app.sim.simulation import Unstable
+
+    presets = pathlib.Path(__file__).resolve().parents[1] / "presets"
+    on, off = (Guard.of(load(presets / name), None) for name in ("boyce_small.toml", "verma.toml"))
+    assert on.trace_forces and not off.trace_forces
+
+    class Sim:
+        def gas_fastest_cell(self):
+            return ""
+
+    for guard, named in ((on, True), (off, False)):
+        for row in ({"gas_non_finite": True, "gas_cfl": 3.0},
+                    {"gas_non_finite": False, "gas_cfl": 3.0, "gas_max_speed": 1e9, "divergence_residual": 0.0}):
+            with pytest.raises(Unstable) as err:
+                guard._gas_check(Sim(), row, 0.5)
+            msg = str(err.value)
+            assert ("set gas.trace_forces = false" in msg) == named, msg
+            assert "lower run.step" in msg, msg
 
 
 def test_headless_log_lines_say_where_the_gas_is_fastest(capsys):

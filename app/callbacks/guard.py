@@ -19,7 +19,8 @@ class Guard:
 
     def __init__(self, max_overlap: float, max_speed: float, dt: float = 0.0, dt_limit: float = float("inf"),
                  max_gas_speed: float = float("inf"), max_divergence: float = float("inf"),
-                 max_energy_growth: float = float("inf"), energy_floor: float = 0.0, interval: float = 0.0):
+                 max_energy_growth: float = float("inf"), energy_floor: float = 0.0, interval: float = 0.0,
+                 trace_forces: bool = False):
         # energy growth: the grains' kinetic energy against the one of the check an interval before, measured
         # from at least energy_floor [J] (from rest any factor is physical: a bed starting to move)
         self.max_energy_growth = max_energy_growth
@@ -27,6 +28,9 @@ class Guard:
         self.interval = interval
         self._energy_ref: tuple[float, float] | None = None   # (time [s], kinetic energy [J])
         self.max_gas_speed = max_gas_speed
+        # the gas carries its forces along the convection paths with MacCormack convection: the one gas set-up
+        # known to run away by itself (benchmarks/RESULTS.md, the gust case), so its knob is named first
+        self.trace_forces = trace_forces
         self.max_divergence = max_divergence
         self.max_overlap = max_overlap
         self.max_speed = max_speed
@@ -50,9 +54,19 @@ class Guard:
         floor = 0.0
         if masses is not None:
             floor = 0.5 * float(np.sum(masses)) * STANDARD_GRAVITY * 2.0 * derived.radius_min
+        gas = getattr(cfg, "gas", None)
+        trace = bool(gas is not None and gas.trace_forces and gas.convection == "maccormack")
         return cls(g.max_overlap, g.max_speed, derived.dt if derived else 0.0,
                    derived.dt_limit if derived else float("inf"), g.max_gas_speed, g.max_divergence,
-                   g.max_energy_growth, floor, g.interval)
+                   g.max_energy_growth, floor, g.interval, trace)
+
+    def _gas_knobs(self, usual: str) -> str:
+        """The settings a gas that runs away should change: the force trace first where it is on."""
+        if self.trace_forces:
+            return ("set gas.trace_forces = false (the force trace with MacCormack convection can feed grid-scale "
+                    "corrections back on themselves, near pressure outlets most: first order in time without it), "
+                    "or " + usual)
+        return usual
 
     def guarded(self, write):
         """A writer that checks the guard first, so nothing non-finite ever reaches a file."""
@@ -66,7 +80,8 @@ class Guard:
             return
         if d["gas_non_finite"]:
             raise Unstable(f"non-finite gas velocity or pressure at t = {t:.6g} s (gas CFL {d['gas_cfl']:.3g}): "
-                           "lower run.step (the fluid step), raise gas.max_iterations, or check [boundary]")
+                           + self._gas_knobs("lower run.step (the fluid step), raise gas.max_iterations, or check "
+                                             "[boundary]"))
         if d["divergence_residual"] > self.max_divergence:
             raise Unstable(f"the gas's divergence residual is {d['divergence_residual']:.3g} at t = {t:.6g} s "
                            f"(guard.max_divergence = {self.max_divergence:g}; {d['pressure_iterations']} pressure "
@@ -75,8 +90,8 @@ class Guard:
         if d["gas_max_speed"] > self.max_gas_speed:
             raise Unstable(f"the gas moves at {d['gas_max_speed']:.3g} m/s at t = {t:.6g} s (guard.max_gas_speed = "
                            f"{self.max_gas_speed:g} m/s; gas CFL {d['gas_cfl']:.3g}{sim.gas_fastest_cell()}): the gas step is going unstable: "
-                           "lower run.step (the fluid step) or raise coupling.smoothing_width; raise "
-                           "guard.max_gas_speed if such speeds are real")
+                           + self._gas_knobs("lower run.step (the fluid step) or raise coupling.smoothing_width")
+                           + "; raise guard.max_gas_speed if such speeds are real")
 
     def _advice(self) -> str:
         if self.dt > self.dt_limit:
