@@ -17,6 +17,7 @@ solvers are read through ``read_solvers`` only.
 """
 from __future__ import annotations
 
+import concurrent.futures
 import math
 import pathlib
 import time
@@ -25,6 +26,7 @@ import h5py
 import numpy as np
 
 from .config.derived import grain_volume
+from .io import store
 from .rcfd.database import parse_tag
 
 
@@ -113,6 +115,8 @@ class RcfdRecorder:
         self.f = None
         self.log = None
         self._tracking = None  # the counted grains the DEM tracks (track() once per list)
+        self._writer = None  # the thread that appends to rcfd.h5 (_submit), and its boundary in flight
+        self._pending = None
 
     # -- set-up
     def attach(self, sim, out_dir, guarded, resume_time, log) -> None:
@@ -131,6 +135,8 @@ class RcfdRecorder:
         self.h, self.origin = h, origin
         self.path = pathlib.Path(out_dir) / "rcfd.h5"
         self._open(vol[:, :, :nz], resume_time)
+        self._boundaries = int(self.f["boundary/time"].shape[0])  # kept here: the writer thread owns the file
+        self._shifts = int(self.f["frame/offset"][-1])
         self.open_frame = None  # (start boundary index, start cells, step count at start)
         self.add_flux = read_solvers(sim, "add_flux") if self.fluxes else None
         self.flux_time = 0.0
@@ -288,22 +294,15 @@ class RcfdRecorder:
         return read_solvers(sim, "cells")(self.origin, self.h, self.shape, parse_tag(self.tag))
 
     def _boundary(self, sim, eps: np.ndarray) -> None:
-        f = self.f
+        """A frame boundary: everything read from the solvers and computed here; the appends to rcfd.h5 are handed
+        to the writer thread (:meth:`_submit`)."""
         if self.counted is None:  # the grains counted from the first boundary on
             self.counted = np.nonzero(read_solvers(sim, "alive"))[0]
         cells, octant, alive, now = self._cells(sim)
+        first = None
         if self.tagged_ids is None:
             self.tagged_ids = self.counted[now]
-            f.create_dataset("grains_counted", data=self.counted)
-            f.create_dataset("grains_tagged", data=self.tagged_ids)
-            f.attrs["grains"] = int(self.counted.size)
-            if self.grain_cells:
-                n = int(self.counted.size)
-                f.create_dataset("grains_volume", data=self.volumes(sim))
-                f.create_dataset("boundary/cells", shape=(0, n), maxshape=(None, n), dtype="i4",
-                                 chunks=(max(1, min(64, (1 << 20) // (4 * n))), n), **H5_FILTERS)
-                f.create_dataset("boundary/octant", shape=(0, n), maxshape=(None, n), dtype="u1",
-                                 chunks=(max(1, min(64, (1 << 20) // n)), n), **H5_FILTERS)
+            first = (self.counted, self.tagged_ids, self.volumes(sim) if self.grain_cells else None)
         ids = self.counted
         if self.last_cells is not None:  # a grain that left the domain stays in its last cell
             gone = ~alive
@@ -312,42 +311,80 @@ class RcfdRecorder:
         vol = self.volumes(sim)
         if self.tagged is None:  # which counted grains are tagged: fixed from the first boundary on
             self.tagged = np.isin(ids, self.tagged_ids)
-        tagged = self.tagged
-        b = f["boundary/time"].shape[0]
-        self._append(f["boundary/time"], sim.time)
-        self._append(f["boundary/eps"], eps.astype(np.float32))
-        self._append(f["boundary/bed_height"], read_solvers(sim, "bed_height"))
-        if "boundary/cells" in f:
-            self._append(f["boundary/cells"], cells.astype(np.int32))
-        if "boundary/octant" in f:
-            self._append(f["boundary/octant"], octant)
-        for name, sel in (("solid", None), ("tag_now", now), ("tagged", tagged)):
+        b = self._boundaries
+        self._boundaries += 1
+        rows = [("boundary/time", sim.time), ("boundary/eps", eps.astype(np.float32)),
+                ("boundary/bed_height", read_solvers(sim, "bed_height"))]
+        if self.grain_cells:
+            rows += [("boundary/cells", cells.astype(np.int32)), ("boundary/octant", octant)]
+        for name, sel in (("solid", None), ("tag_now", now), ("tagged", self.tagged)):
             w = vol if sel is None else vol * sel
-            self._append(f[f"boundary/{name}"], np.bincount(cells, weights=w, minlength=self.n).astype(np.float32))
+            rows.append((f"boundary/{name}", np.bincount(cells, weights=w, minlength=self.n).astype(np.float32)))
         if self.open_frame is not None:
             b_start, c_start = self.open_frame
             keys, w = shift_sums(c_start, cells, vol, self.n)
-            off = f["frame/offset"]
-            self._append(f["shift/c0"], (keys // self.n).astype(np.int32))
-            self._append(f["shift/c1"], (keys % self.n).astype(np.int32))
-            self._append(f["shift/w"], w)
-            self._append(f["frame/b0"], b_start)
-            self._append(f["frame/b1"], b)
-            self._append(off, off[off.shape[0] - 1] + keys.size)
+            self._shifts += keys.size
+            rows += [("shift/c0", (keys // self.n).astype(np.int32)), ("shift/c1", (keys % self.n).astype(np.int32)),
+                     ("shift/w", w), ("frame/b0", b_start), ("frame/b1", b), ("frame/offset", self._shifts)]
         if self.fluxes:
             sums = read_solvers(sim, "flux_sum")  # read once per frame, and cleared
             if self.open_frame is not None:
                 nz = self.shape[2]
                 for a in range(3):
                     q = sums[a][:, :, :nz + 1 if a == 2 else nz] / max(self.flux_time, 1e-300)
-                    self._append(f[f"frame/flux_{'xyz'[a]}"], q.astype(np.float32))
+                    rows.append((f"frame/flux_{'xyz'[a]}", q.astype(np.float32)))
             self.flux_time = 0.0
+        self._submit(first, rows)
         self.open_frame = (b, cells)
         self.last_cells, self.last_octant = cells, octant
         if self.prev_boundary_eps is not None:
             self.rate_sq_frame += float(np.sum(((eps - self.prev_boundary_eps) / (self.spf * self.step)) ** 2))
             self.rate_samples_frame += 1
         self.prev_boundary_eps = eps
+
+    # -- the writer thread: rcfd.h5's appends overlap the next frame's stepping
+    def _submit(self, first, rows) -> None:
+        """Hand a boundary's appends to the writer thread, after the last boundary's are written (at most one
+        boundary in flight; an error there, e.g. a full disk, is raised here, one boundary later, or at finish).
+        h5py lets other threads run while HDF5 compresses and writes (a 1e6-grain boundary's appends took ~0.1 s on
+        the CPU), so they overlap the fluid steps of the next frame instead of adding to them."""
+        self._drain()
+        nbytes = sum(np.asarray(v).nbytes for _, v in rows) + (0 if first is None else sum(
+            np.asarray(v).nbytes for v in first if v is not None))
+        store.check_space(self.path, nbytes)  # as every writer of the run: a full disk is a clean stop
+        if self._writer is None:
+            self._writer = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="rcfd-h5")
+        self._pending = (self._writer.submit(self._write, first, rows), nbytes)
+
+    def _drain(self) -> None:
+        """Wait for the writer thread's boundary in flight; its error, if any, is raised here (a full disk as the
+        run's :class:`~app.io.store.DiskFull`, which stops it cleanly with its last good checkpoint)."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            future, nbytes = pending
+            try:
+                future.result()
+            except OSError as err:
+                if store.is_disk_full(err):
+                    raise store.DiskFull(self.path, nbytes + store.SPACE_MARGIN, store.free_bytes(self.path)) from None
+                raise
+
+    def _write(self, first, rows) -> None:
+        f = self.f
+        if first is not None:
+            counted, tagged_ids, vol = first
+            f.create_dataset("grains_counted", data=counted)
+            f.create_dataset("grains_tagged", data=tagged_ids)
+            f.attrs["grains"] = int(counted.size)
+            if vol is not None:
+                n = int(counted.size)
+                f.create_dataset("grains_volume", data=vol)
+                f.create_dataset("boundary/cells", shape=(0, n), maxshape=(None, n), dtype="i4",
+                                 chunks=(max(1, min(64, (1 << 20) // (4 * n))), n), **H5_FILTERS)
+                f.create_dataset("boundary/octant", shape=(0, n), maxshape=(None, n), dtype="u1",
+                                 chunks=(max(1, min(64, (1 << 20) // n)), n), **H5_FILTERS)
+        for name, data in rows:
+            self._append(f[name], data)
         now_wall = time.perf_counter()
         if now_wall - self._flushed > 10.0:  # a crash loses at most ~10 s of frames
             f.flush()
@@ -371,10 +408,16 @@ class RcfdRecorder:
     def finish(self, sim, reason) -> None:
         if self.f is None:
             return
-        if self.samples > 1:
-            chk = self.frame_check()
-            self.f.attrs.update(chk)
-            if chk["frame_check"] != "ok" and self.log:
-                self.log(f"fbed: rcfd: {chk['frame_check']}")
-        self.f.close()
-        self.f = None
+        try:
+            self._drain()  # the last boundary's appends (an error in them is raised here, the file still closed)
+            if self.samples > 1:
+                chk = self.frame_check()
+                self.f.attrs.update(chk)
+                if chk["frame_check"] != "ok" and self.log:
+                    self.log(f"fbed: rcfd: {chk['frame_check']}")
+        finally:
+            if self._writer is not None:
+                self._writer.shutdown(wait=True)
+                self._writer = None
+            self.f.close()
+            self.f = None

@@ -8,11 +8,13 @@ The grains: ``--n`` at random in the poppy-seed column's recorded region (32 x 3
 
     python3 benchmarks/rcfd_frame_cost.py --n 1000000 --moved 0.1
 
-``--h5`` times instead the probe's whole host work at a frame boundary (``RcfdRecorder._boundary``: cells, octants,
-the three per-cell volume sums, the volume shifts and the appends to rcfd.h5, flushed) over ``--frames`` frames, with
-the datasets' HDF5 filters as they were (gzip at its default level 4) against now (``app.rcfd_probe.H5_FILTERS``),
-alternated frame set by frame set, for grains numbered at random and in cell order (as a fill numbers them), and
-checks that both files hold the same arrays. The solvers are a stand-in (positions, radii, bed height from numpy).
+``--h5`` times instead the probe's host work at a frame boundary (``RcfdRecorder._boundary``: cells, octants,
+the three per-cell volume sums, the volume shifts and the appends to rcfd.h5) over ``--frames`` frames, as the
+calling thread spends it: with the datasets' HDF5 filters as they were (gzip at its default level 4) and now
+(``app.rcfd_probe.H5_FILTERS``), the appends waited for in the loop, and now, handed to the probe's writer thread
+while ``--between`` seconds of sleep stand for the next frame's fluid steps; alternated frame set by frame set, for
+grains numbered at random and in cell order (as a fill numbers them); checks that the files hold the same arrays.
+The solvers are a stand-in (the probe's numpy floors for the cells, radii, a bed height).
 
 ``--device`` times the probe's read of a frame's grains from a real DEM (``--arch``, float32): the positions and
 flags read back and the cells, octants and tag computed in numpy (the probe before 2026-12-06) against
@@ -88,8 +90,11 @@ class _Stand:
         return c, o, np.ones(len(x), bool), tag_mask("xyz"[tag[0]] + tag[1] + repr(tag[2]), x)
 
 
-def h5_frames(path, filters, frames, r, eps, shape, origin, h):
-    """Run the probe's boundary work over ``frames`` (positions) into ``path`` with ``filters``; ms per frame."""
+def h5_frames(path, filters, frames, r, eps, shape, origin, h, in_loop, between):
+    """Run the probe's boundary work over ``frames`` (positions) into ``path`` with ``filters``: ms per frame that
+    the calling thread spends in it. ``in_loop``: each boundary's appends waited for at once (as the probe wrote
+    them before its writer thread); else they overlap ``between`` seconds of sleep standing for the next frame's
+    fluid steps (which keep one core busy, as the sleeping thread does not)."""
     import app.rcfd_probe as probe
 
     rec = RcfdRecorder.__new__(RcfdRecorder)
@@ -98,21 +103,25 @@ def h5_frames(path, filters, frames, r, eps, shape, origin, h):
     rec.spf, rec.step, rec.t0, rec.tag, rec.axis = 5, 1e-3, 0.0, "z<0.065", np.zeros(2)
     rec.fluxes, rec.grain_cells, rec.path = False, True, pathlib.Path(path)
     rec.rate_sq_frame, rec.rate_samples_frame, rec.prev_boundary_eps, rec.open_frame = 0.0, 0, None, None
-    rec._tracking = None
+    rec._tracking, rec._writer, rec._pending, rec.samples, rec.log = None, None, None, 0, None
     rec._flushed = time.perf_counter()
     kept, read = probe.H5_FILTERS, probe.read_solvers
     probe.H5_FILTERS = filters
     probe.read_solvers = lambda sim, what: sim.read(what)
     try:
         rec._open(np.ones(shape, np.float32), None)
+        rec._boundaries, rec._shifts = 0, 0
         stand, times = _Stand(frames[0], r), []
         for k, x in enumerate(frames):
             stand.x, stand.time = x, 5e-3 * k
             t0 = time.perf_counter()
             rec._boundary(stand, eps)
-            rec.f.flush()
+            if in_loop:
+                rec._drain()
+                rec.f.flush()
             times.append(time.perf_counter() - t0)
-        rec.f.close()
+            time.sleep(between)
+        rec.finish(None, "done")
     finally:
         probe.H5_FILTERS, probe.read_solvers = kept, read
     return [1e3 * t for t in times]
@@ -131,6 +140,9 @@ def h5_main(a) -> int:
     r = rng.choice([0.4595e-3, 0.525e-3, 0.6345e-3], a.n)
     x0 = origin + rng.uniform(0.0, 1.0, (a.n, 3)) * (hi - origin)
     eps = rng.uniform(0.4, 1.0, shape)
+    variants = (("gzip 4, in the loop", {"compression": "gzip"}, True),
+                ("gzip 1 + shuffle, in the loop", probe.H5_FILTERS, True),
+                ("gzip 1 + shuffle, writer thread", probe.H5_FILTERS, False))
     rows, same = [], True
     for order in ("random", "cell"):
         x = x0 if order == "random" else x0[np.lexsort((x0[:, 2], x0[:, 1], x0[:, 0]))]
@@ -139,26 +151,29 @@ def h5_main(a) -> int:
             step = rng.choice([-1, 1], (a.n, 3)) * h * (rng.uniform(size=(a.n, 1)) < a.moved)
             frames.append(np.clip(frames[-1] + step, origin, hi - 1e-9).astype(np.float32))
         with tempfile.TemporaryDirectory() as tmp:
-            t = {"before": [], "after": []}
+            t = {v[0]: [] for v in variants}
             for rep in range(a.repeats):
-                for name, filt in (("before", {"compression": "gzip"}), ("after", probe.H5_FILTERS)):
-                    t[name] += h5_frames(f"{tmp}/{name}.h5", filt, frames, r, eps, shape, origin, h)
-            sizes = {k: pathlib.Path(f"{tmp}/{k}.h5").stat().st_size / a.frames / 1e6 for k in t}
-            with h5py.File(f"{tmp}/before.h5") as fb, h5py.File(f"{tmp}/after.h5") as fa:
-                names = []
-                fb.visititems(lambda n, o: names.append(n) if isinstance(o, h5py.Dataset) else None)
-                eq = all(np.array_equal(fb[n][...], fa[n][...]) for n in names)
+                for i, (name, filt, in_loop) in enumerate(variants):
+                    t[name] += h5_frames(f"{tmp}/{i}.h5", filt, frames, r, eps, shape, origin, h, in_loop, a.between)
+            sizes = [pathlib.Path(f"{tmp}/{i}.h5").stat().st_size / a.frames / 1e6 for i in range(len(variants))]
+            files = [h5py.File(f"{tmp}/{i}.h5") for i in range(len(variants))]
+            names = []
+            files[0].visititems(lambda n, o: names.append(n) if isinstance(o, h5py.Dataset) else None)
+            eq = all(np.array_equal(files[0][n][...], g[n][...]) for g in files[1:] for n in names)
+            for g in files:
+                g.close()
         same &= eq
-        b, c = (statistics.median(t[k]) for k in ("before", "after"))
-        rows.append({"N": a.n, "grain order": order, "frames": a.frames, "before ms/frame": f"{b:.1f}",
-                     "after ms/frame": f"{c:.1f}", "before / after": f"{b / c:.2f}",
-                     "MB/frame before": f"{sizes['before']:.2f}", "MB/frame after": f"{sizes['after']:.2f}",
-                     "same arrays": "yes" if eq else "NO"})
-        print(rows[-1], flush=True)
-    append_results(f"rCFD recording probe, whole host work per frame boundary incl. the rcfd.h5 appends: HDF5 filters "
-                   f"gzip level 4 (before) against {' '.join(f'{k}={v}' for k, v in probe.H5_FILTERS.items())} (after) "
+        row = {"N": a.n, "grain order": order, "frames": a.frames}
+        for (name, _, _), size in zip(variants, sizes):
+            row[f"{name}: ms/frame"] = f"{statistics.median(t[name]):.1f}"
+            row[f"{name}: MB/frame"] = f"{size:.2f}"
+        row["same arrays"] = "yes" if eq else "NO"
+        rows.append(row)
+        print(row, flush=True)
+    append_results(f"rCFD recording probe, the calling thread's time per frame boundary incl. the rcfd.h5 appends "
                    f"(numpy and h5py; grains in the poppy column's 32 x 32 x 84 cells, {a.moved:g} of them one cell "
-                   f"further each frame; median over {a.repeats} x {a.frames} frames)", rows, "cpu", dry=a.no_append)
+                   f"further each frame; {a.between:g} s of sleep between boundaries for the fluid steps; median over "
+                   f"{a.repeats} x {a.frames} frames)", rows, "cpu", dry=a.no_append)
     return 0 if same else 1
 
 
@@ -219,6 +234,7 @@ def main(argv=None) -> int:
     ap.add_argument("--no-append", action="store_true")
     ap.add_argument("--h5", action="store_true", help="the whole boundary work with the rcfd.h5 appends, filters before/after")
     ap.add_argument("--frames", type=int, default=6, help="with --h5: frames per set")
+    ap.add_argument("--between", type=float, default=0.3, help="with --h5: seconds between boundaries (the steps)")
     ap.add_argument("--device", action="store_true", help="a frame's grain cells from a real DEM: host against device")
     ap.add_argument("--arch", default="cpu", choices=("cpu", "cuda"), help="with --device")
     a = ap.parse_args(argv)
