@@ -32,6 +32,22 @@ def host_frame(dem, im):
     return im.volumes(x[near].astype(np.float64), r[near])
 
 
+def poppy_dem(cfg, n: int, z_top: float, rng):
+    """A DEM of ``n`` grains of the poppy preset's three classes (``cfg``, presets/mri_poppy.toml) placed at random
+    in its cylinder (within 0.95 of its cross-section) between z = 2 mm and ``z_top`` [m], drawn from ``rng``."""
+    from app.scene import Scene
+    from app.sim.dem import DemSolver
+
+    radius = cfg.vessel.radius
+    rho = radius * np.sqrt(rng.uniform(0.0, 0.95, n))
+    phi = rng.uniform(0.0, 2 * np.pi, n)
+    pos = np.column_stack([rho * np.cos(phi), rho * np.sin(phi), rng.uniform(0.002, z_top, n)])
+    r = 0.5 * rng.choice(np.asarray(cfg.particles.diameters), n)
+    dem = DemSolver(Scene(cfg, "mri_poppy.toml", initial={"position": pos, "radius": r}).model)
+    dem.set_grains(pos, radius=r)
+    return dem
+
+
 def device_frame(dem, im):
     return dem.slab_volumes(im.yc, 0.5 * im.width, (im.x0, im.z0), (im.dx, im.dz), (im.nx, im.nz))
 
@@ -46,21 +62,11 @@ def main(argv=None) -> int:
     from app.config import load
     from app.probes_mri import MriImage
     from app.sim import runtime
-    from app.sim.dem import DemSolver
-    from app.scene import Scene
 
     arch = runtime.init(a.arch, "float32")
     cfg = load(ROOT / "presets" / "mri_poppy.toml")
     im = MriImage(cfg)
-    rng = np.random.default_rng(1)
-    radius = cfg.vessel.radius
-    rho = radius * np.sqrt(rng.uniform(0.0, 0.95, a.n))
-    phi = rng.uniform(0.0, 2 * np.pi, a.n)
-    pos = np.column_stack([rho * np.cos(phi), rho * np.sin(phi), rng.uniform(0.002, 0.2, a.n)])
-    r = 0.5 * rng.choice(np.asarray(cfg.particles.diameters), a.n)
-    scene = Scene(cfg, "mri_poppy.toml", initial={"position": pos, "radius": r})
-    dem = DemSolver(scene.model)
-    dem.set_grains(pos, radius=r)
+    dem = poppy_dem(cfg, a.n, 0.2, np.random.default_rng(1))
     same = np.allclose(host_frame(dem, im), device_frame(dem, im), rtol=1e-9, atol=0.0)
     t = {"host": [], "device": []}
     for _ in range(a.repeats):

@@ -178,22 +178,16 @@ def h5_main(a) -> int:
 
 
 def device_main(a) -> int:
+    from mri_frame_cost import poppy_dem  # benchmarks/, this script's folder
+
     from app.config import load
     from app.rcfd.database import parse_tag, tag_mask
-    from app.scene import Scene
     from app.sim import runtime
-    from app.sim.dem import DemSolver
 
     arch = runtime.init(a.arch, "float32")
     cfg = load(ROOT / "presets" / "mri_poppy.toml")
     rng = np.random.default_rng(1)
-    radius = cfg.vessel.radius
-    rho = radius * np.sqrt(rng.uniform(0.0, 0.95, a.n))
-    phi = rng.uniform(0.0, 2 * np.pi, a.n)
-    pos = np.column_stack([rho * np.cos(phi), rho * np.sin(phi), rng.uniform(0.002, 0.3, a.n)])
-    r = 0.5 * rng.choice(np.asarray(cfg.particles.diameters), a.n)
-    dem = DemSolver(Scene(cfg, "mri_poppy.toml", initial={"position": pos, "radius": r}).model)
-    dem.set_grains(pos, radius=r)
+    dem = poppy_dem(cfg, a.n, 0.3, rng)
     rec = RcfdRecorder.__new__(RcfdRecorder)
     rec.origin, rec.h, rec.shape = np.array([-0.048, -0.048, 0.0]), 0.003, (32, 32, 84)
     tag = "z<0.065"
