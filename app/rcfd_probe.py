@@ -240,8 +240,9 @@ class RcfdRecorder:
         """Each point's cell (flat index, clipped to the recorded cells) and which eighth of it the point is in
         (bits x, y, z: 4, 2, 1), from one floor on the half-cells: a half-cell index q2 clipped to [0, 2 n - 1]
         gives the cell as q2 // 2, the same as floor((x - origin) / h) clipped to [0, n - 1] (dividing by h / 2 is
-        dividing by h and doubling, exactly in floating point), and the octant bit as q2 & 1. A million grains a
-        frame: one floor instead of two (45 -> 34 ms on the CPU, the same arrays)."""
+        dividing by h and doubling, exactly in floating point), and the octant bit as q2 & 1. The probe takes these
+        from the device (:meth:`_cells`, the same floors in ``app/sim/dem/cells.py``); this host form is their
+        reference (tests, benchmarks/rcfd_frame_cost.py)."""
         q = np.floor((x - self.origin) / (0.5 * self.h)).astype(np.int64)
         for a in range(3):
             np.clip(q[:, a], 0, 2 * self.shape[a] - 1, out=q[:, a])
@@ -354,41 +355,36 @@ class RcfdRecorder:
         store.check_space(self.path, nbytes)  # as every writer of the run: a full disk is a clean stop
         if self._writer is None:
             self._writer = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="rcfd-h5")
-        self._pending = (self._writer.submit(self._write, first, rows), nbytes)
+        self._pending = self._writer.submit(self._write, first, rows, nbytes)
 
     def _drain(self) -> None:
         """Wait for the writer thread's boundary in flight; its error, if any, is raised here (a full disk as the
         run's :class:`~app.io.store.DiskFull`, which stops it cleanly with its last good checkpoint)."""
         pending, self._pending = self._pending, None
         if pending is not None:
-            future, nbytes = pending
-            try:
-                future.result()
-            except OSError as err:
-                if store.is_disk_full(err):
-                    raise store.DiskFull(self.path, nbytes + store.SPACE_MARGIN, store.free_bytes(self.path)) from None
-                raise
+            pending.result()
 
-    def _write(self, first, rows) -> None:
+    def _write(self, first, rows, nbytes) -> None:
         f = self.f
-        if first is not None:
-            counted, tagged_ids, vol = first
-            f.create_dataset("grains_counted", data=counted)
-            f.create_dataset("grains_tagged", data=tagged_ids)
-            f.attrs["grains"] = int(counted.size)
-            if vol is not None:
-                n = int(counted.size)
-                f.create_dataset("grains_volume", data=vol)
-                f.create_dataset("boundary/cells", shape=(0, n), maxshape=(None, n), dtype="i4",
-                                 chunks=(max(1, min(64, (1 << 20) // (4 * n))), n), **H5_FILTERS)
-                f.create_dataset("boundary/octant", shape=(0, n), maxshape=(None, n), dtype="u1",
-                                 chunks=(max(1, min(64, (1 << 20) // n)), n), **H5_FILTERS)
-        for name, data in rows:
-            self._append(f[name], data)
-        now_wall = time.perf_counter()
-        if now_wall - self._flushed > 10.0:  # a crash loses at most ~10 s of frames
-            f.flush()
-            self._flushed = now_wall
+        with store.writing(self.path, nbytes, check=False):  # its space checked by _submit
+            if first is not None:
+                counted, tagged_ids, vol = first
+                f.create_dataset("grains_counted", data=counted)
+                f.create_dataset("grains_tagged", data=tagged_ids)
+                f.attrs["grains"] = int(counted.size)
+                if vol is not None:
+                    n = int(counted.size)
+                    f.create_dataset("grains_volume", data=vol)
+                    f.create_dataset("boundary/cells", shape=(0, n), maxshape=(None, n), dtype="i4",
+                                     chunks=(max(1, min(64, (1 << 20) // (4 * n))), n), **H5_FILTERS)
+                    f.create_dataset("boundary/octant", shape=(0, n), maxshape=(None, n), dtype="u1",
+                                     chunks=(max(1, min(64, (1 << 20) // n)), n), **H5_FILTERS)
+            for name, data in rows:
+                self._append(f[name], data)
+            now_wall = time.perf_counter()
+            if now_wall - self._flushed > 10.0:  # a crash loses at most ~10 s of frames
+                f.flush()
+                self._flushed = now_wall
 
     def frame_check(self) -> dict:
         """The Taylor time scale of eps from the samples so far, at the fluid step and at the frame interval."""

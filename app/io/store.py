@@ -80,6 +80,20 @@ def is_disk_full(err: BaseException) -> bool:
                                          or "errno = 28" in str(err) or "No space left" in str(err))
 
 
+@contextlib.contextmanager
+def writing(path: pathlib.Path, nbytes: int, check: bool = True):
+    """Guard a write of about ``nbytes`` into ``path`` (uncompressed: an upper bound): free space checked first
+    (unless ``check`` is False: checked before), an ENOSPC from HDF5 turned into DiskFull."""
+    if check:
+        check_space(path, nbytes)
+    try:
+        yield
+    except OSError as err:
+        if is_disk_full(err):
+            raise DiskFull(path, nbytes + SPACE_MARGIN, free_bytes(path)) from None
+        raise
+
+
 def grain_ids(n: int) -> np.ndarray:
     return np.arange(n, dtype=np.int32 if n < 2 ** 31 else np.int64)
 
@@ -192,15 +206,13 @@ class RunFile:
     @contextlib.contextmanager
     def _writing(self, nbytes: int):
         """Guard one write of about ``nbytes`` (uncompressed: an upper bound): free space checked first, an
-        ENOSPC from HDF5 turned into DiskFull."""
-        check_space(self.path, nbytes)
-        try:
-            yield
-        except OSError as err:
-            if is_disk_full(err):
-                self.failed = True
-                raise DiskFull(self.path, nbytes + SPACE_MARGIN, free_bytes(self.path)) from None
-            raise
+        ENOSPC from HDF5 turned into DiskFull (:func:`writing`), after which close() only closes."""
+        with writing(self.path, nbytes):
+            try:
+                yield
+            except OSError as err:
+                self.failed = self.failed or is_disk_full(err)
+                raise
 
     def append(self, row: dict) -> None:
         """One sample of every series in ``row``; a series first seen now is NaN for earlier samples."""
