@@ -13,6 +13,7 @@ boundary): written to the file's attributes and logged when the frame is longer.
 Cost: nothing read back in the fluid steps inside a frame; per frame, the void fraction twice (at the
 boundary and one fluid step later), the flux sums and the counted grains' cells, octants and flags, computed on the
 device (``DemSolver.tracked_cells``: 6 bytes a grain, not the 12-24 of a position, and no floors on the host). The
+per-cell sums, the volume shifts and the writes run on a thread of their own, beside the next frame's steps. The
 solvers are read through ``read_solvers`` only.
 """
 from __future__ import annotations
@@ -295,8 +296,8 @@ class RcfdRecorder:
         return read_solvers(sim, "cells")(self.origin, self.h, self.shape, parse_tag(self.tag))
 
     def _boundary(self, sim, eps: np.ndarray) -> None:
-        """A frame boundary: everything read from the solvers and computed here; the appends to rcfd.h5 are handed
-        to the writer thread (:meth:`_submit`)."""
+        """A frame boundary: everything read from the solvers here; the per-cell sums, the volume shifts and the
+        appends to rcfd.h5 are handed to the writer thread (:meth:`_submit`)."""
         if self.counted is None:  # the grains counted from the first boundary on
             self.counted = np.nonzero(read_solvers(sim, "alive"))[0]
         cells, octant, alive, now = self._cells(sim)
@@ -318,15 +319,7 @@ class RcfdRecorder:
                 ("boundary/bed_height", read_solvers(sim, "bed_height"))]
         if self.grain_cells:
             rows += [("boundary/cells", cells.astype(np.int32)), ("boundary/octant", octant)]
-        for name, sel in (("solid", None), ("tag_now", now), ("tagged", self.tagged)):
-            w = vol if sel is None else vol * sel
-            rows.append((f"boundary/{name}", np.bincount(cells, weights=w, minlength=self.n).astype(np.float32)))
-        if self.open_frame is not None:
-            b_start, c_start = self.open_frame
-            keys, w = shift_sums(c_start, cells, vol, self.n)
-            self._shifts += keys.size
-            rows += [("shift/c0", (keys // self.n).astype(np.int32)), ("shift/c1", (keys % self.n).astype(np.int32)),
-                     ("shift/w", w), ("frame/b0", b_start), ("frame/b1", b), ("frame/offset", self._shifts)]
+        to_sum = (cells, now, self.tagged, vol, self.open_frame, b)  # summed by the writer thread (_sums)
         if self.fluxes:
             sums = read_solvers(sim, "flux_sum")  # read once per frame, and cleared
             if self.open_frame is not None:
@@ -335,7 +328,7 @@ class RcfdRecorder:
                     q = sums[a][:, :, :nz + 1 if a == 2 else nz] / max(self.flux_time, 1e-300)
                     rows.append((f"frame/flux_{'xyz'[a]}", q.astype(np.float32)))
             self.flux_time = 0.0
-        self._submit(first, rows)
+        self._submit(first, rows, to_sum)
         self.open_frame = (b, cells)
         self.last_cells, self.last_octant = cells, octant
         if self.prev_boundary_eps is not None:
@@ -344,18 +337,36 @@ class RcfdRecorder:
         self.prev_boundary_eps = eps
 
     # -- the writer thread: rcfd.h5's appends overlap the next frame's stepping
-    def _submit(self, first, rows) -> None:
-        """Hand a boundary's appends to the writer thread, after the last boundary's are written (at most one
-        boundary in flight; an error there, e.g. a full disk, is raised here, one boundary later, or at finish).
-        h5py lets other threads run while HDF5 compresses and writes (a 1e6-grain boundary's appends took ~0.1 s on
-        the CPU), so they overlap the fluid steps of the next frame instead of adding to them."""
+    def _submit(self, first, rows, to_sum) -> None:
+        """Hand a boundary's appends, and its per-cell sums and volume shifts to compute (:meth:`_sums`), to the
+        writer thread, after the last boundary's are written (at most one boundary in flight; an error there, e.g. a
+        full disk, is raised here, one boundary later, or at finish). h5py lets other threads run while HDF5
+        compresses and writes, and numpy's sorts and most of its array passes release the GIL too, so that work
+        overlaps the fluid steps of the next frame instead of adding to them (benchmarks/rcfd_frame_cost.py --h5)."""
         self._drain()
         nbytes = sum(np.asarray(v).nbytes for _, v in rows) + (0 if first is None else sum(
             np.asarray(v).nbytes for v in first if v is not None))
+        nbytes += 12 * self.n + (0 if to_sum[4] is None else 16 * to_sum[0].size)  # the sums; at most a shift a grain
         store.check_space(self.path, nbytes)  # as every writer of the run: a full disk is a clean stop
         if self._writer is None:
             self._writer = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="rcfd-h5")
-        self._pending = self._writer.submit(self._write, first, rows, nbytes)
+        self._pending = self._writer.submit(self._write, first, rows, to_sum, nbytes)
+
+    def _sums(self, cells, now, tagged, vol, open_frame, b) -> list:
+        """On the writer thread: the boundary's per-cell volumes (all counted grains, those in the tag's region now,
+        the tagged ones) and, closing the open frame, its volume shifts (:func:`shift_sums`) with the frame's rows.
+        The running shift count is this thread's alone once the probe is attached."""
+        rows = []
+        for name, sel in (("solid", None), ("tag_now", now), ("tagged", tagged)):
+            w = vol if sel is None else vol * sel
+            rows.append((f"boundary/{name}", np.bincount(cells, weights=w, minlength=self.n).astype(np.float32)))
+        if open_frame is not None:
+            b_start, c_start = open_frame
+            keys, w = shift_sums(c_start, cells, vol, self.n)
+            self._shifts += keys.size
+            rows += [("shift/c0", (keys // self.n).astype(np.int32)), ("shift/c1", (keys % self.n).astype(np.int32)),
+                     ("shift/w", w), ("frame/b0", b_start), ("frame/b1", b), ("frame/offset", self._shifts)]
+        return rows
 
     def _drain(self) -> None:
         """Wait for the writer thread's boundary in flight; its error, if any, is raised here (a full disk as the
@@ -364,8 +375,9 @@ class RcfdRecorder:
         if pending is not None:
             pending.result()
 
-    def _write(self, first, rows, nbytes) -> None:
+    def _write(self, first, rows, to_sum, nbytes) -> None:
         f = self.f
+        rows = rows + self._sums(*to_sum)
         with store.writing(self.path, nbytes, check=False):  # its space checked by _submit
             if first is not None:
                 counted, tagged_ids, vol = first

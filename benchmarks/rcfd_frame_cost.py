@@ -9,12 +9,15 @@ The grains: ``--n`` at random in the poppy-seed column's recorded region (32 x 3
     python3 benchmarks/rcfd_frame_cost.py --n 1000000 --moved 0.1
 
 ``--h5`` times instead the probe's host work at a frame boundary (``RcfdRecorder._boundary``: cells, octants,
-the three per-cell volume sums, the volume shifts and the appends to rcfd.h5) over ``--frames`` frames, as the
-calling thread spends it: with the datasets' HDF5 filters as they were (gzip at its default level 4) and now
-(``app.rcfd_probe.H5_FILTERS``), the appends waited for in the loop, and now, handed to the probe's writer thread
-while ``--between`` seconds of sleep stand for the next frame's fluid steps; alternated frame set by frame set, for
-grains numbered at random and in cell order (as a fill numbers them); checks that the files hold the same arrays.
-The solvers are a stand-in (the probe's numpy floors for the cells, radii, a bed height).
+the three per-cell volume sums, the volume shifts and the appends to rcfd.h5, with ``app.rcfd_probe.H5_FILTERS``)
+over ``--frames`` frames, for grains numbered at random and in cell order (as a fill numbers them): all of it waited
+for in the loop, against the probe as it runs (its writer thread's share overlapping the next frame's steps), set by
+set in turn. ``--between`` seconds stand for a frame's fluid steps: ``--steps sleep`` (the GIL free, as while the
+host waits on a GPU outside Python) or ``--steps python`` (a pure-Python loop, the GIL held, as while the host
+launches kernels: Taichi holds the GIL for a whole kernel call, measured on its CPU backend). Each frame gives the
+calling thread's time in the boundary and the frame's wall time beyond the steps' own (what the writer thread took
+from a GIL-holding loop counts there). Checks that the files hold the same arrays. The solvers are a stand-in (the
+probe's numpy floors for the cells, radii, a bed height).
 
 ``--device`` times the probe's read of a frame's grains from a real DEM (``--arch``, float32): the positions and
 flags read back and the cells, octants and tag computed in numpy (the probe before 2026-12-06) against
@@ -90,11 +93,28 @@ class _Stand:
         return c, o, np.ones(len(x), bool), tag_mask("xyz"[tag[0]] + tag[1] + repr(tag[2]), x)
 
 
-def h5_frames(path, filters, frames, r, eps, shape, origin, h, in_loop, between):
-    """Run the probe's boundary work over ``frames`` (positions) into ``path`` with ``filters``: ms per frame that
-    the calling thread spends in it. ``in_loop``: each boundary's appends waited for at once (as the probe wrote
-    them before its writer thread); else they overlap ``between`` seconds of sleep standing for the next frame's
-    fluid steps (which keep one core busy, as the sleeping thread does not)."""
+def python_steps(seconds: float):
+    """A stand-in for a frame's fluid steps that holds the GIL, as a host-bound launch loop does: a pure-Python
+    loop of as many iterations as take ``seconds`` alone (timed here). Returns the function that runs it."""
+    def spin(k):
+        x = 0
+        for i in range(k):
+            x += i & 7
+        return x
+
+    t0 = time.perf_counter()
+    spin(200_000)
+    k = int(200_000 * seconds / (time.perf_counter() - t0))
+    return lambda: spin(k)
+
+
+def h5_frames(path, filters, frames, r, eps, shape, origin, h, in_loop, between, steps="sleep"):
+    """Run the probe's boundary work over ``frames`` (positions) into ``path`` with ``filters``: per frame, the ms
+    the calling thread spends in the boundary, and the ms the frame (boundary and steps) takes beyond the steps
+    alone. ``in_loop``: each boundary's work waited for at once (as the probe wrote before its writer thread); else
+    the writer thread's share overlaps ``between`` seconds standing for the next frame's fluid steps: ``steps``
+    "sleep" (the GIL free, as while a GPU works and the host waits outside Python) or "python" (the GIL held, as
+    while the host launches kernels: :func:`python_steps`)."""
     import app.rcfd_probe as probe
 
     rec = RcfdRecorder.__new__(RcfdRecorder)
@@ -111,7 +131,8 @@ def h5_frames(path, filters, frames, r, eps, shape, origin, h, in_loop, between)
     try:
         rec._open(np.ones(shape, np.float32), None)
         rec._boundaries, rec._shifts = 0, 0
-        stand, times = _Stand(frames[0], r), []
+        stand, times, excess = _Stand(frames[0], r), [], []
+        run_steps = python_steps(between) if steps == "python" else (lambda: time.sleep(between))
         for k, x in enumerate(frames):
             stand.x, stand.time = x, 5e-3 * k
             t0 = time.perf_counter()
@@ -119,12 +140,15 @@ def h5_frames(path, filters, frames, r, eps, shape, origin, h, in_loop, between)
             if in_loop:
                 rec._drain()
                 rec.f.flush()
-            times.append(time.perf_counter() - t0)
-            time.sleep(between)
+            t1 = time.perf_counter()
+            run_steps()
+            t2 = time.perf_counter()
+            times.append(t1 - t0)
+            excess.append(t2 - t0 - between)  # the boundary, and what the writer thread took from the steps
         rec.finish(None, "done")
     finally:
         probe.H5_FILTERS, probe.read_solvers = kept, read
-    return [1e3 * t for t in times]
+    return [1e3 * t for t in times], [1e3 * t for t in excess]
 
 
 def h5_main(a) -> int:
@@ -140,9 +164,7 @@ def h5_main(a) -> int:
     r = rng.choice([0.4595e-3, 0.525e-3, 0.6345e-3], a.n)
     x0 = origin + rng.uniform(0.0, 1.0, (a.n, 3)) * (hi - origin)
     eps = rng.uniform(0.4, 1.0, shape)
-    variants = (("gzip 4, in the loop", {"compression": "gzip"}, True),
-                ("gzip 1 + shuffle, in the loop", probe.H5_FILTERS, True),
-                ("gzip 1 + shuffle, writer thread", probe.H5_FILTERS, False))
+    variants = (("in the loop", probe.H5_FILTERS, True), ("writer thread", probe.H5_FILTERS, False))
     rows, same = [], True
     for order in ("random", "cell"):
         x = x0 if order == "random" else x0[np.lexsort((x0[:, 2], x0[:, 1], x0[:, 0]))]
@@ -151,10 +173,13 @@ def h5_main(a) -> int:
             step = rng.choice([-1, 1], (a.n, 3)) * h * (rng.uniform(size=(a.n, 1)) < a.moved)
             frames.append(np.clip(frames[-1] + step, origin, hi - 1e-9).astype(np.float32))
         with tempfile.TemporaryDirectory() as tmp:
-            t = {v[0]: [] for v in variants}
+            t = {v[0]: ([], []) for v in variants}
             for rep in range(a.repeats):
                 for i, (name, filt, in_loop) in enumerate(variants):
-                    t[name] += h5_frames(f"{tmp}/{i}.h5", filt, frames, r, eps, shape, origin, h, in_loop, a.between)
+                    bound, excess = h5_frames(f"{tmp}/{i}.h5", filt, frames, r, eps, shape, origin, h, in_loop,
+                                              a.between, a.steps)
+                    t[name][0].extend(bound)
+                    t[name][1].extend(excess)
             sizes = [pathlib.Path(f"{tmp}/{i}.h5").stat().st_size / a.frames / 1e6 for i in range(len(variants))]
             files = [h5py.File(f"{tmp}/{i}.h5") for i in range(len(variants))]
             names = []
@@ -163,17 +188,20 @@ def h5_main(a) -> int:
             for g in files:
                 g.close()
         same &= eq
-        row = {"N": a.n, "grain order": order, "frames": a.frames}
+        row = {"N": a.n, "grain order": order, "frames": a.frames, "steps": a.steps}
         for (name, _, _), size in zip(variants, sizes):
-            row[f"{name}: ms/frame"] = f"{statistics.median(t[name]):.1f}"
-            row[f"{name}: MB/frame"] = f"{size:.2f}"
+            row[f"{name}: boundary ms"] = f"{statistics.median(t[name][0]):.1f}"
+            row[f"{name}: frame ms beyond the steps"] = f"{statistics.median(t[name][1]):.1f}"
+        row["MB/frame"] = f"{sizes[-1]:.2f}"
         row["same arrays"] = "yes" if eq else "NO"
         rows.append(row)
         print(row, flush=True)
-    append_results(f"rCFD recording probe, the calling thread's time per frame boundary incl. the rcfd.h5 appends "
-                   f"(numpy and h5py; grains in the poppy column's 32 x 32 x 84 cells, {a.moved:g} of them one cell "
-                   f"further each frame; {a.between:g} s of sleep between boundaries for the fluid steps; median over "
-                   f"{a.repeats} x {a.frames} frames)", rows, "cpu", dry=a.no_append)
+    stand = "sleep" if a.steps == "sleep" else "a pure-Python loop (the GIL held)"
+    append_results(f"rCFD recording probe, the calling thread's time per frame boundary and the frame's time beyond "
+                   f"its steps, incl. the rcfd.h5 appends (numpy and h5py; grains in the poppy column's 32 x 32 x 84 "
+                   f"cells, {a.moved:g} of them one cell further each frame; {a.between:g} s of {stand} between "
+                   f"boundaries for the fluid steps; median over {a.repeats} x {a.frames} frames)", rows, "cpu",
+                   dry=a.no_append)
     return 0 if same else 1
 
 
@@ -229,6 +257,8 @@ def main(argv=None) -> int:
     ap.add_argument("--h5", action="store_true", help="the whole boundary work with the rcfd.h5 appends, filters before/after")
     ap.add_argument("--frames", type=int, default=6, help="with --h5: frames per set")
     ap.add_argument("--between", type=float, default=0.3, help="with --h5: seconds between boundaries (the steps)")
+    ap.add_argument("--steps", default="sleep", choices=("sleep", "python"),
+                    help="with --h5: what stands for the steps: a sleep (the GIL free) or a Python loop (held)")
     ap.add_argument("--device", action="store_true", help="a frame's grain cells from a real DEM: host against device")
     ap.add_argument("--arch", default="cpu", choices=("cpu", "cuda"), help="with --device")
     a = ap.parse_args(argv)
