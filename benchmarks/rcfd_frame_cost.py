@@ -95,17 +95,23 @@ class _Stand:
 
 def python_steps(seconds: float):
     """A stand-in for a frame's fluid steps that holds the GIL, as a host-bound launch loop does: a pure-Python
-    loop of as many iterations as take ``seconds`` alone (timed here). Returns the function that runs it."""
+    loop of as many iterations as take about ``seconds``. Returns the function that runs it and its median time
+    alone (timed here, the writer thread idle)."""
     def spin(k):
         x = 0
         for i in range(k):
             x += i & 7
         return x
 
-    t0 = time.perf_counter()
-    spin(200_000)
-    k = int(200_000 * seconds / (time.perf_counter() - t0))
-    return lambda: spin(k)
+    def timed(k):
+        t0 = time.perf_counter()
+        spin(k)
+        return time.perf_counter() - t0
+
+    timed(200_000)  # warm
+    k = int(200_000 * seconds / min(timed(200_000) for _ in range(3)))
+    alone = statistics.median(timed(k) for _ in range(5))  # what the frame's steps take alone
+    return (lambda: spin(k)), alone
 
 
 def h5_frames(path, filters, frames, r, eps, shape, origin, h, in_loop, between, steps="sleep"):
@@ -132,7 +138,7 @@ def h5_frames(path, filters, frames, r, eps, shape, origin, h, in_loop, between,
         rec._open(np.ones(shape, np.float32), None)
         rec._boundaries, rec._shifts = 0, 0
         stand, times, excess = _Stand(frames[0], r), [], []
-        run_steps = python_steps(between) if steps == "python" else (lambda: time.sleep(between))
+        run_steps, alone = python_steps(between) if steps == "python" else ((lambda: time.sleep(between)), between)
         for k, x in enumerate(frames):
             stand.x, stand.time = x, 5e-3 * k
             t0 = time.perf_counter()
@@ -144,7 +150,7 @@ def h5_frames(path, filters, frames, r, eps, shape, origin, h, in_loop, between,
             run_steps()
             t2 = time.perf_counter()
             times.append(t1 - t0)
-            excess.append(t2 - t0 - between)  # the boundary, and what the writer thread took from the steps
+            excess.append(t2 - t0 - alone)  # the boundary, and what the writer thread took from the steps
         rec.finish(None, "done")
     finally:
         probe.H5_FILTERS, probe.read_solvers = kept, read
