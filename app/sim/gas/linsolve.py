@@ -131,15 +131,15 @@ class MGPCG:
                 t = np.ascontiguousarray(t, dtype=np.float64)
                 if t.shape != tuple(fs):
                     raise ValueError(f"transmissibility of axis {a} must have shape {tuple(fs)}, got {t.shape}")
-                pcg._k_set_faces(self.mg, a, t)
+                pcg.k_set_faces(self.mg, a, t)
         for vec, v in ((self._b0, b), (self._x, x0)):
             if v is not None:
                 v = np.ascontiguousarray(np.broadcast_to(np.asarray(v, np.float64), self.shape))
-                pcg._k_cells_in(vec, v)
+                pcg.k_cells_in(vec, v)
 
     def _cells(self, vec) -> np.ndarray:
         out = np.zeros(self.shape)
-        pcg._k_cells_out(vec, out)
+        pcg.k_cells_out(vec, out)
         return out
 
     def solution(self) -> np.ndarray:
@@ -152,7 +152,7 @@ class MGPCG:
         fs = list(self.shape)
         fs[a] += 1
         out = np.zeros(fs)
-        pcg._k_get_faces(self.mg, a, out)
+        pcg.k_get_faces(self.mg, a, out)
         return out
 
     def set_dirichlet(self, values: Sequence[float]) -> None:

@@ -372,7 +372,7 @@ def k_record(mg: Multigrid) -> ti.types.vector(6, ti.f64):
 
 # ---- host <-> level-0 transfer (used by tests and by callers without their own kernels)
 @kernel
-def _k_set_faces(mg: Multigrid, a: ti.i32, src: ti.types.ndarray()):
+def k_set_faces(mg: Multigrid, a: ti.i32, src: ti.types.ndarray()):
     # loop bounds built without a dynamic-index store (Taichi 1.7.4 gets ndrange bounds wrong
     # after ``d[a] += 1`` with a runtime a)
     n = mgm.dims(mg, 0)
@@ -381,19 +381,19 @@ def _k_set_faces(mg: Multigrid, a: ti.i32, src: ti.types.ndarray()):
 
 
 @kernel
-def _k_get_faces(mg: Multigrid, a: ti.i32, dst: ti.types.ndarray()):
+def k_get_faces(mg: Multigrid, a: ti.i32, dst: ti.types.ndarray()):
     n = mgm.dims(mg, 0)
     for i, j, k in ti.ndrange(n[0] + (a == 0), n[1] + (a == 1), n[2] + (a == 2)):
         dst[i, j, k] = mg.trans[mgm.face(mg, 0, a, ti.Vector([i, j, k]))]
 
 
 @kernel
-def _k_cells_in(v: ti.types.ndarray(), src: ti.types.ndarray()):
+def k_cells_in(v: ti.types.ndarray(), src: ti.types.ndarray()):
     for i, j, k in src:
         v[(i * src.shape[1] + j) * src.shape[2] + k] = ti.cast(src[i, j, k], float)
 
 
 @kernel
-def _k_cells_out(v: ti.types.ndarray(), dst: ti.types.ndarray()):
+def k_cells_out(v: ti.types.ndarray(), dst: ti.types.ndarray()):
     for i, j, k in dst:
         dst[i, j, k] = v[(i * dst.shape[1] + j) * dst.shape[2] + k]
