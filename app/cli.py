@@ -23,7 +23,7 @@ import argparse
 import sys
 
 from .config import ConfigError
-from .io.store import VERSION
+from .io.store import VERSION, DiskFull, disk_full_text
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -217,6 +217,12 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as err:
         print(f"fbed: error: {err}", file=sys.stderr)
         return 2
+    except (DiskFull, OSError) as err:  # an analysis's, a sweep's or rCFD's outputs (a run says its own, with its
+        what = disk_full_text(err)  # checkpoint kept); any other OS error as before
+        if what is None:
+            raise
+        print(f"fbed: error: {what}; free some space and run it again", file=sys.stderr)
+        return 3
     except KeyboardInterrupt:  # before a run's own handler is installed (or outside a run): nothing half-written
         print("fbed: interrupted", file=sys.stderr)
         return 130

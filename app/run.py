@@ -38,11 +38,14 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
         resume: str | None = None, overwrite: bool = False, viewer=None) -> int:
     """Run a preset (or resume DIR). ``viewer``: a callable ``viewer(renderer, schedule, out_dir)``
     returning a controller for ``Simulation.run`` (``fbed view``); None runs headless.
-    A full disk before the run steps (its first files) stops it too: exit 3, nothing half-written."""
+    A full disk before the run steps (its first files) stops it too, and after them (the analysis): exit 3."""
     try:
         return _run(preset, overrides, out, arch, resume, overwrite, viewer)
-    except store.DiskFull as err:
-        log(f"fbed: {err}; free some space or give another --out")
+    except (store.DiskFull, OSError) as err:  # OSError: a full disk in a write outside the store (the analysis)
+        what = store.disk_full_text(err)
+        if what is None:
+            raise
+        log(f"fbed: {what}; free some space or give another --out")
         return EXIT_UNSTABLE
 
 

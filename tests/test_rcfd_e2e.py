@@ -165,3 +165,47 @@ def test_the_sensitivity_check_reruns_the_paths_with_frames_doubled_and_sequence
     doubled = np.loadtxt(tmp_path / "rcfd_paths_frames_doubled" / "mixing.csv", delimiter=",", skiprows=1)
     halved = np.loadtxt(tmp_path / "rcfd_paths_sequences_halved" / "mixing.csv", delimiter=",", skiprows=1)
     assert np.diff(doubled[:, 0])[0] == pytest.approx(2 * np.diff(halved[:, 0])[0])  # 10 ms frames against 5 ms
+
+
+def test_a_full_disk_while_analyze_writes_is_a_clean_error_that_leaves_no_half_file(recorded, tmp_path, monkeypatch,
+                                                                                   capsys):
+    """rCFD's JSON outputs are written as every fbed file is (app.io.store.write_text: whole or not at all), and the
+    CLI turns the full disk into exit 3 with the file named, no traceback. Injected: the store's write finds ENOSPC."""
+    from app.cli import main as cli_main
+    from app.io import store
+
+    def full(path, text):
+        raise store.DiskFull(path, len(text.encode()), 0)
+
+    monkeypatch.setattr(store, "write_text", full)
+    out = tmp_path / "analysis"
+    assert cli_main(["rcfd", "analyze", str(recorded), "--out", str(out)]) == 3
+    err = capsys.readouterr().err
+    assert "the disk is full: writing rcfd.json" in err and "Traceback" not in err
+    assert not (out / "rcfd.json").exists()
+
+
+def test_a_full_disk_in_a_figure_is_a_clean_error_naming_it(recorded, tmp_path, monkeypatch, capsys):
+    """A write outside the store's guards (matplotlib's savefig here) that finds the disk full: exit 3 with the file
+    named, no traceback (app.cli turns an OSError meaning ENOSPC into that; any other OSError is raised as before)."""
+    import errno
+
+    import matplotlib.figure
+
+    from app.cli import main as cli_main
+
+    def full(self, path, *args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", full)
+    assert cli_main(["rcfd", "analyze", str(recorded), "--out", str(tmp_path / "a")]) == 3
+    err = capsys.readouterr().err
+    assert "the disk is full: writing recurrence.png" in err and "Traceback" not in err
+
+    def denied(self, path, *args, **kwargs):
+        raise PermissionError(errno.EACCES, "Permission denied", str(path))
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", denied)
+    with pytest.raises(PermissionError):
+        cli_main(["rcfd", "analyze", str(recorded), "--out", str(tmp_path / "b")])
+

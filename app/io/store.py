@@ -80,6 +80,17 @@ def is_disk_full(err: BaseException) -> bool:
                                          or "errno = 28" in str(err) or "No space left" in str(err))
 
 
+def disk_full_text(err: BaseException) -> str | None:
+    """What to tell of a full disk, from a :class:`DiskFull` or an OSError that means one (a write outside this
+    module's guards: an analysis's table, a figure); None for any other error."""
+    if isinstance(err, DiskFull):
+        return str(err)
+    if is_disk_full(err):
+        name = getattr(err, "filename", None)
+        return "the disk is full" + (f": writing {pathlib.Path(name).name}" if name else "")
+    return None
+
+
 @contextlib.contextmanager
 def writing(path: pathlib.Path, nbytes: int, check: bool = True):
     """Guard a write of about ``nbytes`` into ``path`` (uncompressed: an upper bound): free space checked first

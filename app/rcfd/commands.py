@@ -16,14 +16,18 @@ import time as wallclock
 import h5py
 import numpy as np
 
+from ..io import store
 from . import paths as pathmod
 from . import recurrence as rec
 from .database import Database, load, tag_mask
 from .engine import Engine, bed_mask, statistics
 from .transport import mixing_index_real
 
-def _json(path: pathlib.Path, data: dict) -> None:
-    path.write_text(json.dumps(data, indent=2, default=lambda o: o.item() if hasattr(o, "item") else str(o)) + "\n")
+def write_json(path: pathlib.Path, data: dict) -> None:
+    """``data`` as JSON (numpy scalars as their values, anything else as its text), written as every fbed file is
+    (:func:`app.io.store.write_text`: whole or not at all, a full disk a clean error)."""
+    store.write_text(path, json.dumps(data, indent=2, default=lambda o: o.item() if hasattr(o, "item") else str(o))
+                     + "\n")
 
 
 def analyze(run_dir: str, out: str | None = None) -> dict:
@@ -59,7 +63,7 @@ def analyze(run_dir: str, out: str | None = None) -> dict:
              "first_recurrence_lag": "s", "mean_bed_height": "m", "std_bed_height": "m", "taylor_time": "s",
              "taylor_time_at_frame_interval": "s", "recurrence_seconds": "s", "mid_bed_height": "m"}
     res["units"] = units
-    _json(od / "rcfd.json", res)
+    write_json(od / "rcfd.json", res)
     _plot_recurrence(od / "recurrence.png", st["R"], db.time)
     _plot_spectrum(od / "spectrum.png", st, db, res)
     np.save(od / "recurrence.npy", st["R"].astype(np.float32))
@@ -83,7 +87,7 @@ def continuity_residual(db: Database) -> float:
     return float(np.median(out))
 
 
-def _plt():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
@@ -93,7 +97,7 @@ def _plt():
 
 
 def _plot_recurrence(path, R, time, paths=None):
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 5.6))
     ext = (time[0], time[-1], time[-1], time[0])
     im = ax.imshow(R, extent=ext, cmap="viridis", vmin=0, vmax=1, interpolation="nearest")
@@ -116,7 +120,7 @@ def _plot_recurrence(path, R, time, paths=None):
 
 
 def _plot_spectrum(path, st, db, res):
-    plt = _plt()
+    plt = pyplot()
     fig, axs = plt.subplots(2, 2, figsize=(10, 7))
     for ax, sp, name in ((axs[0, 0], st["sp_eps"], f"mid-bed void fraction (z = {res['mid_bed_height']:.3g} m)"),
                          (axs[0, 1], st["sp_h"], "bed height")):
@@ -372,7 +376,7 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
         summary["stitch_flow"] = eng.jump_stitcher.flow
     if gas:
         summary["gas_tracer"] = _gas_paths(eng, ps, od, time, horizon)
-    _json(od / "summary.json", summary)
+    write_json(od / "summary.json", summary)
     _plot_mixing(od / "mixing.png", time, Ms, mean, std)
     seqs = [(s, L, int(db.b0[s])) for s, L in ps[0].sequences]
     _plot_recurrence(od / "recurrence_path.png", eng.st["R"], db.time, [{"jumps": ps[0].jumps, "sequences": seqs}])
@@ -382,7 +386,7 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
 
 
 def _plot_mixing(path, time, Ms, mean, std, full=None):
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for M in Ms:
         ax.plot(time, M, color="0.7", lw=0.6)

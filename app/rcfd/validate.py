@@ -314,7 +314,7 @@ def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_pa
               "jump_tag_moved_share_mean": summ.get("jump_tag_moved_share_mean"),
               "lacey_random_scatter": lacey_random_std(db.solid[-1].astype(np.float64) / grain_volume(db),
                                                        float(db.tag_now[-1].sum() / db.solid[-1].sum()))}
-    commands._json(od / "validation.json", result)
+    commands.write_json(od / "validation.json", result)
     _plot(od, rep, t_r, (M_paths, L_paths), tf, (Mf, Lf))
     _report(od / "REPORT.md", result)
     for name, c in checks.items():
@@ -342,7 +342,7 @@ def _integral_time(x: np.ndarray, dt: float) -> float:
 
 def _plot(od, rep, t_r, paths, tf, full):
     """The replay (cell index), and the extrapolation on the cell index and on Lacey's."""
-    plt = commands._plt()
+    plt = commands.pyplot()
     fig, axs = plt.subplots(1, 3, figsize=(17, 4.5))
     axs[0].plot(rep["t"], rep["real"], "k-", lw=2, label="real grains")
     style = {"cells": ("r:", "cell shifts every frame"), "grains": ("g--", "grain tracer (no jumps)"),
