@@ -150,9 +150,15 @@ def check_same_scene(cfg, run_cfg, preset_path: pathlib.Path, out_dir: pathlib.P
                           "resume may change only run.duration, [output], [video], [guard], [probes] and [boundary]")
 
 
+#: what a resume does without each file, for the hint when one is damaged
+_WITHOUT = {"checkpoint.h5": "nothing to resume", "run.h5": "its series restart",
+            "rcfd.h5": "the rCFD frames start anew at the next frame boundary"}
+
+
 def check_readable(out_dir: pathlib.Path) -> None:
-    """Refuse a run folder whose checkpoint.h5 or run.h5 cannot be read (a damaged file loses nothing more)."""
-    for name, must in (("checkpoint.h5", ("step", "time")), ("run.h5", ())):
+    """Refuse a run folder whose checkpoint.h5, run.h5 or rcfd.h5 cannot be read (a damaged file loses nothing
+    more: a process killed while it wrote can leave an HDF5 file so)."""
+    for name, must in (("checkpoint.h5", ("step", "time")), ("run.h5", ()), ("rcfd.h5", ())):
         path = out_dir / name
         if not path.exists():
             continue
@@ -161,9 +167,11 @@ def check_readable(out_dir: pathlib.Path) -> None:
                 missing = [k for k in must if k not in f.attrs]
                 if name == "run.h5" and "series" in f:
                     f["series"]["time"][...] if "time" in f["series"] else None
+                if name == "rcfd.h5":  # what the probe's resume reads and truncates
+                    f["boundary/time"][...], f["frame/b1"][...], f["frame/offset"][...]
         except Exception as err:  # noqa: BLE001 - h5py raises OSError, KeyError or RuntimeError on damage
             raise ConfigError(f"{name} is damaged and cannot be read ({str(err).splitlines()[0][:80]})", str(path),
-                              "--resume", hint="move it aside and resume (run.h5: its series restart; "
-                              "checkpoint.h5: nothing to resume), or start again with --overwrite") from None
+                              "--resume", hint=f"move it aside and resume ({name}: {_WITHOUT[name]}), or start "
+                              "again with --overwrite") from None
         if missing:
             raise ConfigError(f"{name} lacks {', '.join(missing)}: not an fbed checkpoint", str(path), "--resume")

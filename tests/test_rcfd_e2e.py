@@ -209,3 +209,19 @@ def test_a_full_disk_in_a_figure_is_a_clean_error_naming_it(recorded, tmp_path, 
     with pytest.raises(PermissionError):
         cli_main(["rcfd", "analyze", str(recorded), "--out", str(tmp_path / "b")])
 
+
+@pytest.mark.restart
+def test_a_damaged_rcfd_h5_is_refused_at_resume_and_left_as_it_was(recorded, tmp_path):
+    """A process killed while it wrote can leave rcfd.h5 unreadable: a resume refuses it before anything is written,
+    names it and says what moving it aside costs (exit 2, no traceback), as for run.h5 and checkpoint.h5."""
+    import hashlib
+    import shutil
+
+    d = tmp_path / "bed"
+    shutil.copytree(recorded, d, ignore=shutil.ignore_patterns("rcfd"))
+    (d / "rcfd.h5").write_bytes((d / "rcfd.h5").read_bytes()[:4000])  # cut short
+    before = {p.name: hashlib.sha1(p.read_bytes()).hexdigest() for p in d.iterdir() if p.is_file()}
+    r = fbed("run", "--resume", d, "--set", "run.duration=0.45", "--arch", "cpu")
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-3000:]
+    assert "rcfd.h5 is damaged" in r.stderr and "--resume" in r.stderr and "start anew" in r.stderr, r.stderr
+    assert {p.name: hashlib.sha1(p.read_bytes()).hexdigest() for p in d.iterdir() if p.is_file()} == before
