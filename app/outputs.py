@@ -17,7 +17,7 @@ EXIT_DISK_FULL = 3
 # every file and folder `fbed run` writes into its output folder (the video under its configured name too):
 # a folder holding any of them holds a run; --overwrite removes exactly these before the new run writes
 RUN_OUTPUTS = ("run.h5", "run.xdmf", "particles.xdmf", "checkpoint.h5", "checkpoint.xdmf", "bed.h5", "bed.xdmf",
-               "config.toml", "summary.json", "summary_units.json", "video.mp4", "analysis")
+               "config.toml", "summary.json", "summary_units.json", "video.mp4", "analysis", "rcfd.h5", "rcfd")
 RUN_OUTPUT_PATTERNS = ("*.tmp", "screenshot-*.png")
 
 

@@ -107,6 +107,15 @@ def test_analyze_and_reproducible_paths(recorded):
     assert g["balance_error_max"] <= 1e-9 and g["c_min"] >= 0 and g["c_max"] <= 1 + 1e-4
 
 
+def test_every_file_of_a_recording_run_is_one_fbed_knows_as_its_own(recorded):
+    """rcfd.h5 and the rCFD analyses' folder are a run's outputs (app.outputs.RUN_OUTPUTS): a folder holding them
+    holds a run, and --overwrite removes them before the new run writes, so no stale frames or analysis are left
+    beside it."""
+    from app.outputs import run_outputs
+
+    assert sorted(recorded.iterdir()) == sorted(run_outputs(recorded))
+
+
 def test_bad_input_exits_2(recorded, tmp_path):
     r = fbed("rcfd", "analyze", tmp_path)
     assert r.returncode == 2 and "no rcfd.h5" in r.stderr and "Traceback" not in r.stderr
