@@ -2,8 +2,10 @@
 folder (never mixing two runs' files), and the stop on a full disk (the last good checkpoint kept)."""
 from __future__ import annotations
 
+import errno
 import pathlib
 import shutil
+import tempfile
 
 import h5py
 
@@ -28,6 +30,36 @@ def run_outputs(d: pathlib.Path, video_file: str = "") -> list[pathlib.Path]:
     for pat in RUN_OUTPUT_PATTERNS:
         found += sorted(p for p in d.glob(pat) if p not in found)
     return found
+
+
+def check_writable(d: pathlib.Path, key: str) -> None:
+    """Refuse, before anything runs, an output folder that cannot be made or written in (a read-only or virtual
+    file system, no permission): tried by making and removing an empty folder in it, or in its nearest existing
+    parent."""
+    a = d
+    while not a.exists() and a != a.parent:
+        a = a.parent
+    try:
+        if not a.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, "a file is in the way", str(a))
+        tempfile.TemporaryDirectory(dir=a, prefix=".fbed-").cleanup()
+    except OSError as err:
+        raise ConfigError(f"cannot make or write this folder ({err.strerror or err}: {a})", str(d), key,
+                          hint="name a folder on a disk you can write to") from None
+
+
+def out_folder(out: str | None, default: pathlib.Path, key: str = "--out") -> pathlib.Path:
+    """A command's output folder (``out``, else ``default``), made now; one that cannot be made (a file in the way,
+    a read-only or virtual file system, no permission) is a clean error naming it and ``key``."""
+    d = pathlib.Path(out) if out else pathlib.Path(default)
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        if store.is_disk_full(err):
+            raise  # the CLI's full-disk stop
+        raise ConfigError(f"cannot make or write this folder ({err.strerror or err})", str(d), key,
+                          hint="name a folder on a disk you can write to") from None
+    return d
 
 
 def pick_out_dir(preset: pathlib.Path, out: str | None, overwrite: bool, video_file: str = "") -> pathlib.Path:

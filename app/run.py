@@ -24,7 +24,7 @@ from .callbacks.writers import (Checkpoints, FinalOutputs, GasFields, GrainSnaps
                                 open_run_file)
 from .config import ConfigError
 from .io import store
-from .outputs import pick_out_dir, remove_outputs, stop_disk_full
+from .outputs import check_writable, pick_out_dir, remove_outputs, stop_disk_full
 from .resume import check_readable, check_same_scene, prepared_state, restore
 from .scene import Scene, build_simulation
 from .sim import runtime
@@ -70,6 +70,7 @@ def _configure(preset, overrides, out, resume, overwrite):
         preset_path = pathlib.Path(preset)
         cfg = cfgmod.load(preset_path, overrides)
         out_dir = pick_out_dir(preset_path, out, overwrite, cfg.video.file)
+    check_writable(out_dir, "--resume" if resume else "--out")
     if cfg.run.start_from and overrides and not resume:
         log(f"fbed: note: --set changes this stage only; the preparation {pathlib.Path(cfg.run.start_from).name} "
             "runs as its own preset says (edit it, or copy it and point run.start_from at the copy)")

@@ -25,6 +25,7 @@ import subprocess
 import sys
 
 from .config import ConfigError, load
+from .outputs import out_folder
 
 
 def split_values(raw: str) -> list[str]:
@@ -180,8 +181,7 @@ def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, p
     keys, combos = cases(sets)
     for values in combos:  # every case's overrides are validated up front: no half-run sweep on a typo
         load(preset, [f"{k}={v}" for k, v in zip(keys, values)])
-    out_dir = pathlib.Path(out) if out else pathlib.Path("runs") / (pathlib.Path(preset).stem + "-sweep")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = out_folder(out, pathlib.Path("runs") / (pathlib.Path(preset).stem + "-sweep"))
     threads = 1 if jobs > 1 else 0
     where = f"on the Dask scheduler {scheduler}" if scheduler and scheduler != "local" else f"{jobs} at a time"
     print(f"fbed sweep: {len(combos)} cases of {preset} over {', '.join(keys)}; {where}; output in {out_dir}",

@@ -239,6 +239,23 @@ def test_out_naming_a_file_and_a_damaged_run_h5_are_refused(done_run, tmp_path):
     assert digest(d) == before
 
 
+def test_an_out_folder_that_cannot_be_written_is_refused_before_anything_runs(tmp_path):
+    """Before the kernels compile and the grains are placed: an --out under a file, or on a file system where no
+    folder can be made (/proc), is refused with the folder and the OS's reason, exit 2, no traceback, nothing made."""
+    blocker = tmp_path / "afile"
+    blocker.write_text("x")
+    r = fbed("run", SETTLE, *TINY, "--out", blocker / "run")
+    assert_clean_stop(r, tmp_path, 2, "cannot make or write this folder", "a file is in the way", "--out")
+    assert blocker.read_text() == "x" and sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+    if pathlib.Path("/proc").is_dir():  # Linux: mkdir under /proc fails whoever runs it (root included)
+        r = fbed("run", SETTLE, *TINY, "--out", "/proc/fbed-run")
+        assert_clean_stop(r, tmp_path, 2, "cannot make or write this folder", "/proc/fbed-run", "--out")
+    for cmd in (["sweep", SETTLE, "--set", "particles.count=100,200"], ["bench", "stress"]):  # the other commands
+        r = fbed(*cmd, "--out", blocker / "x")
+        assert_clean_stop(r, tmp_path, 2, "cannot make or write this folder", "--out")
+    assert blocker.read_text() == "x" and sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
 def test_initial_state_of_other_sizes_is_refused_with_both_sizes(done_run, tmp_path):
     preset = tmp_path / "big.toml"
     text = SETTLE.read_text().replace("count = 2500", f'initial_state = "{done_run / "bed.h5"}"')

@@ -29,6 +29,7 @@ import signal
 import time
 
 from ..config import ConfigError
+from ..outputs import out_folder
 from ..sim import runtime
 from . import bed_cases, dem_cases, gas_cases
 from .cases import Case, Interrupted, Unavailable
@@ -292,8 +293,7 @@ def accuracy(out: str | None = None, names: list[str] | None = None, size: str =
     and measure the rest (the report then covers every case with rows). Returns 0, or 130 when a run was
     stopped by a signal (what was measured is written)."""
     cases = [c for c in all_cases() if not names or c.name in names]
-    out_dir = pathlib.Path(out) if out else pathlib.Path("runs") / "accuracy"
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = out_folder(out, pathlib.Path("runs") / "accuracy")
     csv_path = out_dir / "accuracy.csv"
     rows: list[dict] = load_rows(csv_path, size, arch) if resume else []
     if resume:

@@ -22,6 +22,7 @@ import datetime
 import math
 import pathlib
 
+from ..outputs import out_folder
 from ..sim import runtime
 from . import bed_cases
 from .accuracy import csv_value, same_bench, signals_interrupt
@@ -175,8 +176,7 @@ def stiffness(out: str | None = None, size: str = "small", arch: str = "cpu", th
     """Run the bed at each modulus; write stiffness.csv, stiffness.png and STIFFNESS.md into ``out`` (default
     runs/stiffness) and print the table. ``resume``: keep the moduli already in out/stiffness.csv. Returns 0, or
     130 when a run was stopped by a signal (the moduli measured before it are written)."""
-    out_dir = pathlib.Path(out) if out else pathlib.Path("runs") / "stiffness"
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = out_folder(out, pathlib.Path("runs") / "stiffness")
     csv_path = out_dir / "stiffness.csv"
     kept = {}
     if resume and csv_path.exists():

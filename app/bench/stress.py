@@ -30,6 +30,7 @@ import numpy as np
 from ..config import load
 from ..config.derived import derive
 from ..io import store
+from ..outputs import out_folder
 
 BASE = """
 [run]
@@ -243,8 +244,7 @@ def table(rows: list[dict]) -> str:
 
 
 def stress(out: str | None = None, names: list[str] | None = None, arch: str = "cpu", limit: float = 600.0) -> int:
-    out_dir = pathlib.Path(out) if out else pathlib.Path("runs") / "stress"
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = out_folder(out, pathlib.Path("runs") / "stress")
     chosen = [s for s in SCENES if not names or s.name in names]
     rows = []
     for s in chosen:

@@ -17,6 +17,7 @@ import h5py
 import numpy as np
 
 from ..io import store
+from ..outputs import out_folder
 from . import paths as pathmod
 from . import recurrence as rec
 from .database import Database, load, tag_mask
@@ -33,8 +34,7 @@ def write_json(path: pathlib.Path, data: dict) -> None:
 def analyze(run_dir: str, out: str | None = None) -> dict:
     db = load(run_dir)
     st = statistics(db)
-    od = pathlib.Path(out) if out else pathlib.Path(run_dir) / "rcfd"
-    od.mkdir(parents=True, exist_ok=True)
+    od = out_folder(out, pathlib.Path(run_dir) / "rcfd")
     dt = db.frame_interval / int(db.attrs.get("lag", 1))
     lv = rec.levelled_off(st["best"])
     sp_eps, sp_h = st["sp_eps"], st["sp_h"]
@@ -329,8 +329,7 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
     n_frames = int(math.ceil(horizon / dt - 1e-9))
     start_state = db.n_states - 1 if start == "end" else 0
     c0 = initial_concentration(db, start_state, tag)
-    od = pathlib.Path(out) if out else rd / "rcfd" / (name or f"run_T{horizon:g}_N{n_paths}_s{seed}")
-    od.mkdir(parents=True, exist_ok=True)
+    od = out_folder(out, rd / "rcfd" / (name or f"run_T{horizon:g}_N{n_paths}_s{seed}"))
     t_path = wallclock.perf_counter()
     ps = [eng.path(n_frames, start_state, (seed, i)) for i in range(n_paths)]
     t_path = wallclock.perf_counter() - t_path

@@ -24,6 +24,7 @@ import shutil
 import h5py
 import numpy as np
 
+from ..outputs import out_folder
 from . import commands, paths as pathmod, recurrence as rec
 from .database import load
 from .transport import lacey_index, lacey_random_std, mixing_index_real
@@ -273,8 +274,7 @@ def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_pa
     ``jump_grid`` 'cells' locates the grain tracer's jumps on the cells instead of half cells; ``jump`` 'stitch'
     stitches cell volumes at the jumps instead of matching grains (Engine); ``sensitivity``: the design note's
     last check too (:func:`sensitivity_checks`)."""
-    od = pathlib.Path(out) if out else pathlib.Path("runs") / f"rcfd-validate-{pathlib.Path(preset).stem}"
-    od.mkdir(parents=True, exist_ok=True)
+    od = out_folder(out, pathlib.Path("runs") / f"rcfd-validate-{pathlib.Path(preset).stem}")
     rc, conts = full_runs(od, preset, overrides, t0, t1, t2, n_cont, arch, log)
     if rc:
         return rc
