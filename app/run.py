@@ -71,6 +71,8 @@ def _configure(preset, overrides, out, resume, overwrite):
         cfg = cfgmod.load(preset_path, overrides)
         out_dir = pick_out_dir(preset_path, out, overwrite, cfg.video.file)
     check_writable(out_dir, "--resume" if resume else "--out")
+    if cfg.video.enabled:  # the video may be named outside the run's folder
+        check_writable((out_dir / (cfg.video.file or "video.mp4")).parent, "video.file")
     if cfg.run.start_from and overrides and not resume:
         log(f"fbed: note: --set changes this stage only; the preparation {pathlib.Path(cfg.run.start_from).name} "
             "runs as its own preset says (edit it, or copy it and point run.start_from at the copy)")

@@ -250,6 +250,8 @@ def test_an_out_folder_that_cannot_be_written_is_refused_before_anything_runs(tm
     if pathlib.Path("/proc").is_dir():  # Linux: mkdir under /proc fails whoever runs it (root included)
         r = fbed("run", SETTLE, *TINY, "--out", "/proc/fbed-run")
         assert_clean_stop(r, tmp_path, 2, "cannot make or write this folder", "/proc/fbed-run", "--out")
+        r = fbed("run", SETTLE, *TINY, "--video", "/proc/fbed.mp4", "--out", tmp_path / "v")  # a video named outside
+        assert_clean_stop(r, tmp_path, 2, "cannot make or write this folder", "video.file")  # (ffmpeg failed late)
     for cmd in (["sweep", SETTLE, "--set", "particles.count=100,200"], ["bench", "stress"]):  # the other commands
         r = fbed(*cmd, "--out", blocker / "x")
         assert_clean_stop(r, tmp_path, 2, "cannot make or write this folder", "--out")
