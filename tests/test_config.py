@@ -152,3 +152,19 @@ def test_a_scene_without_grains_has_no_floor_unless_one_is_given():
     assert names(gas_only.format(floor="floor = 0.02\n")) == ["cylinder", "floor"]
     grains = gas_only.format(floor="") + "[particles]\ndiameter = 0.002\ndensity = 2500.0\ncount = 10\n"
     assert names(grains) == ["cylinder", "floor"]
+
+
+def test_an_rcfd_recording_too_short_for_three_frames_is_refused_before_the_run():
+    """`fbed rcfd` needs at least 3 frames: a run whose probes.rcfd_from leaves fewer before run.duration is refused
+    at load, naming the key (before, it ran to the end and wrote an rcfd.h5 of 0-2 frames); 3 frames pass."""
+    import pathlib
+
+    from app.config import load
+
+    preset = pathlib.Path(__file__).resolve().parents[1] / "presets" / "rcfd_small.toml"
+    for start, left in ((0.59, "leaves 2 frames"), (0.6, "leaves no frames"), (0.7, "leaves no frames")):
+        with pytest.raises(ConfigError) as err:
+            load(preset, ["run.duration=0.6", f"probes.rcfd_from={start}"])
+        assert "probes.rcfd_from" in str(err.value) and left in str(err.value), str(err.value)
+    cfg = load(preset, ["run.duration=0.6", "probes.rcfd_from=0.585"])  # 0.015 s: 3 frames of 5 ms
+    assert cfg.probes.rcfd_from == 0.585
