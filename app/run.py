@@ -73,6 +73,8 @@ def _configure(preset, overrides, out, resume, overwrite):
     check_writable(out_dir, "--resume" if resume else "--out")
     if cfg.video.enabled:  # the video may be named outside the run's folder
         check_writable((out_dir / (cfg.video.file or "video.mp4")).parent, "video.file")
+    if (note := window_note(cfg)) is not None:
+        log(note)
     if cfg.run.start_from and overrides and not resume:
         log(f"fbed: note: --set changes this stage only; the preparation {pathlib.Path(cfg.run.start_from).name} "
             "runs as its own preset says (edit it, or copy it and point run.start_from at the copy)")
@@ -80,6 +82,18 @@ def _configure(preset, overrides, out, resume, overwrite):
     if resume and preset_path.name == "config.toml":
         name = cfg.run.name or out_dir.name
     return cfg, preset_path, out_dir, name
+
+
+def window_note(cfg) -> str | None:
+    """A note at the start where output.average_from is not before run.duration (a run shortened with --set, say):
+    the time means and the analysis that reads that window would find nothing, which otherwise shows only at the
+    end of the run."""
+    t0 = cfg.output.average_from
+    if t0 < 0 or t0 < cfg.run.duration:
+        return None
+    what = "" if cfg.probes.analysis == "none" else f", and the {cfg.probes.analysis} analysis nothing to analyse"
+    return (f"fbed: note: output.average_from = {t0:g} s is not before run.duration = {cfg.run.duration:g} s: "
+            f"summary.json will have no time means{what} (set output.average_from below it, or -1: the second half)")
 
 
 def _attach(sim, scene, name, out_dir, runfile, config_text, renderer, viewer, resume):

@@ -168,3 +168,21 @@ def test_an_rcfd_recording_too_short_for_three_frames_is_refused_before_the_run(
         assert "probes.rcfd_from" in str(err.value) and left in str(err.value), str(err.value)
     cfg = load(preset, ["run.duration=0.6", "probes.rcfd_from=0.585"])  # 0.015 s: 3 frames of 5 ms
     assert cfg.probes.rcfd_from == 0.585
+
+
+def test_a_means_window_after_the_runs_end_is_noted_at_the_start():
+    """output.average_from at or after run.duration (a preset shortened with --set): the run says at its start
+    that the time means, and the analysis that reads that window, will find nothing; not where the window is inside
+    the run or automatic (negative)."""
+    import pathlib
+
+    from app.config import load
+    from app.run import window_note
+
+    presets = pathlib.Path(__file__).resolve().parents[1] / "presets"
+    note = window_note(load(presets / "fluidize.toml", ["run.duration=0.01"]))  # average_from = 0.3 s there
+    assert note is not None and "output.average_from = 0.3 s" in note and "run.duration = 0.01 s" in note
+    note = window_note(load(presets / "mri_small.toml", ["run.duration=0.45"]))  # at the end: nothing either
+    assert note is not None and "the mri analysis nothing to analyse" in note
+    assert window_note(load(presets / "fluidize.toml", ["run.duration=0.31"])) is None
+    assert window_note(load(presets / "fluidize.toml", ["run.duration=0.01", "output.average_from=-1"])) is None
