@@ -7,6 +7,7 @@ with the last good checkpoint kept. Exit codes: 0 finished, 2 bad input, 3 stopp
 disk, 130 interrupted."""
 from __future__ import annotations
 
+import math
 import os
 import pathlib
 import signal
@@ -73,7 +74,7 @@ def _configure(preset, overrides, out, resume, overwrite):
     check_writable(out_dir, "--resume" if resume else "--out")
     if cfg.video.enabled:  # the video may be named outside the run's folder
         check_writable((out_dir / (cfg.video.file or "video.mp4")).parent, "video.file")
-    if (note := window_note(cfg)) is not None:
+    for note in window_notes(cfg):
         log(note)
     if cfg.run.start_from and overrides and not resume:
         log(f"fbed: note: --set changes this stage only; the preparation {pathlib.Path(cfg.run.start_from).name} "
@@ -84,16 +85,26 @@ def _configure(preset, overrides, out, resume, overwrite):
     return cfg, preset_path, out_dir, name
 
 
-def window_note(cfg) -> str | None:
-    """A note at the start where output.average_from is not before run.duration (a run shortened with --set, say):
-    the time means and the analysis that reads that window would find nothing, which otherwise shows only at the
-    end of the run."""
+def window_notes(cfg) -> list[str]:
+    """Notes at the start where a recorded window does not fit in the run (a preset shortened with --set, say),
+    which otherwise shows only at its end: output.average_from not before run.duration (the time means, and the
+    analysis that reads that window, would find nothing); probes.rcfd_from leaving fewer than the 3 frames that
+    `fbed rcfd` needs."""
+    notes, end = [], cfg.run.duration
     t0 = cfg.output.average_from
-    if t0 < 0 or t0 < cfg.run.duration:
-        return None
-    what = "" if cfg.probes.analysis == "none" else f", and the {cfg.probes.analysis} analysis nothing to analyse"
-    return (f"fbed: note: output.average_from = {t0:g} s is not before run.duration = {cfg.run.duration:g} s: "
-            f"summary.json will have no time means{what} (set output.average_from below it, or -1: the second half)")
+    if t0 >= 0 and t0 >= end:
+        what = "" if cfg.probes.analysis == "none" else f", and the {cfg.probes.analysis} analysis nothing to analyse"
+        notes.append(f"fbed: note: output.average_from = {t0:g} s is not before run.duration = {end:g} s: "
+                     f"summary.json will have no time means{what} (set output.average_from below it, or -1: the "
+                     "second half)")
+    pr = cfg.probes
+    if pr.rcfd_from >= 0:
+        frames = max(0, math.floor((end - pr.rcfd_from) / pr.rcfd_interval + 1e-9))
+        if frames < 3:  # what `fbed rcfd` needs at the least (app.rcfd.database.load)
+            notes.append(f"fbed: note: rCFD frames from probes.rcfd_from = {pr.rcfd_from:g} s to run.duration = "
+                         f"{end:g} s: {frames} of probes.rcfd_interval = {pr.rcfd_interval:g} s, and `fbed rcfd` "
+                         "needs at least 3 (record from earlier, or run longer)")
+    return notes
 
 
 def _attach(sim, scene, name, out_dir, runfile, config_text, renderer, viewer, resume):

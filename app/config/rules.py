@@ -1,8 +1,6 @@
 """Rules that involve more than one key (each names the key to change)."""
 from __future__ import annotations
 
-import math
-
 from .derived import periodic_axes
 from .errors import ConfigError, find_line
 from .schema import Config
@@ -62,12 +60,6 @@ def _rcfd(cfg: Config, fail) -> None:
             fail("probes", "rcfd_tag", str(err))
         if cfg.gas is None or cfg.particles is None:
             fail("probes", "rcfd_from", "rCFD frames need both grains and gas", "set probes.rcfd_from = -1")
-        frames = math.floor((cfg.run.duration - pr.rcfd_from) / pr.rcfd_interval + 1e-9)
-        if frames < 3:  # what `fbed rcfd` needs at the least (app.rcfd.database.load)
-            fail("probes", "rcfd_from", f"recording from {pr.rcfd_from:g} s to run.duration = {cfg.run.duration:g} s "
-                 f"leaves {'no' if frames <= 0 else frames} frame{'' if frames == 1 else 's'} of "
-                 f"probes.rcfd_interval = {pr.rcfd_interval:g} s; rCFD needs at least 3",
-                 "record from earlier (probes.rcfd_from) or run longer (run.duration)")
 
 
 def _gas_and_boundaries(cfg: Config, fail) -> None:
