@@ -22,10 +22,10 @@ from .config.derived import Derived, derive, periodic_axes
 from .config.schema import Config
 from .io import store
 from .schedule import InletSchedule
-from .sim import coupling, drag, geometry
+from .sim import coupling, drag, geometry, runtime
 from .sim.gas import BC, FlowConfig, FlowSolver
 from .sim.dem import DemSolver
-from .sim.fields import HISTORY_SLOTS, ROLL_CONSTANT, ROLL_EPSD, DemModel, slots_bound
+from .sim.fields import HISTORY_SLOTS, ROLL_CONSTANT, ROLL_EPSD, DemModel, bytes_per_grain, slots_bound
 from .sim.simulation import Simulation
 
 ROLLING = {"none": 0, "constant_torque": ROLL_CONSTANT, "epsd": ROLL_EPSD}
@@ -245,12 +245,52 @@ class Scene:
                                   "bed made with this preset's sizes")
         else:
             n = grain_count(cfg, self.walls, self.derived)
+        self.n = n
+        self.model = dem_model(cfg, self.derived, n, self.walls, coupled=cfg.gas is not None, serial=serial)
+        check_memory(self)  # before the grains are made: a scene too large for the CPU's memory is refused
+        if self.initial is None:
             radius = sample_radii(n, self.derived, rng)
             pos = lattice_fill(cfg, self.walls, n, self.derived.radius_max, rng, file)
             self.initial = {"position": pos, "velocity": np.zeros_like(pos), "radius": radius}
-        self.n = n
-        self.model = dem_model(cfg, self.derived, n, self.walls, coupled=cfg.gas is not None, serial=serial)
         self.coupling = coupling_model(cfg, serial) if cfg.gas is not None else None
+
+
+#: a CPU run's memory: its peak resident size measured 2026-12-06 (AMD EPYC, float32, presets/verma.toml for one
+#: step with 1e5, 3e5 and 9.65e5 grains: 0.465, 0.707 and 1.449 GB) is this much plus ~3 x the DEM's own
+#: bytes_per_grain a grain (397 B there: the host's float64 copies at the fill, the checkpoint and bed.h5 add
+#: the rest), within 1% at all three sizes; with 1.9e7 grains in a 3 m column it peaked at 16.6 GB through a
+#: checkpoint where this says 19.7: on the safe side
+CPU_BASE_BYTES = 350e6
+CPU_BYTES_PER_DEVICE_BYTE = 3.0
+
+
+def available_memory() -> float | None:
+    """Memory the system can give a new process now [bytes] (Linux's MemAvailable), or None where unknown."""
+    try:
+        for line in pathlib.Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return float(line.split()[1]) * 1024.0
+    except OSError:
+        pass
+    return None
+
+
+def check_memory(scene: "Scene") -> None:
+    """On the CPU (Taichi started there): refuse a scene whose estimated peak memory exceeds what is available,
+    before anything is allocated: past it the kernel's out-of-memory killer would end the run mid-start-up
+    without a word."""
+    cur = runtime.current()
+    if cur is None or cur[0] != "cpu" or scene.model is None:
+        return
+    per = CPU_BYTES_PER_DEVICE_BYTE * bytes_per_grain(scene.model, 8 if scene.cfg.run.precision == "float64" else 4)
+    need = CPU_BASE_BYTES + scene.n * per
+    have = available_memory()
+    if have is not None and need > have:
+        key = "particles.initial_state" if scene.cfg.particles.initial_state else "particles.count"
+        raise ConfigError(f"{scene.n:,} grains need about {need / 1e9:.3g} GB of memory on the CPU ({per:.0f} B a "
+                          f"grain), and {have / 1e9:.3g} GB is available", scene.file, key,
+                          hint="fewer grains (particles.count or particles.bed_height), a machine with more "
+                          "memory, or a GPU (--arch cuda)")
 
 
 def place_grains(dem: DemSolver, initial: dict) -> None:

@@ -177,3 +177,24 @@ def test_a_recorded_window_that_does_not_fit_in_the_run_is_noted_at_the_start():
         assert len(notes) == 1 and f"{frames} of probes.rcfd_interval" in notes[0], notes
     assert window_notes(load(rcfd, ["run.duration=0.6", "probes.rcfd_from=0.585"])) == []  # 3 frames
 
+
+def test_a_scene_too_large_for_the_cpus_memory_is_refused_before_its_grains_are_made(monkeypatch):
+    """On the CPU, a scene whose estimated peak memory (app.scene.CPU_BASE_BYTES + 3 x bytes_per_grain a grain,
+    measured) exceeds what the system has available is a ConfigError naming particles.count, raised before the
+    grains are generated (past it the out-of-memory killer would end the run without a word); it passes where
+    the memory is there. The system's figure is replaced here by small and large ones."""
+    import app.scene as scene_mod
+
+    def no_fill(*args, **kwargs):
+        raise AssertionError("the grains were generated before the memory check")
+
+    cfg = load_text(toml_text(merged()), "t.toml")
+    monkeypatch.setattr(scene_mod, "available_memory", lambda: 0.3e9)
+    monkeypatch.setattr(scene_mod, "lattice_fill", no_fill)
+    with pytest.raises(ConfigError) as err:
+        scene_mod.Scene(cfg)
+    assert "particles.count" in str(err.value) and "GB of memory on the CPU" in str(err.value), str(err.value)
+    monkeypatch.undo()
+    monkeypatch.setattr(scene_mod, "available_memory", lambda: 1e12)
+    scene = scene_mod.Scene(cfg)
+    assert scene.n > 0 and len(scene.initial["position"]) == scene.n
