@@ -342,7 +342,8 @@ class RcfdRecorder:
         writer thread, after the last boundary's are written (at most one boundary in flight; an error there, e.g. a
         full disk, is raised here, one boundary later, or at finish). h5py lets other threads run while HDF5
         compresses and writes, and numpy's sorts and most of its array passes release the GIL too, so that work
-        overlaps the fluid steps of the next frame instead of adding to them (benchmarks/rcfd_frame_cost.py --h5)."""
+        overlaps the next frame's steps where the host waits outside Python; where the steps hold the GIL (a Taichi
+        kernel call does, on the CPU) it only moves off the boundary (benchmarks/rcfd_frame_cost.py --h5 --steps)."""
         self._drain()
         nbytes = sum(np.asarray(v).nbytes for _, v in rows) + (0 if first is None else sum(
             np.asarray(v).nbytes for v in first if v is not None))
