@@ -1,5 +1,7 @@
 """The output folder of `fbed run`: which files are a run's (RUN_OUTPUTS), choosing and protecting the
-folder (never mixing two runs' files), and the stop on a full disk (the last good checkpoint kept)."""
+folder (never mixing two runs' files; one that cannot be written refused before anything runs), the run's config
+and folder from its arguments (:func:`configure`), the other commands' output folders (:func:`out_folder`), and
+the stop on a full disk (the last good checkpoint kept)."""
 from __future__ import annotations
 
 import errno
@@ -9,9 +11,11 @@ import tempfile
 
 import h5py
 
-from .callbacks.progress import log
+from . import config as cfgmod
+from .callbacks.progress import log, window_notes
 from .config import ConfigError
 from .io import store
+from .resume import check_readable, check_same_scene
 
 EXIT_DISK_FULL = 3
 
@@ -109,3 +113,39 @@ def stop_disk_full(out_dir: pathlib.Path, summary: dict, err) -> int:
     else:
         log(f"fbed: no checkpoint was written yet; free some space (or give another --out) and run again")
     return EXIT_DISK_FULL
+
+
+def configure(preset, overrides, out, resume, overwrite):
+    """`fbed run`'s config, preset path, output folder and name, from its arguments (``resume``: the folder to go on
+    from); errors here lose nothing: nothing is written yet."""
+    if resume:
+        out_dir = pathlib.Path(resume)
+        if not out_dir.is_dir():
+            raise ConfigError("not a folder" if out_dir.exists() else "no such folder", str(out_dir), "--resume",
+                              hint="give the output folder of an earlier run")
+        if not (out_dir / "checkpoint.h5").exists():
+            raise ConfigError("no checkpoint.h5 to resume from", str(out_dir), "--resume",
+                              hint="give the output folder of an earlier run that was stopped or finished")
+        check_readable(out_dir)
+        preset_path = pathlib.Path(preset) if preset else out_dir / "config.toml"
+        cfg = cfgmod.load(preset_path, overrides)
+        if (out_dir / "config.toml").exists():
+            check_same_scene(cfg, cfgmod.load(out_dir / "config.toml"), preset_path, out_dir)
+    else:
+        if not preset:
+            raise ConfigError("no preset given", "", "PRESET", hint="fbed run presets/settle.toml")
+        preset_path = pathlib.Path(preset)
+        cfg = cfgmod.load(preset_path, overrides)
+        out_dir = pick_out_dir(preset_path, out, overwrite, cfg.video.file)
+    check_writable(out_dir, "--resume" if resume else "--out")
+    if cfg.video.enabled:  # the video may be named outside the run's folder
+        check_writable((out_dir / (cfg.video.file or "video.mp4")).parent, "video.file")
+    for note in window_notes(cfg):
+        log(note)
+    if cfg.run.start_from and overrides and not resume:
+        log(f"fbed: note: --set changes this stage only; the preparation {pathlib.Path(cfg.run.start_from).name} "
+            "runs as its own preset says (edit it, or copy it and point run.start_from at the copy)")
+    name = cfg.run.name or preset_path.stem
+    if resume and preset_path.name == "config.toml":
+        name = cfg.run.name or out_dir.name
+    return cfg, preset_path, out_dir, name

@@ -1,13 +1,12 @@
 """`fbed run`: the output folder, resume, signals, the callbacks attached, exit codes.
 
 The solvers come from ``app.scene.build_simulation``; what a run writes and checks while it steps are the
-callbacks of ``app.callbacks``; the output folder's rules are ``app.outputs``, going on from an earlier state
-``app.resume``. Ctrl-C / SIGTERM stop cleanly with a checkpoint (a second one waits for it); a full disk stops
+callbacks of ``app.callbacks``; the config and the output folder, and their rules, are ``app.outputs``, going on
+from an earlier state ``app.resume``. Ctrl-C / SIGTERM stop cleanly with a checkpoint (a second one waits for it); a full disk stops
 with the last good checkpoint kept. Exit codes: 0 finished, 2 bad input, 3 stopped by the guard or a full
 disk, 130 interrupted."""
 from __future__ import annotations
 
-import math
 import os
 import pathlib
 import signal
@@ -25,8 +24,8 @@ from .callbacks.writers import (Checkpoints, FinalOutputs, GasFields, GrainSnaps
                                 open_run_file)
 from .config import ConfigError
 from .io import store
-from .outputs import check_writable, pick_out_dir, remove_outputs, stop_disk_full
-from .resume import check_readable, check_same_scene, prepared_state, restore
+from .outputs import configure, remove_outputs, stop_disk_full
+from .resume import prepared_state, restore
 from .scene import Scene, build_simulation
 from .sim import runtime
 from .sim.dem import NeighborOverflow
@@ -43,68 +42,10 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
     try:
         return _run(preset, overrides, out, arch, resume, overwrite, viewer)
     except (store.DiskFull, OSError) as err:  # OSError: a full disk in a write outside the store (the analysis)
-        what = store.disk_full_text(err)
-        if what is None:
+        if (what := store.disk_full_text(err)) is None:
             raise
         log(f"fbed: {what}; free some space or give another --out")
         return EXIT_UNSTABLE
-
-
-def _configure(preset, overrides, out, resume, overwrite):
-    """(config, preset path, output folder, name); errors here lose nothing: nothing is written yet."""
-    if resume:
-        out_dir = pathlib.Path(resume)
-        if not out_dir.is_dir():
-            raise ConfigError("not a folder" if out_dir.exists() else "no such folder", str(out_dir), "--resume",
-                              hint="give the output folder of an earlier run")
-        if not (out_dir / "checkpoint.h5").exists():
-            raise ConfigError("no checkpoint.h5 to resume from", str(out_dir), "--resume",
-                              hint="give the output folder of an earlier run that was stopped or finished")
-        check_readable(out_dir)
-        preset_path = pathlib.Path(preset) if preset else out_dir / "config.toml"
-        cfg = cfgmod.load(preset_path, overrides)
-        if (out_dir / "config.toml").exists():
-            check_same_scene(cfg, cfgmod.load(out_dir / "config.toml"), preset_path, out_dir)
-    else:
-        if not preset:
-            raise ConfigError("no preset given", "", "PRESET", hint="fbed run presets/settle.toml")
-        preset_path = pathlib.Path(preset)
-        cfg = cfgmod.load(preset_path, overrides)
-        out_dir = pick_out_dir(preset_path, out, overwrite, cfg.video.file)
-    check_writable(out_dir, "--resume" if resume else "--out")
-    if cfg.video.enabled:  # the video may be named outside the run's folder
-        check_writable((out_dir / (cfg.video.file or "video.mp4")).parent, "video.file")
-    for note in window_notes(cfg):
-        log(note)
-    if cfg.run.start_from and overrides and not resume:
-        log(f"fbed: note: --set changes this stage only; the preparation {pathlib.Path(cfg.run.start_from).name} "
-            "runs as its own preset says (edit it, or copy it and point run.start_from at the copy)")
-    name = cfg.run.name or preset_path.stem
-    if resume and preset_path.name == "config.toml":
-        name = cfg.run.name or out_dir.name
-    return cfg, preset_path, out_dir, name
-
-
-def window_notes(cfg) -> list[str]:
-    """Notes at the start where a recorded window does not fit in the run (a preset shortened with --set, say),
-    which otherwise shows only at its end: output.average_from not before run.duration (the time means, and the
-    analysis that reads that window, would find nothing); probes.rcfd_from leaving fewer than the 3 frames that
-    `fbed rcfd` needs."""
-    notes, end = [], cfg.run.duration
-    t0 = cfg.output.average_from
-    if t0 >= 0 and t0 >= end:
-        what = "" if cfg.probes.analysis == "none" else f", and the {cfg.probes.analysis} analysis nothing to analyse"
-        notes.append(f"fbed: note: output.average_from = {t0:g} s is not before run.duration = {end:g} s: "
-                     f"summary.json will have no time means{what} (set output.average_from below it, or -1: the "
-                     "second half)")
-    pr = cfg.probes
-    if pr.rcfd_from >= 0:
-        frames = max(0, math.floor((end - pr.rcfd_from) / pr.rcfd_interval + 1e-9))
-        if frames < 3:  # what `fbed rcfd` needs at the least (app.rcfd.database.load)
-            notes.append(f"fbed: note: rCFD frames from probes.rcfd_from = {pr.rcfd_from:g} s to run.duration = "
-                         f"{end:g} s: {frames} of probes.rcfd_interval = {pr.rcfd_interval:g} s, and `fbed rcfd` "
-                         "needs at least 3 (record from earlier, or run longer)")
-    return notes
 
 
 def _attach(sim, scene, name, out_dir, runfile, config_text, renderer, viewer, resume):
@@ -182,7 +123,7 @@ def _step(sim, start, final) -> tuple[str, str, float]:
 
 
 def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
-    cfg, preset_path, out_dir, name = _configure(preset, overrides, out, resume, overwrite)
+    cfg, preset_path, out_dir, name = configure(preset, overrides, out, resume, overwrite)
     used_arch = runtime.init(arch, cfg.run.precision, cfg.run.threads or None)
     arrays = gas_arrays = meta = None
     if resume:

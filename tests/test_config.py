@@ -162,7 +162,7 @@ def test_a_recorded_window_that_does_not_fit_in_the_run_is_noted_at_the_start():
     import pathlib
 
     from app.config import load
-    from app.run import window_notes
+    from app.callbacks.progress import window_notes
 
     presets = pathlib.Path(__file__).resolve().parents[1] / "presets"
     notes = window_notes(load(presets / "fluidize.toml", ["run.duration=0.01"]))  # average_from = 0.3 s there

@@ -133,3 +133,25 @@ def cpu_note(scene, preset_path: pathlib.Path, start_step: int) -> None:
     note = cpu_estimate_note(preset_path, scene.n, scene.derived.substeps, max(0, steps_left))
     if note:
         log(note)
+
+
+def window_notes(cfg) -> list[str]:
+    """Notes at the start where a recorded window does not fit in the run (a preset shortened with --set, say),
+    which otherwise shows only at its end: output.average_from not before run.duration (the time means, and the
+    analysis that reads that window, would find nothing); probes.rcfd_from leaving fewer than the 3 frames that
+    `fbed rcfd` needs."""
+    notes, end = [], cfg.run.duration
+    t0 = cfg.output.average_from
+    if t0 >= 0 and t0 >= end:
+        what = "" if cfg.probes.analysis == "none" else f", and the {cfg.probes.analysis} analysis nothing to analyse"
+        notes.append(f"fbed: note: output.average_from = {t0:g} s is not before run.duration = {end:g} s: "
+                     f"summary.json will have no time means{what} (set output.average_from below it, or -1: the "
+                     "second half)")
+    pr = cfg.probes
+    if pr.rcfd_from >= 0:
+        frames = max(0, math.floor((end - pr.rcfd_from) / pr.rcfd_interval + 1e-9))
+        if frames < 3:  # what `fbed rcfd` needs at the least (app.rcfd.database.load)
+            notes.append(f"fbed: note: rCFD frames from probes.rcfd_from = {pr.rcfd_from:g} s to run.duration = "
+                         f"{end:g} s: {frames} of probes.rcfd_interval = {pr.rcfd_interval:g} s, and `fbed rcfd` "
+                         "needs at least 3 (record from earlier, or run longer)")
+    return notes
