@@ -125,6 +125,16 @@ def test_bad_input_exits_2(recorded, tmp_path):
     assert r.returncode == 2 and "probes.rcfd_tag" in r.stderr and "Traceback" not in r.stderr
 
 
+def test_validate_refuses_a_database_window_too_short_before_any_run(tmp_path):
+    """rcfd validate records its database over t0..t1: a window of fewer than the 3 frames the analysis needs was
+    found only after run A had run (a ValueError traceback); now it is refused first, naming --t1 (exit 2)."""
+    r = fbed("rcfd", "validate", ROOT / "presets" / "rcfd_small.toml", "--t0", "0.5", "--t1", "0.51", "--t2", "0.6",
+             "--out", tmp_path / "v")
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-3000:]
+    assert "--t1" in r.stderr and "holds 2 frames" in r.stderr and "at least 3" in r.stderr, r.stderr
+    assert not (tmp_path / "v").exists()
+
+
 def test_a_bad_jump_names_the_option_and_its_choices(tmp_path):
     r = fbed("rcfd", "run", tmp_path, "--jump", "swap")
     assert r.returncode == 2 and "--jump" in r.stderr and "'match'" in r.stderr and "'stitch'" in r.stderr

@@ -73,5 +73,13 @@ def main(args) -> int:
             raise ConfigError(f"validate needs --{k}", "", f"--{k}", hint="e.g. --t0 0.5 --t1 1.5 --t2 2.5")
     if not (0 <= args.t0 < args.t1 < args.t2):
         raise ConfigError(f"need 0 <= t0 < t1 < t2 (got {args.t0:g}, {args.t1:g}, {args.t2:g})", "", "--t1")
+    from ..config import load  # the preset checked now, and the database's length before any run is made
+
+    interval = load(args.target, args.overrides).probes.rcfd_interval
+    frames = math.floor((args.t1 - args.t0) / interval + 1e-9)
+    if frames < 3:  # what the analysis needs at the least (app.rcfd.database.load)
+        raise ConfigError(f"t1 - t0 = {args.t1 - args.t0:g} s holds {frames} frame{'' if frames == 1 else 's'} of "
+                          f"probes.rcfd_interval = {interval:g} s; rCFD needs at least 3", "", "--t1",
+                          hint="record longer (a later --t1, an earlier --t0)")
     return validate(args.target, args.t0, args.t1, args.t2, args.out, args.paths, args.seed, args.continuations,
                     args.overrides, args.arch, log=log, lag=args.lag, sensitivity=args.sensitivity)
