@@ -213,6 +213,8 @@ def main(argv: list[str] | None = None) -> int:
 
             if not args.sets:
                 raise ConfigError("nothing to sweep", "--set", "", hint="e.g. --set boundary.bottom.velocity=[0,0,0.3],[0,0,0.6]")
+            if args.jobs < 1:
+                raise ConfigError(f"--jobs must be at least 1, got {args.jobs}", "", "--jobs")
             return sweep(args.preset, args.sets, args.jobs, args.out, args.plot_figure, args.arch, args.scheduler)
     except ConfigError as err:
         print(f"fbed: error: {err}", file=sys.stderr)

@@ -253,6 +253,15 @@ def test_sweep_refuses_a_bad_value_before_running_anything(tmp_path):
     assert not (tmp_path / "sw" / "case-000").exists()
 
 
+def test_sweep_refuses_fewer_than_one_job(tmp_path):
+    """--jobs 0 or below was taken as one job without a word; now it is refused before anything runs."""
+    for jobs in ("0", "-3"):
+        r = fbed("sweep", ROOT / "presets" / "settle.toml", "--set", "particles.count=100,200", "--jobs", jobs,
+                 "--out", tmp_path / "s")
+        assert r.returncode == 2 and "--jobs must be at least 1" in r.stderr and "Traceback" not in r.stderr
+        assert not (tmp_path / "s").exists()
+
+
 def test_a_saved_bed_is_reused_by_a_later_run(tmp_path):
     """bed.h5 of one run is another run's particles.initial_state: same grains, same places."""
     first, second = tmp_path / "first", tmp_path / "second"
