@@ -15,6 +15,7 @@ import sys
 import time
 
 import h5py
+import numpy as np
 import pytest
 
 pytestmark = pytest.mark.restart
@@ -114,6 +115,25 @@ def test_disk_full_at_the_final_checkpoint_on_a_small_tmpfs(small_disk):
     r = fbed("run", "--resume", out, "--set", "run.duration=0.012")
     assert r.returncode == 0, r.stderr[-2000:]
     assert checkpoint_time(out / "checkpoint.h5") == pytest.approx(0.012)
+
+
+def test_a_video_that_fills_the_disk_is_a_disk_full_and_leaves_no_torn_file(small_disk):
+    """ffmpeg, finding the disk full, dies and the next frame meets a broken pipe: the video writer names it as
+    every writer of a run does (store.DiskFull, which stops a run cleanly with its last checkpoint, exit 3) and
+    removes the torn mp4; before, the BrokenPipe ended the run in a traceback. Noise frames do not compress."""
+    pytest.importorskip("imageio_ffmpeg")
+    from app.gui.video import VideoWriter
+    from app.io import store
+
+    w = VideoWriter(small_disk / "video.mp4", 30, notify=lambda msg: None)
+    rng = np.random.default_rng(0)
+    with pytest.raises(store.DiskFull) as err:
+        for _ in range(400):  # 400 x 197 kB raw: far beyond 3 MB even at libx264's compression of noise
+            w.write(rng.integers(0, 255, (256, 256, 3), dtype=np.uint8))
+        w.close()
+    assert "the disk is full: writing video.mp4" in str(err.value)
+    assert not (small_disk / "video.mp4").exists()
+    w.close()  # closing again after the failure raises nothing
 
 
 def test_disk_full_mid_run_on_a_small_tmpfs(small_disk):

@@ -69,7 +69,10 @@ class VideoWriter:
         if frame.shape[:2] != self._size:
             raise ValueError(f"video frames must keep one size: {self._size}, got {frame.shape[:2]}")
         if self.encoder.startswith("ffmpeg"):
-            self._writer.append_data(frame)
+            try:
+                self._writer.append_data(frame)
+            except OSError as err:  # ffmpeg gone: a full disk is named as every writer of a run names it
+                self._failed(err, frame.nbytes)
         elif self.encoder.startswith("opencv"):
             self._writer.write(np.ascontiguousarray(frame[..., ::-1]))
         else:
@@ -80,8 +83,29 @@ class VideoWriter:
 
     def close(self) -> None:
         if self._writer is not None:
+            writer, self._writer = self._writer, None
             if self.encoder.startswith("ffmpeg"):
-                self._writer.close()
+                try:
+                    writer.close()
+                except OSError as err:  # the trailer, written last, may be what finds the disk full
+                    self._failed(err, 0)
             else:
-                self._writer.release()
-            self._writer = None
+                writer.release()
+
+    def _failed(self, err: OSError, nbytes: int) -> None:
+        """ffmpeg stopped: where the disk is full (its message says so, or the folder has no room left) the torn
+        file goes and a :class:`~app.io.store.DiskFull` is raised (the run then stops cleanly with its last
+        checkpoint, exit 3); any other failure as it came."""
+        from ..io import store
+
+        free = store.free_bytes(self.path.parent)
+        if not (store.is_disk_full(err) or free < store.SPACE_MARGIN):
+            raise err
+        writer, self._writer = self._writer, None
+        if writer is not None:
+            try:
+                writer.close()
+            except OSError:
+                pass
+        self.path.unlink(missing_ok=True)
+        raise store.DiskFull(self.path, nbytes, free) from None
