@@ -11,16 +11,14 @@ from __future__ import annotations
 
 import argparse
 import pathlib
-import statistics
 import sys
-import time
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from app.bench.common import append_results  # noqa: E402
+from app.bench.common import alternated_ms, append_results  # noqa: E402
 
 
 def host_frame(dem, im):
@@ -68,13 +66,8 @@ def main(argv=None) -> int:
     im = MriImage(cfg)
     dem = poppy_dem(cfg, a.n, 0.2, np.random.default_rng(1))
     same = np.allclose(host_frame(dem, im), device_frame(dem, im), rtol=1e-9, atol=0.0)
-    t = {"host": [], "device": []}
-    for _ in range(a.repeats):
-        for name, f in (("host", host_frame), ("device", device_frame)):
-            t0 = time.perf_counter()
-            f(dem, im)
-            t[name].append(time.perf_counter() - t0)
-    host, dev = (1e3 * statistics.median(t[k]) for k in ("host", "device"))
+    ms = alternated_ms({"host": lambda: host_frame(dem, im), "device": lambda: device_frame(dem, im)}, a.repeats)
+    host, dev = ms["host"], ms["device"]
     row = {"N": a.n, "pixels": f"{im.nx} x {im.nz}", "host ms/frame": f"{host:.1f}", "device ms/frame": f"{dev:.2f}",
            "host / device": f"{host / dev:.0f}", "same image": "yes" if same else "NO"}
     print(row, flush=True)

@@ -37,7 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from app.bench.common import append_results  # noqa: E402
+from app.bench.common import alternated_ms, append_results  # noqa: E402
 from app.rcfd_probe import RcfdRecorder, shift_sums  # noqa: E402
 
 
@@ -238,13 +238,8 @@ def device_main(a) -> int:
         return dem.tracked_cells(rec.origin, rec.h, rec.shape, parse_tag(tag))
 
     same = all(np.array_equal(u, v) for u, v in zip(host(), device()))
-    t = {"host": [], "device": []}
-    for _ in range(a.repeats):
-        for name, f in (("host", host), ("device", device)):
-            t0 = time.perf_counter()
-            f()
-            t[name].append(time.perf_counter() - t0)
-    h, d = (1e3 * statistics.median(t[k]) for k in ("host", "device"))
+    ms = alternated_ms({"host": host, "device": device}, a.repeats)
+    h, d = ms["host"], ms["device"]
     row = {"N": a.n, "tracked": ids.size, "host ms/frame": f"{h:.1f}", "device ms/frame": f"{d:.1f}",
            "host / device": f"{h / d:.2f}", "same integers": "yes" if same else "NO"}
     print(row, flush=True)
@@ -283,13 +278,9 @@ def main(argv=None) -> int:
     vol = rng.choice([4.07e-10, 6.06e-10, 1.07e-9], a.n)
     c_start = rec.cells_and_octants(x0)[0]
     same = all(np.array_equal(u, v) for u, v in zip(before(rec, x, c_start, vol), after(rec, x, c_start, vol)))
-    t = {"before": [], "after": []}
-    for _ in range(a.repeats):
-        for name, f in (("before", before), ("after", after)):
-            t0 = time.perf_counter()
-            f(rec, x, c_start, vol)
-            t[name].append(time.perf_counter() - t0)
-    b, c = (1e3 * statistics.median(t[k]) for k in ("before", "after"))
+    ms = alternated_ms({"before": lambda: before(rec, x, c_start, vol), "after": lambda: after(rec, x, c_start, vol)},
+                       a.repeats)
+    b, c = ms["before"], ms["after"]
     moved = float(np.mean(c_start != rec.cells_and_octants(x)[0]))
     row = {"N": a.n, "grains that changed cell": f"{moved:.2f}", "before ms/frame": f"{b:.1f}",
            "after ms/frame": f"{c:.1f}", "before / after": f"{b / c:.2f}", "same arrays": "yes" if same else "NO"}

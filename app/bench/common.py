@@ -13,6 +13,7 @@ import pathlib
 import platform
 import statistics
 import subprocess
+import time
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -115,3 +116,15 @@ def median_ratio(a: list[float], b: list[float]) -> tuple[float, float, float]:
         raise ValueError("need as many timings of each code, at least one")
     q = [x / y for x, y in zip(a, b)]
     return statistics.median(q), min(q), max(q)
+
+
+def alternated_ms(calls: dict, repeats: int) -> dict:
+    """Median wall time [ms] of each of ``calls`` (name -> callable of no argument), the calls run in turn
+    (A B A B ..., as :func:`interleaved`) ``repeats`` times each."""
+    t = {name: [] for name in calls}
+    for _ in range(repeats):
+        for name, f in calls.items():
+            t0 = time.perf_counter()
+            f()
+            t[name].append(time.perf_counter() - t0)
+    return {name: 1e3 * statistics.median(v) for name, v in t.items()}
