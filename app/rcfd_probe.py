@@ -319,7 +319,7 @@ class RcfdRecorder:
                 ("boundary/bed_height", read_solvers(sim, "bed_height"))]
         if self.grain_cells:
             rows += [("boundary/cells", cells.astype(np.int32)), ("boundary/octant", octant)]
-        to_sum = (cells, now, self.tagged, vol, self.open_frame, b)  # summed by the writer thread (_sums)
+        to_sum = dict(cells=cells, now=now, tagged=self.tagged, vol=vol, open_frame=self.open_frame, b=b)  # for _sums
         if self.fluxes:
             sums = read_solvers(sim, "flux_sum")  # read once per frame, and cleared
             if self.open_frame is not None:
@@ -347,7 +347,7 @@ class RcfdRecorder:
         self._drain()
         nbytes = sum(np.asarray(v).nbytes for _, v in rows) + (0 if first is None else sum(
             np.asarray(v).nbytes for v in first if v is not None))
-        nbytes += 12 * self.n + (0 if to_sum[4] is None else 16 * to_sum[0].size)  # the sums; at most a shift a grain
+        nbytes += 12 * self.n + (0 if to_sum["open_frame"] is None else 16 * to_sum["cells"].size)  # <= a shift a grain
         store.check_space(self.path, nbytes)  # as every writer of the run: a full disk is a clean stop
         if self._writer is None:
             self._writer = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="rcfd-h5")
@@ -378,7 +378,7 @@ class RcfdRecorder:
 
     def _write(self, first, rows, to_sum, nbytes) -> None:
         f = self.f
-        rows = rows + self._sums(*to_sum)
+        rows = rows + self._sums(**to_sum)
         with store.writing(self.path, nbytes, check=False):  # its space checked by _submit
             if first is not None:
                 counted, tagged_ids, vol = first
