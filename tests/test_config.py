@@ -178,6 +178,27 @@ def test_a_recorded_window_that_does_not_fit_in_the_run_is_noted_at_the_start():
     assert window_notes(load(rcfd, ["run.duration=0.6", "probes.rcfd_from=0.585"])) == []  # 3 frames
 
 
+def test_a_duration_that_is_not_a_whole_number_of_steps_is_noted_and_ends_on_the_next_step():
+    """run.duration = 0.0105 s in steps of 2 ms: the run takes the next whole step (6 steps, t = 0.012 s), as the
+    Simulation counts them (`run_steps`), and says so at the start instead of silently running past the duration;
+    a whole number of steps, or a duration that rounding leaves 1e-15 off one, gives no note."""
+    import pathlib
+
+    from app.callbacks.progress import window_notes
+    from app.config import load
+    from app.config.derived import run_steps
+
+    settle = pathlib.Path(__file__).resolve().parents[1] / "presets" / "settle.toml"  # run.step = 2 ms
+    for duration, steps in ((0.0105, 6), (0.0005, 1), (0.0121, 7)):
+        assert run_steps(duration, 0.002) == steps
+        notes = window_notes(load(settle, [f"run.duration={duration}"]))
+        assert len(notes) == 1 and f"run.duration = {duration:g} s" in notes[0], notes
+        assert f"ends at t = {steps * 0.002:g} s, after {steps} step" in notes[0], notes
+    for duration, steps in ((0.3, 150), (0.012, 6), (0.1 + 0.2, 150)):  # 0.1 + 0.2 = 0.30000000000000004
+        assert run_steps(duration, 0.002) == steps
+        assert window_notes(load(settle, [f"run.duration={duration!r}"])) == []
+
+
 def test_a_scene_too_large_for_the_cpus_memory_is_refused_before_its_grains_are_made(monkeypatch):
     """On the CPU, a scene whose estimated peak memory (app.scene.CPU_BASE_BYTES + 3 x bytes_per_grain a grain,
     measured) exceeds what the system has available is a ConfigError naming particles.count, raised before the

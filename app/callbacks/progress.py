@@ -9,6 +9,8 @@ import time as wallclock
 
 from rich.progress import BarColumn, Progress as RichProgress, TextColumn
 
+from ..config.derived import run_steps
+
 
 def log(msg: str) -> None:
     """The run's log: one line on stderr (solvers never print; they are given this as ``notify``)."""
@@ -136,11 +138,17 @@ def cpu_note(scene, preset_path: pathlib.Path, start_step: int) -> None:
 
 
 def window_notes(cfg) -> list[str]:
-    """Notes at the start where a recorded window does not fit in the run (a preset shortened with --set, say),
-    which otherwise shows only at its end: output.average_from not before run.duration (the time means, and the
+    """Notes at the start where the run or a recorded window does not fit what was asked (a preset shortened with
+    --set, say), which otherwise shows only at its end: run.duration not a whole number of run.step (the run ends at
+    the next whole step, up to one step late); output.average_from not before run.duration (the time means, and the
     analysis that reads that window, would find nothing); probes.rcfd_from leaving fewer than the 3 frames that
     `fbed rcfd` needs."""
     notes, end = [], cfg.run.duration
+    steps = run_steps(end, cfg.run.step)
+    if abs(steps * cfg.run.step - end) > 1e-9 * max(end, cfg.run.step):
+        notes.append(f"fbed: note: run.duration = {end:g} s is not a whole number of run.step = {cfg.run.step:g} s: "
+                     f"the run ends at t = {steps * cfg.run.step:g} s, after {steps} step{'s' * (steps != 1)} "
+                     "(make run.duration a multiple of run.step to end on it)")
     t0 = cfg.output.average_from
     if t0 >= 0 and t0 >= end:
         what = "" if cfg.probes.analysis == "none" else f", and the {cfg.probes.analysis} analysis nothing to analyse"

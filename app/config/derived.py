@@ -28,6 +28,12 @@ from .schema import Config
 FOUR_THIRDS_PI = 4.0 / 3.0 * math.pi
 
 
+def run_steps(duration: float, step: float) -> int:
+    """Coupling steps a run takes to reach ``duration`` [s] in steps of ``step`` [s]: the next whole step at or
+    after it (a duration that is not a whole number of steps ends up to one step late; `fbed run` says so)."""
+    return int(math.ceil(duration / step - 1e-9))
+
+
 def grain_volume(radius):
     """Volume [m^3] of a grain (a sphere) of ``radius`` [m]: 4/3 pi r^3. One formula for a number, a numpy
     array and a Taichi kernel (``app.sim.coupling.grain_volume_func`` is this function as a ti.func):

@@ -25,7 +25,8 @@ def spec(default=dataclasses.MISSING, *, unit: str = "-", doc: str, lo=None, hi=
 @dataclass(frozen=True)
 class RunConfig:
     duration: float = spec(unit="s", doc="simulated time at which the run ends (counted from t = 0, so a resumed run "
-                       "or one that starts from a prepared state runs up to it)", lo=0.0, lo_open=True)
+                       "or one that starts from a prepared state runs up to it; rounded up to a whole number of "
+                       "run.step, with a note)", lo=0.0, lo_open=True)
     step: float = spec(1.0e-3, unit="s", doc="coupling step: the fluid step when the scene has gas; in DEM-only "
                        "scenes the interval at which callbacks (output, guard, progress) are checked", lo=0.0, lo_open=True, hi=1.0)
     name: str = spec("", doc="run name stamped on outputs (default: the preset file's name)")

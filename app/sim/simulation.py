@@ -28,6 +28,8 @@ import math
 import time as wallclock
 from typing import Callable
 
+from ..config.derived import run_steps
+
 
 DIAG_ROWS = 50  # steps of diagnostics held on the device between reads (Simulation.diag_rows)
 
@@ -106,7 +108,7 @@ class Simulation:
 
     @property
     def total_steps(self) -> int:
-        return int(math.ceil(self.duration / self.step_dt - 1e-9))
+        return run_steps(self.duration, self.step_dt)
 
     def every(self, interval: float) -> int:
         """Steps between firings for an interval of simulated time [s] (at least 1)."""
