@@ -5,6 +5,7 @@ the stop on a full disk (the last good checkpoint kept)."""
 from __future__ import annotations
 
 import errno
+import math
 import pathlib
 import shutil
 import tempfile
@@ -108,8 +109,12 @@ def stop_disk_full(out_dir: pathlib.Path, summary: dict, err) -> int:
     if ckpt.exists():
         with h5py.File(ckpt, "r") as f:
             t = float(f.attrs["time"])
-        log(f"fbed: the last good checkpoint (t = {t:.6g} s) is kept; free some space, then resume with: "
-            f"fbed run --resume {out_dir}")
+        if t >= summary.get("duration", math.inf) - 1e-9:  # the last file of a finished run failed (the video)
+            log(f"fbed: the run reached its end (t = {t:.6g} s) and its checkpoint is kept; free some space and run "
+                f"it again for {err.path.name if isinstance(err, store.DiskFull) else 'what was not written'}")
+        else:
+            log(f"fbed: the last good checkpoint (t = {t:.6g} s) is kept; free some space, then resume with: "
+                f"fbed run --resume {out_dir}")
     else:
         log(f"fbed: no checkpoint was written yet; free some space (or give another --out) and run again")
     return EXIT_DISK_FULL

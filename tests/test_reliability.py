@@ -136,6 +136,53 @@ def test_a_video_that_fills_the_disk_is_a_disk_full_and_leaves_no_torn_file(smal
     w.close()  # closing again after the failure raises nothing
 
 
+def test_an_mp4_is_whole_only_with_its_index_and_every_byte(tmp_path):
+    """`mp4_complete`, which tells a finished video from one an encoder left torn (neither imageio-ffmpeg nor OpenCV
+    reports ffmpeg's failure at its end): a file the writer finished is whole; the same file cut at any box edge or
+    inside a box, or with its index box's type changed, is not."""
+    pytest.importorskip("imageio_ffmpeg")
+    from app.gui.video import VideoWriter, mp4_complete
+
+    path = tmp_path / "video.mp4"
+    w = VideoWriter(path, 10, notify=lambda msg: None)
+    rng = np.random.default_rng(1)
+    for _ in range(6):
+        w.write(rng.integers(0, 255, (64, 96, 3), dtype=np.uint8))
+    w.close()
+    data = path.read_bytes()
+    assert mp4_complete(path) and b"moov" in data
+    cut = tmp_path / "cut.mp4"
+    moov = data.index(b"moov") - 4
+    for n in (8, 40, 48, len(data) // 2, moov, moov + 8, len(data) - 1):
+        cut.write_bytes(data[:n])
+        assert not mp4_complete(cut), n
+    cut.write_bytes(data[:moov + 4] + b"free" + data[moov + 8:])
+    assert not mp4_complete(cut)
+    cut.write_bytes(data + b"\0" * 3)  # trailing bytes that are no box
+    assert not mp4_complete(cut)
+
+
+def test_a_video_whose_end_finds_the_disk_full_stops_the_run_and_leaves_no_torn_file(small_disk, gui):
+    """The video named on a tmpfs left with 4 kB: ffmpeg fails only as it writes the file's end, and says so on
+    stderr, but its exit status is not read (imageio-ffmpeg). Before, the run said "done" (exit 0) and left a torn
+    4 kB video.mp4 with no index. Now it is a full disk like any other (exit 3, summary.json's status), the torn
+    file is gone, the run's own folder is complete, and the advice is to run again, not to resume a run at its end."""
+    pytest.importorskip("imageio_ffmpeg")
+    video = small_disk / "video.mp4"
+    preset = small_disk.parent / "drop.toml"
+    preset.write_text(SETTLE.read_text().replace("[run]", f"[video]\nfile = \"{video}\"\nwidth = 160\n"
+                                                  "height = 120\ninterval = 0.005\n\n[run]", 1))
+    with open(small_disk / "filler", "wb") as f:
+        f.write(b"\0" * (os.statvfs(small_disk).f_bavail * os.statvfs(small_disk).f_frsize - 4096))
+    out = small_disk.parent / "run"
+    r = fbed("run", preset, *TINY, "--set", "run.duration=0.02", "--video", "--out", out)
+    assert_clean_stop(r, out, 3, "the disk is full: writing video.mp4 had", "the run reached its end (t = 0.02 s)",
+                      "run it again for video.mp4")
+    assert not video.exists()
+    assert checkpoint_time(out / "checkpoint.h5") == pytest.approx(0.02)
+    assert json.loads((out / "summary.json").read_text())["status"] == "disk_full"
+
+
 def test_disk_full_mid_run_on_a_small_tmpfs(small_disk):
     out = small_disk / "run"
     # a snapshot every step (about 40 kB of run.h5 each) fills 3 MB within a few dozen steps; a checkpoint

@@ -88,11 +88,16 @@ class VideoWriter:
                 try:
                     writer.close()
                 except OSError as err:  # the trailer, written last, may be what finds the disk full
-                    self._failed(err, 0)
+                    self._failed(err, None)
             else:
                 writer.release()
+            # neither imageio-ffmpeg nor OpenCV reports an encoder that failed at its end (ffmpeg's exit status is
+            # not read): the file itself says whether its index was written
+            if not mp4_complete(self.path):
+                self._failed(OSError(f"{self.path.name}: the encoder ({self.encoder}) ended without finishing it "
+                                     "(no index at its end)"), None)
 
-    def _failed(self, err: OSError, nbytes: int) -> None:
+    def _failed(self, err: OSError, nbytes: int | None) -> None:
         """ffmpeg stopped: where the disk is full (its message says so, or the folder has no room left) the torn
         file goes and a :class:`~app.io.store.DiskFull` is raised (the run then stops cleanly with its last
         checkpoint, exit 3); any other failure as it came."""
@@ -107,5 +112,31 @@ class VideoWriter:
                 writer.close()
             except OSError:
                 pass
+        written = self.path.stat().st_size if self.path.is_file() else 0
         self.path.unlink(missing_ok=True)
-        raise store.DiskFull(self.path, nbytes, free) from None
+        raise store.DiskFull(self.path, nbytes, free, written) from None
+
+
+def mp4_complete(path: pathlib.Path) -> bool:
+    """Whether an mp4 file is whole: its top-level boxes (ISO/IEC 14496-12: a 32-bit size, or 1 and a 64-bit size
+    after the type; 0: to the end of the file) tile the file exactly and include the index ('moov'), which
+    encoders write last. A file cut short by a full disk has an 'mdat' whose size was never filled in (0) or runs
+    past the end, and no index."""
+    import struct
+
+    size, at, boxes = path.stat().st_size, 0, set()
+    with open(path, "rb") as f:
+        while at + 8 <= size:
+            f.seek(at)
+            length, kind = struct.unpack(">I4s", f.read(8))
+            if length == 1:
+                length = struct.unpack(">Q", f.read(8))[0]
+            boxes.add(kind)
+            if length == 0:  # "to the end of the file": what an unfinished 'mdat' holds; the index must be before it
+                at = size
+            elif length < 8:
+                return False
+            else:
+                at += length
+    return at == size and b"moov" in boxes
+

@@ -45,10 +45,13 @@ SERIES_UNITS = {
 class DiskFull(Exception):
     """A write found too little free space (or the disk filled during it): nothing half-written is left."""
 
-    def __init__(self, path, needed: int, free: int | None = None):
-        self.path, self.needed, self.free = pathlib.Path(path), int(needed), free
+    def __init__(self, path, needed: int | None, free: int | None = None, written: int = 0):
+        """``needed`` [bytes], or None where the writer cannot know it (an encoder's file): then ``written``, what
+        the file held when the disk filled, is said instead."""
+        self.path, self.needed, self.free = pathlib.Path(path), needed, free
         where = f"; {mb(free)} free on its disk" if free is not None else ""
-        super().__init__(f"the disk is full: writing {self.path.name} needed {mb(needed)}{where}")
+        size = f"needed {mb(needed)}" if needed is not None else f"had {mb(written)} when the disk filled"
+        super().__init__(f"the disk is full: writing {self.path.name} {size}{where}")
 
 
 def mb(nbytes: int | float) -> str:
