@@ -25,7 +25,7 @@ EXIT_DISK_FULL = 3
 # a folder holding any of them holds a run; --overwrite removes exactly these before the new run writes
 RUN_OUTPUTS = ("run.h5", "run.xdmf", "particles.xdmf", "checkpoint.h5", "checkpoint.xdmf", "bed.h5", "bed.xdmf",
                "config.toml", "summary.json", "summary_units.json", "video.mp4", "analysis", "rcfd.h5", "rcfd")
-RUN_OUTPUT_PATTERNS = ("*.tmp", "screenshot-*.png")
+RUN_OUTPUT_PATTERNS = ("*.tmp", "*.tmp.mp4", "*.before_resume.mp4", "screenshot-*.png")
 
 
 def run_outputs(d: pathlib.Path, video_file: str = "") -> list[pathlib.Path]:
@@ -151,6 +151,15 @@ def configure(preset, overrides, out, resume, overwrite):
         log(f"fbed: note: --set changes this stage only; the preparation {pathlib.Path(cfg.run.start_from).name} "
             "runs as its own preset says (edit it, or copy it and point run.start_from at the copy)")
     name = cfg.run.name or preset_path.stem
-    if resume and preset_path.name == "config.toml":
-        name = cfg.run.name or out_dir.name
+    if resume and not cfg.run.name:  # the name the run started with (its preset's), not the folder's
+        name = started_name(out_dir) or (out_dir.name if preset_path.name == "config.toml" else name)
     return cfg, preset_path, out_dir, name
+
+
+def started_name(out_dir: pathlib.Path) -> str:
+    """The name a run in ``out_dir`` was started under (run.h5's ``preset``), or "" where none is recorded."""
+    try:
+        with h5py.File(out_dir / "run.h5", "r") as f:
+            return str(f.attrs.get("preset", ""))
+    except OSError:
+        return ""

@@ -68,7 +68,7 @@ def _attach(sim, scene, name, out_dir, runfile, config_text, renderer, viewer, r
         sim.add(guard.guarded(checkpoints), o.checkpoint_interval)
     if o.checkpoint_wall_interval:  # the clock is looked at every second; the guard runs only before a write
         sim.add(WallCheckpoints(guard.guarded(checkpoints), o.checkpoint_wall_interval), wall=WallCheckpoints.CHECK)
-    video = VideoFrames.attach(sim, cfg, renderer, out_dir, guard, close_renderer=viewer is None)
+    video = VideoFrames.attach(sim, cfg, renderer, out_dir, runfile, guard, close_renderer=viewer is None)
     progress = Progress(sim, name, o.log_interval)
     sim.add(progress, wall=0.25 if progress.tty else o.log_interval, finish=progress.finish)
     return final, series.bed, video

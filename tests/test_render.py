@@ -143,6 +143,61 @@ def test_video_of_a_short_run_decodes_to_the_expected_frames(tmp_path):
     assert np.abs(frames[0].astype(int) - frames[-1].astype(int)).mean() > 0.1
 
 
+def test_a_resumed_run_goes_on_with_the_same_video(tmp_path):
+    """A run to 60 ms resumed to 120 ms makes one video of the same 5 frames, at the same times (run.h5's /video),
+    as a run straight to 120 ms; before, the resume wrote over video.mp4 with its own 2 frames and the first part
+    was gone. Each joined frame is nearest (mean absolute difference) to the straight run's frame of the same
+    index: the grains fall for 30 ms between frames, which changes a frame more than re-encoding the kept ones does
+    (and the title is the same: before, a resumed run took its folder's name). Then a
+    video that lost frames (restored to its 3-frame state, as a killed run's would be) goes on after them with a
+    note and run.h5 says which times it holds; and a resume at another frame size starts a new video, the earlier
+    one kept aside."""
+    import h5py
+    import imageio.v2 as iio
+
+    preset = tmp_path / "drop.toml"
+    preset.write_text(toml_text(merged(
+        run={"duration": 0.12, "step": 1e-3, "threads": 1},
+        domain={"lo": [-0.02, -0.02, 0.0], "hi": [0.02, 0.02, 0.06], "gravity": [0.0, 0.0, -9.81]},
+        vessel={"shape": "cylinder", "radius": 0.018},
+        particles={"count": 300, "diameter": 3e-3, "density": 2500.0},
+        video={"width": 160, "height": 120, "interval": 0.03, "fps": 10.0})))
+
+    def frames(d, name="video.mp4"):
+        return [f.astype(int) for f in iio.get_reader(d / name)]
+
+    def times(d):
+        with h5py.File(d / "run.h5", "r") as f:
+            assert list(f["video/frame"][...]) == list(range(f["video/time"].shape[0]))
+            return list(np.round(f["video/time"][...], 6))
+
+    straight, parts = tmp_path / "straight", tmp_path / "parts"
+    assert fbed("run", preset, "--video", "--arch", "cpu", "--out", straight).returncode == 0
+    r = fbed("run", preset, "--video", "--arch", "cpu", "--out", parts, "--set", "run.duration=0.06")
+    assert r.returncode == 0, r.stderr
+    first_part = (parts / "video.mp4").read_bytes()
+    r = fbed("run", "--resume", parts, "--set", "run.duration=0.12")
+    assert r.returncode == 0, r.stderr
+    a, b = frames(straight), frames(parts)
+    assert len(a) == len(b) == 5 and times(parts) == times(straight) == [0.0, 0.03, 0.06, 0.09, 0.12]
+    distance = np.array([[np.abs(frame - other).mean() for other in a] for frame in b])  # diagonal ~0.4, others > 1
+    assert list(np.argmin(distance, axis=1)) == list(range(5)), distance
+    # the resumed run keeps the name it started with (the preset's, drawn in each frame), not its folder's ("parts")
+    assert json.loads((parts / "summary.json").read_text())["preset"] == "drop"
+    assert json.loads((parts / "summary.json").read_text())["video_frames"] == 5
+    assert not list(parts.glob("*.tmp*"))
+
+    (parts / "video.mp4").write_bytes(first_part)  # frames 0.09 and 0.12 lost, as with a run killed at 0.12
+    r = fbed("run", "--resume", parts, "--set", "run.duration=0.18")
+    assert r.returncode == 0 and "video.mp4 holds 3 of the 5 frames recorded up to the checkpoint" in r.stderr
+    assert len(frames(parts)) == 5 and times(parts) == [0.0, 0.03, 0.06, 0.15, 0.18]
+
+    r = fbed("run", "--resume", parts, "--set", "run.duration=0.21", "--set", "video.width=200")
+    assert r.returncode == 0 and "kept as video.before_resume.mp4" in r.stderr, r.stderr
+    assert len(frames(parts, "video.before_resume.mp4")) == 5
+    assert len(frames(parts)) == 1 and frames(parts)[0].shape == (120, 200, 3) and times(parts) == [0.21]
+
+
 def test_video_writer_falls_back_to_png_frames_and_says_so_once(tmp_path, monkeypatch):
     from app.gui.video import VideoWriter
 

@@ -50,7 +50,8 @@ class Summary:
             out.update({"frames": r.frames, "render_time": r.render_seconds,
                         "render_share": r.render_seconds / max(wall, 1e-9)})
             if self.video is not None:
-                out.update({"video": str(self.video.writer.path), "video_encoder": self.video.writer.encoder})
+                w = self.video.writer  # video_frames: the file's, with those kept from before a resume
+                out.update({"video": str(w.path), "video_encoder": w.encoder, "video_frames": w.frames})
         if self.bed is not None:  # also for a guard stop: `fbed analyze` of its data needs the bed weight
             out.update(self.bed.summary(self.out_dir / "run.h5", cfg))
         d = sim.diagnostics() if status not in ("unstable", "disk_full") else {}

@@ -31,26 +31,35 @@ def renderer_for(sim, scene, name: str, viewer=None):
 
 
 class VideoFrames:
-    """One frame per firing into the video file; at the end the file is closed (and the renderer, unless a
-    window still uses it)."""
+    """One frame per firing into the video file, its time in run.h5's /video (``time``, and ``frame``: its index
+    in the file); at the end the file is closed (and the renderer, unless a window still uses it).
 
-    def __init__(self, renderer, path, fps: float, close_renderer: bool = True):
-        self.renderer, self.close_renderer = renderer, close_renderer
-        self.writer = VideoWriter(path, fps, notify=log)
+    A resumed run goes on with the same video: run.h5, cut back to the checkpoint, says how many of the earlier
+    video's frames came before it, and those are kept ahead of the new ones (app.gui.video.VideoWriter)."""
+
+    def __init__(self, renderer, path, fps: float, runfile, close_renderer: bool = True):
+        self.renderer, self.runfile, self.close_renderer = renderer, runfile, close_renderer
+        self.recorded = runfile.frame_count("video")  # frames up to the checkpoint (0 for a new run)
+        self.writer = VideoWriter(path, fps, notify=log, keep_frames=self.recorded)
 
     @classmethod
-    def attach(cls, sim, cfg, renderer, out_dir, guard, close_renderer: bool = True):
+    def attach(cls, sim, cfg, renderer, out_dir, runfile, guard, close_renderer: bool = True):
         """Frames every video.interval behind the guard when [video] is enabled (and a renderer runs); the
         VideoFrames, or None."""
         if renderer is None or not cfg.video.enabled:
             return None
-        video = cls(renderer, out_dir / (cfg.video.file or "video.mp4"), cfg.video.fps, close_renderer)
+        video = cls(renderer, out_dir / (cfg.video.file or "video.mp4"), cfg.video.fps, runfile, close_renderer)
         # with gas, the first frame waits for the first step: before it no void fraction is deposited
         sim.add(guard.guarded(video), cfg.video.interval, at_start=sim.flow is None, finish=video.finish)
         return video
 
     def __call__(self, sim) -> None:
         self.writer.write(self.renderer.frame(sim.time))
+        if self.recorded is not None:  # the first frame: the earlier video's frames are in (or not)
+            if self.writer.kept < self.recorded:
+                self.runfile.keep_frames("video", self.writer.kept)
+            self.recorded = None
+        self.runfile.frame("video", sim.time, self.writer.frames - 1, dtype="i4", name="frame")
 
     def finish(self, sim, reason: str) -> None:
         self.writer.close()

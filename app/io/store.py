@@ -166,7 +166,7 @@ def read_state(path: pathlib.Path) -> tuple[dict, dict]:
     return grains, meta
 
 
-FRAME_GROUPS = ("slab", "planes", "porosity3d", "mri")  # groups of appendable frames (probes)
+FRAME_GROUPS = ("slab", "planes", "porosity3d", "mri", "video")  # groups of appendable frames (probes, the video's)
 
 
 # Series rows and probe frames are held in memory and written in batches: an HDF5 resize, write and flush per
@@ -307,20 +307,35 @@ class RunFile:
             return [g]
         return [sub for sub in g.values() if isinstance(sub, h5py.Group) and "time" in sub]
 
-    def frame(self, group: str, time: float, data, attrs: dict | None = None, dtype="f4") -> None:
-        """Append one frame (an array) to ``group``'s ``time`` and ``porosity`` datasets (created on first use,
-        with ``attrs``)."""
+    def frame(self, group: str, time: float, data, attrs: dict | None = None, dtype="f4",
+              name: str = "porosity") -> None:
+        """Append one frame (an array) to ``group``'s ``time`` and ``name`` datasets (created on first use, with
+        ``attrs``)."""
         data = np.array(data, dtype)  # a copy: the caller's array may change before the batch is written
-        self._frames.setdefault(group, []).append((time, data, attrs))
+        self._frames.setdefault(group, []).append((time, data, attrs, name))
         self._frame_bytes += data.nbytes
         self._maybe_flush()
 
+    def frame_count(self, group: str) -> int:
+        """Frames ``group`` holds (those on disk and those still held)."""
+        g = self.f.get(group)
+        return (g["time"].shape[0] if g is not None and "time" in g else 0) + len(self._frames.get(group, ()))
+
+    def keep_frames(self, group: str, n: int) -> None:
+        """Drop all but the first ``n`` frames of ``group`` (on disk; none may be held)."""
+        assert not self._frames.get(group), "keep_frames with frames still held"
+        g = self.f.get(group)
+        if g is not None and "time" in g and g["time"].shape[0] > n:
+            for ds in g.values():
+                if isinstance(ds, h5py.Dataset) and ds.maxshape and ds.maxshape[0] is None:
+                    ds.resize((n,) + ds.shape[1:])
+
     def _write_frames(self, group: str, items: list) -> None:
-        data = items[0][1]
+        data, name = items[0][1], items[0][3]
         g = self.f.require_group(group)
         if "time" not in g:
             g.create_dataset("time", shape=(0,), maxshape=(None,), dtype="f8", chunks=(1024,))
-            g.create_dataset("porosity", shape=(0,) + data.shape, maxshape=(None,) + data.shape, dtype=data.dtype,
+            g.create_dataset(name, shape=(0,) + data.shape, maxshape=(None,) + data.shape, dtype=data.dtype,
                              chunks=(max(1, min(64, (1 << 20) // max(1, data.nbytes))),) + data.shape,
                              compression="gzip" if data.size > 4096 else None,
                              compression_opts=1 if data.size > 4096 else None)
@@ -328,9 +343,9 @@ class RunFile:
                 g.attrs[k] = v
         n, k = g["time"].shape[0], len(items)
         g["time"].resize((n + k,))
-        g["time"][n:] = [t for t, _, _ in items]
-        g["porosity"].resize((n + k,) + data.shape)
-        g["porosity"][n:] = np.stack([d for _, d, _ in items])
+        g["time"][n:] = [item[0] for item in items]
+        g[name].resize((n + k,) + data.shape)
+        g[name][n:] = np.stack([item[1] for item in items])
 
     def put(self, name: str, data) -> None:
         """A fixed dataset (written once, e.g. a mask)."""
