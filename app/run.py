@@ -49,8 +49,8 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
 
 
 def _attach(sim, scene, name, out_dir, runfile, config_text, renderer, viewer, resume):
-    """The run's callbacks, in the order they fire: guard, series, snapshots, gas fields, probes, checkpoints
-    (simulated and wall time), video, progress. Returns (final outputs, series' bed measures, video frames)."""
+    """The run's callbacks, in the order they fire: guard, series, snapshots, gas fields, probes, video,
+    checkpoints (simulated and wall time), progress. Returns (final outputs, series' bed measures, video frames)."""
     cfg, o, dem, flow = scene.cfg, scene.cfg.output, sim.dem, sim.flow
     guard = Guard.of(cfg, scene.derived, dem.masses() if dem is not None else None)
     series = Series(runfile, BedMeasures(scene, flow, dem) if sim.coupler is not None else None)
@@ -64,11 +64,12 @@ def _attach(sim, scene, name, out_dir, runfile, config_text, renderer, viewer, r
     for writer, interval in writers:  # interval 0: at the start and the end only
         sim.add(guard.guarded(writer), interval, at_start=True)
     attach_probes(sim, cfg, runfile, out_dir, guard, sim.time if resume else None, log)
+    # the video before the checkpoints: a checkpoint's flush of run.h5 then holds the record of its step's frame
+    video = VideoFrames.attach(sim, cfg, renderer, out_dir, runfile, guard, close_renderer=viewer is None)
     if o.checkpoint_interval:
         sim.add(guard.guarded(checkpoints), o.checkpoint_interval)
     if o.checkpoint_wall_interval:  # the clock is looked at every second; the guard runs only before a write
         sim.add(WallCheckpoints(guard.guarded(checkpoints), o.checkpoint_wall_interval), wall=WallCheckpoints.CHECK)
-    video = VideoFrames.attach(sim, cfg, renderer, out_dir, runfile, guard, close_renderer=viewer is None)
     progress = Progress(sim, name, o.log_interval)
     sim.add(progress, wall=0.25 if progress.tty else o.log_interval, finish=progress.finish)
     return final, series.bed, video

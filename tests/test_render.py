@@ -188,9 +188,11 @@ def test_a_resumed_run_goes_on_with_the_same_video(tmp_path):
     assert not list(parts.glob("*.tmp*"))
 
     (parts / "video.mp4").write_bytes(first_part)  # frames 0.09 and 0.12 lost, as with a run killed at 0.12
+    (parts / "video.tmp.mp4").write_bytes(b"\0" * 4096)  # and the torn file that run left
     r = fbed("run", "--resume", parts, "--set", "run.duration=0.18")
     assert r.returncode == 0 and "video.mp4 holds 3 of the 5 frames recorded up to the checkpoint" in r.stderr
     assert len(frames(parts)) == 5 and times(parts) == [0.0, 0.03, 0.06, 0.15, 0.18]
+    assert not (parts / "video.tmp.mp4").exists()
 
     r = fbed("run", "--resume", parts, "--set", "run.duration=0.21", "--set", "video.width=200")
     assert r.returncode == 0 and "kept as video.before_resume.mp4" in r.stderr, r.stderr

@@ -30,6 +30,7 @@ class VideoWriter:
         self.encoder = ""
         self._writer = None
         self._size = None
+        self.writing.unlink(missing_ok=True)  # a torn one left by a killed run
 
     @property
     def writing(self) -> pathlib.Path:
