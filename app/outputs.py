@@ -133,7 +133,12 @@ def configure(preset, overrides, out, resume, overwrite):
                               hint="give the output folder of an earlier run that was stopped or finished")
         check_readable(out_dir)
         preset_path = pathlib.Path(preset) if preset else out_dir / "config.toml"
-        cfg = cfgmod.load(preset_path, overrides)
+        if preset or preset_path.exists():
+            cfg = cfgmod.load(preset_path, overrides)
+        else:  # config.toml deleted: every checkpoint holds the resolved config it was written with
+            cfg = cfgmod.load_text(checkpoint_config(out_dir), str(preset_path), overrides)
+            log(f"fbed: note: {out_dir / 'config.toml'} is missing: the run's configuration is read from its "
+                "checkpoint.h5 (and config.toml written again)")
         if (out_dir / "config.toml").exists():
             check_same_scene(cfg, cfgmod.load(out_dir / "config.toml"), preset_path, out_dir)
     else:
@@ -154,6 +159,15 @@ def configure(preset, overrides, out, resume, overwrite):
     if resume and not cfg.run.name:  # the name the run started with (its preset's), not the folder's
         name = started_name(out_dir) or (out_dir.name if preset_path.name == "config.toml" else name)
     return cfg, preset_path, out_dir, name
+
+
+def checkpoint_config(out_dir: pathlib.Path) -> str:
+    """The resolved config text a run's checkpoint.h5 was written with."""
+    with h5py.File(out_dir / "checkpoint.h5", "r") as f:
+        if "config" not in f.attrs:
+            raise ConfigError("config.toml is missing, and checkpoint.h5 holds no config", str(out_dir), "--resume",
+                              hint=f"name the run's preset: fbed run PRESET --resume {out_dir}")
+        return str(f.attrs["config"])
 
 
 def started_name(out_dir: pathlib.Path) -> str:

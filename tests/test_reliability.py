@@ -267,6 +267,35 @@ def test_resume_with_another_scene_is_refused_and_touches_nothing(done_run, tmp_
     assert digest(done_run) == before
 
 
+def test_a_run_whose_config_toml_was_deleted_resumes_from_its_checkpoints_config(done_run, tmp_path):
+    """config.toml gone (deleted by hand, or a copy of the folder without it): the checkpoint holds the resolved
+    config it was written with, so `--resume DIR` goes on from it, says so and writes config.toml again; the
+    result is the one a run straight to the same end gives, bit for bit (one CPU thread). Before, it was refused
+    as "no such preset file" with nothing to suggest."""
+    import shutil
+
+    d = tmp_path / "run"
+    shutil.copytree(done_run, d)
+    (d / "config.toml").unlink()
+    r = fbed("run", "--resume", d, "--set", "run.duration=0.01")
+    assert r.returncode == 0 and "config.toml is missing: the run's configuration is read from its checkpoint.h5" \
+        in r.stderr, r.stderr
+    assert (d / "config.toml").read_text() == (done_run / "config.toml").read_text().replace(
+        "duration = 0.005", "duration = 0.01")
+    straight = tmp_path / "straight"
+    assert fbed("run", SETTLE, *TINY, "--set", "run.duration=0.01", "--out", straight).returncode == 0
+    with h5py.File(d / "checkpoint.h5", "r") as a, h5py.File(straight / "checkpoint.h5", "r") as b:
+        assert float(a.attrs["time"]) == pytest.approx(0.01)
+        for k in ("position", "velocity"):
+            assert np.array_equal(a["grains"][k][...], b["grains"][k][...]), k
+    with h5py.File(d / "checkpoint.h5", "r+") as f:  # a checkpoint without its config (none is written so)
+        del f.attrs["config"]
+    (d / "config.toml").unlink()
+    r = fbed("run", "--resume", d, "--set", "run.duration=0.02")
+    assert_clean_stop(r, d, 2, "config.toml is missing, and checkpoint.h5 holds no config",
+                      f"fbed run PRESET --resume {d}")
+
+
 def test_output_protection_covers_every_fbed_file(done_run, tmp_path):
     d = tmp_path / "old"
     d.mkdir()
