@@ -131,10 +131,10 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
         arrays, gas_arrays, meta = store.read_checkpoint(out_dir / "checkpoint.h5")
     elif cfg.run.start_from:
         arrays, gas_arrays, meta = store.read_checkpoint(prepared_state(cfg, preset_path, arch, run))
-    serial = used_arch == "cpu" and runtime.cpu_threads(cfg.run.threads or None) == 1
-    scene = Scene(cfg, str(preset_path), initial=arrays, serial=serial)
+    threads = runtime.cpu_threads(cfg.run.threads or None)
+    scene = Scene(cfg, str(preset_path), initial=arrays, serial=used_arch == "cpu" and threads == 1)
     if used_arch == "cpu":
-        cpu_note(scene, preset_path, int(meta["step"]) if resume else 0)
+        cpu_note(scene, preset_path, int(meta["step"]) if resume else 0, threads)
     sim = build_simulation(scene, notify=log, timing=True)  # the grains placed from the checkpoint when resuming
     restore(sim, scene, arrays, gas_arrays, meta, bool(cfg.run.start_from) and not resume, out_dir if resume else None)
     renderer = renderer_for(sim, scene, name, viewer)

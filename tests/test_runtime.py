@@ -103,3 +103,23 @@ def test_a_stale_offline_cache_lock_is_removed_and_the_cache_is_written(tmp_path
         assert not lock.exists() and "ticache.tcb" in written and len(written) >= 2, written
     else:
         assert lock.exists() and written == [], written
+
+
+def test_cpu_threads_are_at_most_the_cpus_available_and_a_cut_is_noted(monkeypatch, capsys):
+    """run.threads above the CPUs this process may use (99999 on 2 cores did not finish a step in a minute; 1000
+    made one 3x slower) runs on those CPUs and says so; at or below them it is taken as asked; 0 is the automatic
+    choice (one thread on 2 cores or fewer, else all)."""
+    from types import SimpleNamespace
+
+    from app.callbacks.progress import cpu_note
+    from app.sim import runtime
+
+    for cores, asked, used in ((2, 99999, 2), (2, 2, 2), (2, 1, 1), (2, None, 1), (16, 4, 4), (16, None, 16)):
+        monkeypatch.setattr(runtime, "available_cpus", lambda c=cores: c)
+        assert runtime.cpu_threads(asked) == used, (cores, asked)
+    scene = SimpleNamespace(cfg=SimpleNamespace(run=SimpleNamespace(threads=99999)), derived=None)
+    cpu_note(scene, pathlib.Path("x.toml"), 0, 2)
+    assert "run.threads = 99999 is more than the 2 CPUs this process may use: it runs on 2" in capsys.readouterr().err
+    scene.cfg.run.threads = 2
+    cpu_note(scene, pathlib.Path("x.toml"), 0, 2)
+    assert capsys.readouterr().err == ""

@@ -127,11 +127,15 @@ def announce(sim, scene, name: str, arch: str, out_dir) -> None:
             "~/.cache/taichi makes later starts of the same scene faster)")
 
 
-def cpu_note(scene, preset_path: pathlib.Path, start_step: int) -> None:
-    """On the CPU: log how long a GPU-sized scene will take there (see cpu_estimate_note)."""
+def cpu_note(scene, preset_path: pathlib.Path, start_step: int, threads: int) -> None:
+    """On the CPU: log run.threads cut to the ``threads`` available, and how long a GPU-sized scene will take there
+    (see cpu_estimate_note)."""
+    if scene.cfg.run.threads > threads:
+        log(f"fbed: note: run.threads = {scene.cfg.run.threads} is more than the {threads} CPUs this process may use: "
+            f"it runs on {threads} (more threads than CPUs only take turns)")
     if scene.derived is None:
         return
-    steps_left = int(math.ceil(scene.cfg.run.duration / scene.cfg.run.step - 1e-9)) - start_step
+    steps_left = run_steps(scene.cfg.run.duration, scene.cfg.run.step) - start_step
     note = cpu_estimate_note(preset_path, scene.n, scene.derived.substeps, max(0, steps_left))
     if note:
         log(note)

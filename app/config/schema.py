@@ -36,8 +36,8 @@ class RunConfig:
                            "run.duration is then the end time)")
     precision: str = spec("float32", doc="floating-point precision of the kernels", choices=("float32", "float64"))
     threads: int = spec(0, doc="CPU threads (0 = automatic: one thread on machines with 2 cores or fewer, where "
-                        "one thread without atomics is as fast as two with them, else all cores); 1 makes CPU runs "
-                        "bit-reproducible", lo=0)
+                        "one thread without atomics is as fast as two with them, else all cores; at most the CPUs "
+                        "available, with a note); 1 makes CPU runs bit-reproducible", lo=0)
 
 
 @dataclass(frozen=True)
