@@ -59,10 +59,17 @@ def cases(sets: list[str]) -> tuple[list[str], list[tuple[str, ...]]]:
         if "=" not in item:
             raise ConfigError(f"{item!r} is not of the form key=v1,v2,...", "--set", item)
         key, raw = item.split("=", 1)
-        values = split_values(raw)
+        key, values = key.strip(), split_values(raw)
         if not values:
             raise ConfigError("no values given", "--set", key)
-        keys.append(key.strip())
+        if key in keys:  # each case would apply both, and the later would win in every case
+            raise ConfigError("the key is given twice", "--set", key,
+                              hint=f"give all its values in one --set {key}=v1,v2,...")
+        twice = sorted({v for v in values if values.count(v) > 1})
+        if twice:
+            raise ConfigError(f"{', '.join(twice)} given twice: the cases would be the same run", "--set", key,
+                              hint="give each value once (to repeat a case with another random fill, sweep run.seed)")
+        keys.append(key)
         lists.append(values)
     return keys, list(itertools.product(*lists))
 

@@ -262,6 +262,25 @@ def test_sweep_refuses_fewer_than_one_job(tmp_path):
         assert not (tmp_path / "s").exists()
 
 
+def test_sweep_refuses_a_key_given_twice_and_a_value_given_twice(tmp_path):
+    """`--set k=a,b --set k=c` made the cases (a, c) and (b, c), each applying k=c last: two runs of c, labelled a
+    and b in sweep.csv. `--set k=a,a` ran the same run twice. Both are refused before anything runs (the cases are
+    deterministic, so a repeat adds nothing; run.seed is the key to sweep for other fills)."""
+    from app.config import ConfigError
+    from app.sweep import cases
+
+    assert cases(["particles.count=100,200", "run.seed=1,2"])[1] == [("100", "1"), ("100", "2"), ("200", "1"),
+                                                                     ("200", "2")]
+    for sets, said in ((["particles.count=100,200", "particles.count=300"], "the key is given twice"),
+                       (["particles.count=100,200,100"], "100 given twice")):
+        with pytest.raises(ConfigError, match=said):
+            cases(sets)
+        r = fbed("sweep", ROOT / "presets" / "settle.toml", *[a for s in sets for a in ("--set", s)],
+                 "--out", tmp_path / "s")
+        assert r.returncode == 2 and said in r.stderr and "Traceback" not in r.stderr
+        assert not (tmp_path / "s").exists()
+
+
 def test_a_saved_bed_is_reused_by_a_later_run(tmp_path):
     """bed.h5 of one run is another run's particles.initial_state: same grains, same places."""
     first, second = tmp_path / "first", tmp_path / "second"
