@@ -79,8 +79,9 @@ def open_area(cfg: Config, walls: list, z: float) -> float:
 
 
 def load_bed(path: pathlib.Path) -> dict:
-    """Grains of an earlier run (bed.h5 or checkpoint.h5) still in the domain: position, velocity,
-    radius and, with friction, omega."""
+    """The grains alive in an earlier run's bed.h5 or checkpoint.h5: position, velocity, radius and, with friction,
+    omega. A damaged or hand-made file (arrays of other lengths, a value not finite, a radius not positive) is
+    refused here, naming the first grain, not left to the guard to stop at t = 0 as unstable."""
     try:
         grains, _, _ = store.read_checkpoint(path)
         if grains is None:
@@ -90,6 +91,18 @@ def load_bed(path: pathlib.Path) -> dict:
     except (OSError, KeyError) as err:
         raise ConfigError(f"cannot read grains from it: {err}", str(path), "particles.initial_state",
                           hint="give the bed.h5 or checkpoint.h5 written by an earlier fbed run") from None
+    n = len(out["position"])
+    for k, v in {**out, "alive": keep}.items():
+        shape = (n,) if k in ("radius", "alive") else (n, 3)
+        bad = None if v.shape == shape else f"/grains/{k} has shape {v.shape}, not {shape}"
+        if bad is None:
+            wrong = ~np.isfinite(v.reshape(n, -1)).all(axis=1) | ((v <= 0) if k == "radius" else False)
+            if wrong.any():
+                bad = (f"/grains/{k} is {'not finite' if k != 'radius' else 'not finite and positive'} for "
+                       f"{int(wrong.sum())} grain(s) (the first: grain {int(np.flatnonzero(wrong)[0])})")
+        if bad:
+            raise ConfigError(f"cannot use the grains in it: {bad}", str(path), "particles.initial_state",
+                              hint="give the bed.h5 or checkpoint.h5 written by an earlier fbed run")
     return {k: v[keep] for k, v in out.items()}
 
 

@@ -364,6 +364,46 @@ def test_initial_state_of_other_sizes_is_refused_with_both_sizes(done_run, tmp_p
                       "particles.initial_state")
 
 
+def test_initial_state_with_non_finite_or_misshapen_grains_is_refused_naming_the_first(done_run, tmp_path):
+    """A bed.h5 damaged or made by hand: a NaN position ran, and the guard stopped the run at t = 0 as unstable
+    ("contacts are too soft or the step too long", exit 3), pointing at the wrong knobs. Now it is refused at the
+    start (exit 2), naming the dataset, how many grains and the first of them; so are a zero radius and arrays of
+    mismatched lengths. The untouched bed runs."""
+    import shutil
+
+    def run_with(edit):
+        bed = tmp_path / "bed.h5"
+        shutil.copy(done_run / "bed.h5", bed)
+        with h5py.File(bed, "r+") as f:
+            edit(f["grains"])
+        preset = tmp_path / "from_bed.toml"
+        preset.write_text(SETTLE.read_text().replace("count = 2500", f'initial_state = "{bed}"'))
+        return fbed("run", preset, "--arch", "cpu", "--set", "run.duration=0.002", "--out", tmp_path / "o",
+                    "--overwrite")
+
+    def nan_at(name, i):
+        def edit(g):
+            a = g[name][...]
+            a[i] = np.nan
+            g[name][...] = a
+        return edit
+
+    def replace(name, value):
+        def edit(g):
+            del g[name]
+            g[name] = value
+        return edit
+
+    for edit, said in ((nan_at("position", 7), "/grains/position is not finite for 1 grain(s) (the first: grain 7)"),
+                       (nan_at("velocity", 3), "/grains/velocity is not finite for 1 grain(s) (the first: grain 3)"),
+                       (replace("radius", np.r_[0.0, np.full(299, 1e-3)]), "/grains/radius is not finite and "
+                        "positive for 1 grain(s) (the first: grain 0)"),
+                       (replace("velocity", np.zeros((299, 3))), "/grains/velocity has shape (299, 3), not (300, 3)")):
+        r = run_with(edit)
+        assert_clean_stop(r, tmp_path, 2, "particles.initial_state: cannot use the grains in it", said)
+    assert run_with(lambda g: None).returncode == 0
+
+
 # -- signals and schedules
 
 
