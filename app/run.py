@@ -135,6 +135,9 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
     scene = Scene(cfg, str(preset_path), initial=arrays, serial=used_arch == "cpu" and threads == 1)
     if used_arch == "cpu":
         cpu_note(scene, preset_path, int(meta["step"]) if resume else 0, threads)
+    if outside := scene.outside_domain():
+        log(f"fbed: note: {outside} of the {scene.n} grains lie outside the domain (domain.lo, domain.hi): they are "
+            "removed at the first step")
     sim = build_simulation(scene, notify=log, timing=True)  # the grains placed from the checkpoint when resuming
     restore(sim, scene, arrays, gas_arrays, meta, bool(cfg.run.start_from) and not resume, out_dir if resume else None)
     renderer = renderer_for(sim, scene, name, viewer)
@@ -155,10 +158,10 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
     if status == "disk_full":
         return stop_disk_full(out_dir, figures, final.disk_full[0])
     summary.write(figures, analyze=status in ("finished", "interrupted"))
-    return _exit(sim, status, message, wall, out_dir)
+    return _exit(sim, status, message, wall, out_dir, figures.get("grains_removed", 0))
 
 
-def _exit(sim, status, message, wall, out_dir) -> int:
+def _exit(sim, status, message, wall, out_dir, removed: int) -> int:
     if status == "unstable":
         log(f"fbed: stopped at t = {sim.time:.6g} s: {message}")
         log(f"fbed: outputs kept in {out_dir}" + (" (last good checkpoint: checkpoint.h5)"
@@ -168,5 +171,6 @@ def _exit(sim, status, message, wall, out_dir) -> int:
         log(f"fbed: stopped by {sim.stop_requested} at t = {sim.time:.6g} s; checkpoint written.\n"
             f"      resume with: fbed run --resume {out_dir}")
         return EXIT_INTERRUPTED
-    log(f"fbed: done: t = {sim.time:g} s in {wall:.1f} s wall; outputs in {out_dir}")
+    gone = f"; {removed} grain{'s' * (removed != 1)} left the domain and were removed" if removed else ""
+    log(f"fbed: done: t = {sim.time:g} s in {wall:.1f} s wall{gone}; outputs in {out_dir}")
     return EXIT_OK

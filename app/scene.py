@@ -267,6 +267,18 @@ class Scene:
             self.initial = {"position": pos, "velocity": np.zeros_like(pos), "radius": radius}
         self.coupling = coupling_model(cfg, serial) if cfg.gas is not None else None
 
+    def outside_domain(self) -> int:
+        """Live grains given to this scene (a bed file, a checkpoint) whose centres lie outside the domain box along
+        an axis that is not periodic: the DEM removes them at its first substep."""
+        g, d = self.initial, self.cfg.domain
+        if not g or not len(g["position"]):
+            return 0
+        x, walled = np.asarray(g["position"]), ~np.asarray(periodic_axes(self.cfg))
+        out = ((x < np.asarray(d.lo)) | (x > np.asarray(d.hi)))[:, walled].any(axis=1)
+        if "alive" in g:
+            out &= np.asarray(g["alive"]).astype(bool)
+        return int(out.sum())
+
 
 #: a CPU run's memory: its peak resident size measured 2026-12-06 (AMD EPYC, float32, presets/verma.toml for one
 #: step with 1e5, 3e5 and 9.65e5 grains: 0.465, 0.707 and 1.449 GB) is this much plus ~3 x the DEM's own
