@@ -106,6 +106,36 @@ def load_bed(path: pathlib.Path) -> dict:
     return {k: v[keep] for k, v in out.items()}
 
 
+def check_bed(cfg: Config, walls: list, d: Derived, bed: dict, path: pathlib.Path) -> None:
+    """A bed file's grains must be this preset's sizes (smaller ones would break its neighbour list sizing, larger
+    ones its cells; the relative 1e-6 absorbs float32 storage) and fit its vessel: a grain that overlaps a wall by
+    more than guard.max_overlap (a bed from a wider vessel) is refused here, where the guard stopped the run at
+    t = 0 blaming the contact stiffness."""
+    n = len(bed["position"])
+    if not n:
+        return
+    r = np.asarray(bed["radius"], float)
+    rmin, rmax = float(r.min()), float(r.max())
+    if rmax > d.radius_max * (1 + 1e-6) or rmin < d.radius_min * (1 - 1e-6):
+        def sizes(lo, hi):
+            return f"{2 * lo:g} m" if hi <= lo * (1 + 1e-6) else f"{2 * lo:g} to {2 * hi:g} m"
+
+        raise ConfigError(f"the bed's grains have diameters {sizes(rmin, rmax)}, the preset's "
+                          f"{sizes(d.radius_min, d.radius_max)}", str(path), "particles.initial_state",
+                          hint="set particles.diameter to the bed's, or use a bed made with this preset's sizes")
+    if not walls:
+        return
+    overlap = (r - geometry.vessel_clearance(walls, bed["position"])) / (2 * r)  # of the diameter
+    deep = overlap > cfg.guard.max_overlap
+    if deep.any():
+        worst = int(np.argmax(overlap))
+        raise ConfigError(f"{int(deep.sum())} of the bed's {n} grains overlap the vessel's walls by more than "
+                          f"guard.max_overlap = {cfg.guard.max_overlap:g} of a diameter (the most: grain {worst}, "
+                          f"{overlap[worst]:.3g}): the bed does not fit this vessel", str(path),
+                          "particles.initial_state", hint="use a bed made in this preset's vessel, or give the "
+                          "[vessel] of the run that made it")
+
+
 def grain_count(cfg: Config, walls: list, der: Derived) -> int:
     p = cfg.particles
     if p.count:
@@ -243,19 +273,7 @@ class Scene:
                                   hint="run the preset that writes it first (e.g. fbed run presets/settle.toml)")
             self.initial = load_bed(path)
             n = len(self.initial["position"])
-            rmin = float(self.initial["radius"].min()) if n else 0.0
-            rmax = float(self.initial["radius"].max()) if n else 0.0
-            d = self.derived
-            # grains smaller than the preset's would break its neighbour list sizing, larger ones its cells: both
-            # are refused with the two sizes named (the relative 1e-6 absorbs float32 storage)
-            if n and (rmax > d.radius_max * (1 + 1e-6) or rmin < d.radius_min * (1 - 1e-6)):
-                def sizes(lo, hi):
-                    return f"{2 * lo:g} m" if hi <= lo * (1 + 1e-6) else f"{2 * lo:g} to {2 * hi:g} m"
-
-                raise ConfigError(f"the bed's grains have diameters {sizes(rmin, rmax)}, the preset's "
-                                  f"{sizes(d.radius_min, d.radius_max)}", str(path),
-                                  "particles.initial_state", hint="set particles.diameter to the bed's, or use a "
-                                  "bed made with this preset's sizes")
+            check_bed(cfg, self.walls, self.derived, self.initial, path)
         else:
             n = grain_count(cfg, self.walls, self.derived)
         self.n = n

@@ -426,6 +426,28 @@ def test_grains_outside_the_domain_at_the_start_are_noted_and_counted_at_the_end
     assert r.returncode == 0 and "outside the domain" not in r.stderr and "left the domain" not in r.stderr
 
 
+def test_a_bed_from_a_wider_vessel_is_refused_naming_the_misfit(done_run, tmp_path):
+    """settle's bed (a 15 mm cylinder) in a 10 mm one: grains cut through the wall, and the guard stopped the run
+    at t = 0 ("overlap by 241% of a diameter ... contacts are too soft or the step too long"), naming knobs that
+    cannot help. Now the start refuses it (exit 2) with the grains beyond guard.max_overlap counted; the bed in
+    its own vessel, where grains rest on the wall by far less, runs."""
+    with h5py.File(done_run / "bed.h5", "r") as f:
+        x = f["grains/position"][...]
+        r = f["grains/radius"][...]
+    clearance = 0.010 - np.hypot(x[:, 0], x[:, 1])  # to a 10 mm cylinder on the axis
+    deep = int(((r - clearance) / (2 * r) > 0.2).sum())
+    text = SETTLE.read_text().replace("count = 2500", f'initial_state = "{done_run / "bed.h5"}"')
+    narrow = tmp_path / "narrow.toml"
+    narrow.write_text(text.replace("radius = 0.015 ", "radius = 0.010 "))
+    r = fbed("run", narrow, "--arch", "cpu", "--set", "run.duration=0.002", "--out", tmp_path / "o")
+    assert 0 < deep < 300
+    assert_clean_stop(r, tmp_path, 2, f"{deep} of the bed's 300 grains overlap the vessel's walls by more than "
+                      "guard.max_overlap = 0.2", "the bed does not fit this vessel", "particles.initial_state")
+    own = tmp_path / "own.toml"
+    own.write_text(text)
+    assert fbed("run", own, "--arch", "cpu", "--set", "run.duration=0.002", "--out", tmp_path / "o2").returncode == 0
+
+
 # -- signals and schedules
 
 
