@@ -260,6 +260,7 @@ class Scene:
         self.flow = flow_config(cfg, self.walls) if cfg.gas is not None else None
         self.derived, self.model, self.n, self.initial, self.coupling = None, None, 0, None, None
         if cfg.particles is None:
+            check_memory(self)  # the gas grid's
             return
         self.derived = derive(cfg, file)
         rng = np.random.default_rng(cfg.run.seed)
@@ -305,6 +306,11 @@ class Scene:
 #: checkpoint where this says 19.7: on the safe side
 CPU_BASE_BYTES = 350e6
 CPU_BYTES_PER_DEVICE_BYTE = 3.0
+#: and a gas cell's: the peak resident size of a gas-only box for one step (a velocity inlet, 5 x 10^4 to
+#: 2.0 x 10^6 cells, AMD EPYC, 2026-12-06) grew by 478-514 B a cell in float32 and 771 B in float64 (the solver's
+#: fields and the host's cut-cell geometry, field snapshots and checkpoint); on top of the base above, which
+#: already held the Verma grid's 1.2 x 10^5 cells: on the safe side
+CPU_BYTES_PER_GAS_CELL = {"float32": 520.0, "float64": 780.0}
 
 
 def available_memory() -> float | None:
@@ -323,17 +329,27 @@ def check_memory(scene: "Scene") -> None:
     before anything is allocated: past it the kernel's out-of-memory killer would end the run mid-start-up
     without a word."""
     cur = runtime.current()
-    if cur is None or cur[0] != "cpu" or scene.model is None:
+    if cur is None or cur[0] != "cpu" or (scene.model is None and scene.flow is None):
         return
-    per = CPU_BYTES_PER_DEVICE_BYTE * bytes_per_grain(scene.model, 8 if scene.cfg.run.precision == "float64" else 4)
-    need = CPU_BASE_BYTES + scene.n * per
+    cfg = scene.cfg
+    per = 0.0 if scene.model is None else \
+        CPU_BYTES_PER_DEVICE_BYTE * bytes_per_grain(scene.model, 8 if cfg.run.precision == "float64" else 4)
+    cells = 0 if scene.flow is None else math.prod(scene.flow.shape)
+    grains, gas = scene.n * per, cells * CPU_BYTES_PER_GAS_CELL[cfg.run.precision]
     have = available_memory()
-    if have is not None and need > have:
-        key = "particles.initial_state" if scene.cfg.particles.initial_state else "particles.count"
-        raise ConfigError(f"{scene.n:,} grains need about {need / 1e9:.3g} GB of memory on the CPU ({per:.0f} B a "
-                          f"grain), and {have / 1e9:.3g} GB is available", scene.file, key,
-                          hint="fewer grains (particles.count or particles.bed_height), a machine with more "
-                          "memory, or a GPU (--arch cuda)")
+    if have is None or CPU_BASE_BYTES + grains + gas <= have:
+        return
+    need = f"about {(CPU_BASE_BYTES + grains + gas) / 1e9:.3g} GB of memory on the CPU"
+    if gas > grains:
+        raise ConfigError(f"{cells:,} gas cells ({' x '.join(map(str, scene.flow.shape))}) need {need} (about "
+                          f"{CPU_BYTES_PER_GAS_CELL[cfg.run.precision]:.0f} B a cell), and {have / 1e9:.3g} GB is "
+                          "available", scene.file, "gas.cell_size",
+                          hint="larger gas cells (each doubling divides the cells by 8), a smaller domain, or a "
+                          "machine with more memory")
+    key = "particles.initial_state" if cfg.particles.initial_state else "particles.count"
+    raise ConfigError(f"{scene.n:,} grains need {need} ({per:.0f} B a grain), and {have / 1e9:.3g} GB is "
+                      "available", scene.file, key, hint="fewer grains (particles.count or particles.bed_height), a "
+                      "machine with more memory, or a GPU (--arch cuda)")
 
 
 def place_grains(dem: DemSolver, initial: dict) -> None:

@@ -1,10 +1,11 @@
 """Unit tier: derived values against independent hand formulas."""
 import math
+import pathlib
 
 import numpy as np
 import pytest
 
-from app.config import ConfigError, load_text
+from app.config import ConfigError, load, load_text
 from app.config.derived import damping_from_restitution, derive, effective_moduli, hertz_duration
 
 from dem_helpers import merged, toml_text
@@ -219,3 +220,30 @@ def test_a_scene_too_large_for_the_cpus_memory_is_refused_before_its_grains_are_
     monkeypatch.setattr(scene_mod, "available_memory", lambda: 1e12)
     scene = scene_mod.Scene(cfg)
     assert scene.n > 0 and len(scene.initial["position"]) == scene.n
+
+
+def test_a_gas_grid_too_large_for_the_cpus_memory_is_refused_before_it_is_built(monkeypatch):
+    """gas.cell_size = 1e-5 m in fluidize's column (5 x 10^11 cells) ended in a numpy traceback ("Unable to allocate
+    3.68 TiB") while the cut cells were built. The CPU memory estimate now counts the gas cells too (520 B a cell in
+    float32, measured): it is a ConfigError naming gas.cell_size and the grid, in a scene with grains and in one with
+    gas only; the preset's own 5 mm cells pass."""
+    import app.scene as scene_mod
+    from app.sim import runtime
+
+    runtime.init("cpu", "float32", 1)
+    fluidize = pathlib.Path(__file__).resolve().parents[1] / "presets" / "fluidize.toml"
+    gas_only = ('[run]\nduration = 0.001\n[domain]\nlo = [-0.05, -0.05, 0.0]\nhi = [0.05, 0.05, 0.4]\n'
+                '[vessel]\nshape = "box"\n[gas]\ncell_size = {h}\n[boundary]\n'
+                'bottom = {{ kind = "velocity_inlet", velocity = [0.0, 0.0, 0.5] }}\ntop = {{ kind = "pressure_outlet" }}\n')
+    for cfg, grid in ((load(fluidize, ["gas.cell_size=1e-5"]), "(4500 x 4500 x 25000)"),
+                      (load_text(gas_only.format(h=1e-4), "gas.toml"), "(1000 x 1000 x 4000)")):
+        with pytest.raises(ConfigError) as err:
+            scene_mod.Scene(cfg)
+        assert err.value.key == "gas.cell_size" and grid in str(err.value), str(err.value)
+    cells = 20 * 20 * 80  # 5 mm cells pass where the memory is what the estimate says they need, and not below it
+    need = scene_mod.CPU_BASE_BYTES + cells * scene_mod.CPU_BYTES_PER_GAS_CELL["float32"]
+    monkeypatch.setattr(scene_mod, "available_memory", lambda: need)
+    assert scene_mod.Scene(load_text(gas_only.format(h=5e-3), "gas.toml")).flow.shape == (20, 20, 80)
+    monkeypatch.setattr(scene_mod, "available_memory", lambda: 0.99 * need)
+    with pytest.raises(ConfigError, match="32,000 gas cells"):
+        scene_mod.Scene(load_text(gas_only.format(h=5e-3), "gas.toml"))
