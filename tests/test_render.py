@@ -213,6 +213,15 @@ def test_video_writer_falls_back_to_png_frames_and_says_so_once(tmp_path, monkey
     assert w.encoder == "png" and len(said) == 1 and "imageio-ffmpeg" in said[0]
     pngs = sorted((tmp_path / "v").glob("*.png"))
     assert len(pngs) == 3
+    # a resume that keeps 2 of them: its frames follow them, and the third (past its checkpoint) is replaced
+    w = VideoWriter(tmp_path / "v.mp4", 10, notify=said.append, keep_frames=2)
+    w.write(np.full((31, 41, 3), 200, np.uint8))
+    w.close()
+    import imageio.v2 as iio
+
+    pngs = sorted((tmp_path / "v").glob("*.png"))
+    assert w.kept == 2 and [p.name for p in pngs] == ["frame_00000.png", "frame_00001.png", "frame_00002.png"]
+    assert iio.imread(pngs[1])[0, 0, 0] == 40 and iio.imread(pngs[2])[0, 0, 0] == 200
 
 
 def test_void_panel_with_gas_and_the_viewer_controls(tmp_path):

@@ -72,6 +72,9 @@ class VideoWriter:
         self.encoder = "png"
         self.notify(f"fbed: no video encoder found (pip install imageio-ffmpeg); writing PNG frames into {self.path}/")
         self.kept = self.frames = min(self.keep_frames, len(list(self.path.glob("frame_*.png"))))
+        for stale in self.path.glob("frame_*.png"):  # frames past the checkpoint: written again, or not at all
+            if int(stale.stem.split("_")[1]) >= self.kept:
+                stale.unlink()
 
     def _keep(self, shape) -> None:
         """The first ``keep_frames`` frames of the earlier video, ahead of the new ones: read back (imageio-ffmpeg)
@@ -93,14 +96,15 @@ class VideoWriter:
             self.notify(f"fbed: reading {old.name} back needs imageio-ffmpeg: it is kept as {aside.name}, and the "
                         "video starts again")
             return
-        with iio.get_reader(str(old), format="FFMPEG") as reader:
-            for frame in reader:
-                if self.kept == n:
-                    break
-                if frame.shape[:2] != shape[:2]:
-                    break
-                self._append(frame)
-                self.kept += 1
+        try:
+            with iio.get_reader(str(old), format="FFMPEG") as reader:
+                for frame in reader:
+                    if self.kept == n or frame.shape[:2] != shape[:2]:
+                        break
+                    self._append(frame)
+                    self.kept += 1
+        except (OSError, RuntimeError, ValueError):  # a file that decodes only so far: its frames up to there
+            pass
         if self.kept == 0:
             old.replace(aside)
             self.notify(f"fbed: {old.name}'s frames are not {shape[1]} x {shape[0]} px like this run's (video.width, "

@@ -178,6 +178,13 @@ FRAME_BYTES = 32 << 20   # bytes of pending probe frames
 FLUSH_WALL = 10.0        # s of wall time
 
 
+def _cut(group, n: int) -> None:
+    """Cut every appendable dataset of a frame group to its first ``n`` rows."""
+    for ds in group.values():
+        if isinstance(ds, h5py.Dataset) and ds.maxshape and ds.maxshape[0] is None and ds.shape[0] > n:
+            ds.resize((n,) + ds.shape[1:])
+
+
 class RunFile:
     """Appends series rows, probe frames and snapshots to run.h5 (series and frames batched, see above)."""
 
@@ -205,11 +212,7 @@ class RunFile:
                 self.series[name].resize((keep,))
         for name in FRAME_GROUPS:  # appendable frame records (probes)
             for g in self._frame_groups(name):
-                times = g["time"][...]
-                keep = int(np.searchsorted(times, t + 1e-12, side="right"))
-                for ds in g.values():
-                    if isinstance(ds, h5py.Dataset) and ds.maxshape and ds.maxshape[0] is None:
-                        ds.resize((keep,) + ds.shape[1:])
+                _cut(g, int(np.searchsorted(g["time"][...], t + 1e-12, side="right")))
         for group in (self.particles, self.f.get("fields")):
             if group is None:
                 continue
@@ -324,11 +327,8 @@ class RunFile:
     def keep_frames(self, group: str, n: int) -> None:
         """Drop all but the first ``n`` frames of ``group`` (on disk; none may be held)."""
         assert not self._frames.get(group), "keep_frames with frames still held"
-        g = self.f.get(group)
-        if g is not None and "time" in g and g["time"].shape[0] > n:
-            for ds in g.values():
-                if isinstance(ds, h5py.Dataset) and ds.maxshape and ds.maxshape[0] is None:
-                    ds.resize((n,) + ds.shape[1:])
+        for g in self._frame_groups(group):
+            _cut(g, n)
 
     def _write_frames(self, group: str, items: list) -> None:
         data, name = items[0][1], items[0][3]
