@@ -62,8 +62,11 @@ def cases(sets: list[str]) -> tuple[list[str], list[tuple[str, ...]]]:
         key, values = key.strip(), split_values(raw)
         if not values:
             raise ConfigError("no values given", "--set", key)
+        if key in keys and len(values) == len(lists[keys.index(key)]) == 1:  # one fixed value: the later wins,
+            lists[keys.index(key)] = values                                   # as in `fbed run`
+            continue
         if key in keys:  # each case would apply both, and the later would win in every case
-            raise ConfigError("the key is given twice", "--set", key,
+            raise ConfigError("the key is given twice, with a list of values", "--set", key,
                               hint=f"give all its values in one --set {key}=v1,v2,...")
         twice = sorted({v for v in values if values.count(v) > 1})
         if twice:

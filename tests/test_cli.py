@@ -265,13 +265,17 @@ def test_sweep_refuses_fewer_than_one_job(tmp_path):
 def test_sweep_refuses_a_key_given_twice_and_a_value_given_twice(tmp_path):
     """`--set k=a,b --set k=c` made the cases (a, c) and (b, c), each applying k=c last: two runs of c, labelled a
     and b in sweep.csv. `--set k=a,a` ran the same run twice. Both are refused before anything runs (the cases are
-    deterministic, so a repeat adds nothing; run.seed is the key to sweep for other fills)."""
+    deterministic, so a repeat adds nothing; run.seed is the key to sweep for other fills). A key given twice with
+    one value each is not a list: the later wins, as in `fbed run` (the device script relies on it)."""
     from app.config import ConfigError
     from app.sweep import cases
 
     assert cases(["particles.count=100,200", "run.seed=1,2"])[1] == [("100", "1"), ("100", "2"), ("200", "1"),
                                                                      ("200", "2")]
-    for sets, said in ((["particles.count=100,200", "particles.count=300"], "the key is given twice"),
+    # a fixed value given again (a script's default, then the user's): the later wins, as in `fbed run`
+    assert cases(["run.duration=3.1", "particles.count=100,200", "run.duration=0.6"]) == \
+        (["run.duration", "particles.count"], [("0.6", "100"), ("0.6", "200")])
+    for sets, said in ((["particles.count=100,200", "particles.count=300"], "the key is given twice, with a list"),
                        (["particles.count=100,200,100"], "100 given twice")):
         with pytest.raises(ConfigError, match=said):
             cases(sets)

@@ -228,9 +228,7 @@ def test_a_gas_grid_too_large_for_the_cpus_memory_is_refused_before_it_is_built(
     float32, measured): it is a ConfigError naming gas.cell_size and the grid, in a scene with grains and in one with
     gas only; the preset's own 5 mm cells pass."""
     import app.scene as scene_mod
-    from app.sim import runtime
 
-    runtime.init("cpu", "float32", 1)
     fluidize = pathlib.Path(__file__).resolve().parents[1] / "presets" / "fluidize.toml"
     gas_only = ('[run]\nduration = 0.001\n[domain]\nlo = [-0.05, -0.05, 0.0]\nhi = [0.05, 0.05, 0.4]\n'
                 '[vessel]\nshape = "box"\n[gas]\ncell_size = {h}\n[boundary]\n'
