@@ -21,6 +21,7 @@ from .config import ConfigError, resolve_path
 from .config.derived import Derived, derive, periodic_axes
 from .config.schema import Config
 from .io import store
+from .io.store import available_memory
 from .schedule import InletSchedule
 from .sim import coupling, drag, geometry, runtime
 from .sim.gas import BC, FlowConfig, FlowSolver
@@ -311,17 +312,6 @@ CPU_BYTES_PER_DEVICE_BYTE = 3.0
 #: fields and the host's cut-cell geometry, field snapshots and checkpoint); on top of the base above, which
 #: already held the Verma grid's 1.2 x 10^5 cells: on the safe side
 CPU_BYTES_PER_GAS_CELL = {"float32": 520.0, "float64": 780.0}
-
-
-def available_memory() -> float | None:
-    """Memory the system can give a new process now [bytes] (Linux's MemAvailable), or None where unknown."""
-    try:
-        for line in pathlib.Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                return float(line.split()[1]) * 1024.0
-    except OSError:
-        pass
-    return None
 
 
 def check_memory(scene: "Scene") -> None:

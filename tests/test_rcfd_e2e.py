@@ -125,6 +125,22 @@ def test_bad_input_exits_2(recorded, tmp_path):
     assert r.returncode == 2 and "probes.rcfd_tag" in r.stderr and "Traceback" not in r.stderr
 
 
+def test_a_negative_seed_or_lag_and_a_horizon_beyond_memory_are_refused_naming_the_flag(recorded, tmp_path):
+    """--seed -5 was refused as an error of the run's rcfd.h5 ("RUN_DIR: expected non-negative integer", numpy's
+    words); --lag -3 ran as if 1; --horizon 1e12 (2e14 frames of 5 ms) ended in a numpy traceback allocating the
+    path. Each now names its flag (exit 2), before any output folder is made; the horizon with the frames and the
+    memory they need against what is available."""
+    for args, said in ((["--seed", "-5"], "--seed: --seed must be 0 or more"),
+                       (["--lag", "-3"], "--lag: --lag must be at least 1"),
+                       (["--horizon", "1e12"], "--horizon: --horizon 1e+12 s is 200,000,000,000,000 frames of 0.005 s")):
+        r = fbed("rcfd", "run", recorded, "--horizon", "0.05", "--paths", "1", *args, "--out", tmp_path / "o")
+        assert r.returncode == 2 and said in r.stderr and "Traceback" not in r.stderr, r.stderr[-2000:]
+        assert not (tmp_path / "o").exists()
+    r = fbed("rcfd", "validate", ROOT / "presets" / "rcfd_small.toml", "--t0", "0.3", "--t1", "0.4", "--t2", "0.5",
+             "--seed", "-1", "--out", tmp_path / "v")
+    assert r.returncode == 2 and "--seed must be 0 or more" in r.stderr and not (tmp_path / "v").exists()
+
+
 def test_validate_refuses_a_database_window_too_short_before_any_run(tmp_path):
     """rcfd validate records its database over t0..t1: a window of fewer than the 3 frames the analysis needs was
     found only after run A had run (a ValueError traceback); now it is refused first, naming --t1 (exit 2)."""

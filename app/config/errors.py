@@ -10,10 +10,10 @@ class ConfigError(Exception):
 
     def __init__(self, message: str, file: str = "", key: str = "", line: int | None = None, hint: str = ""):
         self.file, self.key, self.line, self.hint, self.message = file, key, line, hint, message
-        where = file or "<preset>"
+        where = file or ("" if key.startswith("-") else "<preset>")  # a command-line flag needs no file
         if line:
             where += f":{line}"
-        text = f"{where}: {key + ': ' if key else ''}{message}"
+        text = f"{where + ': ' if where else ''}{key + ': ' if key else ''}{message}"
         if hint:
             text += f"\n  hint: {hint}"
         super().__init__(text)

@@ -70,6 +70,17 @@ def free_bytes(path: pathlib.Path) -> int:
     return shutil.disk_usage(p).free
 
 
+def available_memory() -> float | None:
+    """Memory the system can give a new process now [bytes] (Linux's MemAvailable), or None where unknown."""
+    try:
+        for line in pathlib.Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return float(line.split()[1]) * 1024.0
+    except OSError:
+        pass
+    return None
+
+
 def check_space(path: pathlib.Path, needed: int) -> None:
     """Raise DiskFull unless the disk holding ``path`` has room for ``needed`` bytes and the margin."""
     free = free_bytes(path)

@@ -16,6 +16,13 @@ def _db_dir(target: str) -> pathlib.Path:
     return d
 
 
+def _check_seed_and_lag(args) -> None:
+    if args.seed < 0:  # numpy's seeds are non-negative: it said so as an error of the run's rcfd.h5
+        raise ConfigError(f"--seed must be 0 or more, got {args.seed}", "", "--seed")
+    if args.lag < 1:  # a frame of LAG recorded frames: -3 ran, as if 1
+        raise ConfigError(f"--lag must be at least 1 (recorded frames a frame spans), got {args.lag}", "", "--lag")
+
+
 def main(args) -> int:
     from . import commands
 
@@ -39,6 +46,7 @@ def main(args) -> int:
             raise ConfigError(f"--horizon must be a positive time in s, got {args.horizon:g}", "", "--horizon")
         if args.paths < 1:
             raise ConfigError(f"--paths must be at least 1, got {args.paths}", "", "--paths")
+        _check_seed_and_lag(args)
         if args.tag is not None:
             from .database import parse_tag
 
@@ -50,7 +58,8 @@ def main(args) -> int:
             s = commands.run_paths(str(d), args.horizon, args.paths, args.seed, args.tag, args.name, args.out,
                                    args.start, log=log, gas=args.gas, lag=args.lag, jump=args.jump)
         except ValueError as err:
-            key = "--lag" if "--lag" in str(err) else "--jump" if str(err).startswith("jump") else "RUN_DIR"
+            key = next((k for k in ("--lag", "--horizon") if k in str(err)), "--jump" if str(err).startswith("jump")
+                       else "RUN_DIR")
             raise ConfigError(str(err), str(d / "rcfd.h5"), key) from None
         c = s["cost"]
         print(f"mixing index at {args.horizon:g} s: {s['mixing_final_mean']:.4f} ± {s['mixing_final_std']:.4f} "
@@ -73,6 +82,7 @@ def main(args) -> int:
             raise ConfigError(f"validate needs --{k}", "", f"--{k}", hint="e.g. --t0 0.5 --t1 1.5 --t2 2.5")
     if not (0 <= args.t0 < args.t1 < args.t2):
         raise ConfigError(f"need 0 <= t0 < t1 < t2 (got {args.t0:g}, {args.t1:g}, {args.t2:g})", "", "--t1")
+    _check_seed_and_lag(args)
     from ..config import load  # the preset checked now, and the database's length before any run is made
 
     interval = load(args.target, args.overrides).probes.rcfd_interval

@@ -327,6 +327,10 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
     eng = engine or Engine(db, jump=jump or "auto")
     dt = db.frame_interval
     n_frames = int(math.ceil(horizon / dt - 1e-9))
+    need, have = n_frames * (32.0 * n_paths + 8.0), store.available_memory()  # each path's frames, mixing and
+    if have is not None and need > have:                                    # Lacey indices, and the times
+        raise ValueError(f"--horizon {horizon:g} s is {n_frames:,} frames of {dt:g} s a path: {n_paths} path(s) "
+                         f"need about {need / 1e9:.3g} GB of memory, and {have / 1e9:.3g} GB is available")
     start_state = db.n_states - 1 if start == "end" else 0
     c0 = initial_concentration(db, start_state, tag)
     od = out_folder(out, rd / "rcfd" / (name or f"run_T{horizon:g}_N{n_paths}_s{seed}"))
