@@ -15,16 +15,17 @@ from .io import store
 EXIT_OK, EXIT_INPUT = 0, 2
 
 
-def post_process(analysis: str, out_dir: pathlib.Path) -> dict:
-    """Run the preset's analysis on the finished run's files; its key figures go into summary.json."""
+def post_process(analysis: str, out_dir: pathlib.Path, at_run_end: bool = True) -> dict:
+    """Run the preset's analysis on the finished run's files; its key figures go into summary.json.
+    ``at_run_end``: a failure says how to rerun it (at the end of `fbed run`; `fbed analyze` is that rerun)."""
     try:
         mod = importlib.import_module(f".analysis.{analysis}", "app")
         figures = mod.summarize(out_dir)
         log(f"fbed: {analysis} analysis written to {out_dir / 'analysis'}")
         return figures
     except Exception as err:  # noqa: BLE001 - an analysis failure must not lose the run's outputs
-        log(f"fbed: the {analysis} analysis failed ({type(err).__name__}: {err}); rerun it with "
-            f"`fbed analyze {out_dir}`")
+        again = f"; rerun it with `fbed analyze {out_dir}`" if at_run_end else ""
+        log(f"fbed: the {analysis} analysis failed ({type(err).__name__}: {err}){again}")
         return {"analysis_error": f"{type(err).__name__}: {err}"}
 
 
@@ -40,15 +41,17 @@ def analyze(run_dir: str, kind: str | None = None) -> int:
     kind = kind or cfg.probes.analysis
     if kind == "none":
         raise ConfigError("the run names no analysis", str(d / "config.toml"), "probes.analysis",
-                          hint="pass --kind boyce or --kind verma")
-    figures = post_process(kind, d)
+                          hint="pass --kind boyce, verma, mri or umf")
+    figures = post_process(kind, d, at_run_end=False)
+    if "analysis_error" in figures:  # the run's summary.json keeps what it had (a wrong --kind spoils nothing)
+        return EXIT_INPUT
     summary_path = d / "summary.json"
     summary = json.loads(summary_path.read_text()) if summary_path.exists() else {}
     summary.update(figures)
     store.write_json(summary_path, summary)
     for k, v in figures.items():
         print(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}")
-    return EXIT_OK if "analysis_error" not in figures else EXIT_INPUT
+    return EXIT_OK
 
 
 def analyze_sweep(d: pathlib.Path, kind: str | None = None) -> int:

@@ -296,6 +296,18 @@ def test_a_run_whose_config_toml_was_deleted_resumes_from_its_checkpoints_config
                       f"fbed run PRESET --resume {d}")
 
 
+def test_analyze_with_a_kind_the_run_cannot_give_changes_nothing(done_run):
+    """`fbed analyze DIR --kind mri` on a run that recorded no MRI frames: exit 2 with the reason, and the run's
+    files as they were. Before, the failure was written into its summary.json (analysis_error) and the message
+    advised to rerun `fbed analyze DIR`, the command just given."""
+    before = digest(done_run)
+    for kind, said in (("mri", "run.h5 holds neither /mri nor /slab"), ("boyce", "the preset has no jet")):
+        r = fbed("analyze", done_run, "--kind", kind)
+        assert_clean_stop(r, done_run, 2, f"the {kind} analysis failed", said)
+        assert "rerun it" not in r.stderr
+    assert digest(done_run) == before and not (done_run / "analysis").exists()
+
+
 def test_output_protection_covers_every_fbed_file(done_run, tmp_path):
     d = tmp_path / "old"
     d.mkdir()
