@@ -115,6 +115,8 @@ def _step(sim, start, final) -> tuple[str, str, float]:
         status, message = "unstable", str(err)
     except store.DiskFull as err:
         final.disk_full.append(err)
+    except store.FolderGone as err:  # nothing more can be written there: summary.json included
+        status, message = "folder_gone", str(err)
     finally:
         for sig, h in old.items():
             signal.signal(sig, h)
@@ -153,6 +155,10 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
         return viewer(renderer, sim.inlets, out_dir) if viewer is not None else None
 
     status, message, wall = _step(sim, start, final)
+    if status == "folder_gone":
+        log(f"fbed: stopped at t = {sim.time:.6g} s: {message}; run it again (a folder that was moved holds the "
+            "run up to its last checkpoint: resume it there)")
+        return EXIT_UNSTABLE
     summary = Summary(scene, name, used_arch, out_dir, int(meta["step"]) if meta else 0, renderer, video, bed)
     figures = summary.figures(sim, status, message, wall)
     if status == "disk_full":

@@ -483,6 +483,26 @@ def test_a_second_signal_waits_for_the_checkpoint(tmp_path):
     assert not list(out.glob("*.tmp"))
 
 
+def test_an_output_folder_removed_mid_run_stops_it_cleanly(tmp_path):
+    """The run's folder deleted while it runs: its next checkpoint cannot be written. Before, that was a
+    FileNotFoundError traceback (exit 1); now the run stops at once with exit 3 and says the folder is gone, and
+    what to do (run again; a folder that was moved holds the run up to its last checkpoint)."""
+    import shutil
+
+    out = tmp_path / "run"
+    p = subprocess.Popen([sys.executable, "-m", "app", "run", str(SETTLE), *TINY, "--set", "run.duration=100",
+                          "--set", "output.checkpoint_interval=0.01", "--out", str(out)], stderr=subprocess.PIPE,
+                         text=True, env=ENV, cwd=ROOT)
+    deadline = time.time() + 300
+    while time.time() < deadline and not (out / "checkpoint.h5").exists():
+        time.sleep(0.2)
+    shutil.rmtree(out)
+    _, err = p.communicate(timeout=300)
+    assert p.returncode == 3 and "Traceback" not in err, err[-3000:]
+    assert f"the output folder {out} is gone (removed or moved while the run wrote into it)" in err
+    assert "run it again" in err and not out.exists()
+
+
 def test_wall_checkpoints_come_early_then_spread(monkeypatch):
     """The first wall checkpoint after 30 s (a run killed in its first minute can resume), then 60, 120 ...
     up to output.checkpoint_wall_interval."""

@@ -154,6 +154,10 @@ class VideoWriter:
                     self._failed(err, None)
             else:
                 writer.release()
+            if not self.writing.parent.is_dir():  # the run's folder removed or moved while it recorded
+                from ..io import store
+
+                raise store.FolderGone(self.path)
             # neither imageio-ffmpeg nor OpenCV reports an encoder that failed at its end (ffmpeg's exit status is
             # not read): the file itself says whether its index was written
             if not mp4_complete(self.writing):

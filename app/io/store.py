@@ -54,6 +54,15 @@ class DiskFull(Exception):
         super().__init__(f"the disk is full: writing {self.path.name} {size}{where}")
 
 
+class FolderGone(Exception):
+    """A write found its folder gone: removed or moved while the run wrote into it (nothing can be kept there)."""
+
+    def __init__(self, path):
+        self.path = pathlib.Path(path)
+        super().__init__(f"the output folder {self.path.parent} is gone (removed or moved while the run wrote into "
+                         f"it): {self.path.name} could not be written")
+
+
 def mb(nbytes: int | float) -> str:
     return f"{nbytes / 1e6:.3g} MB" if nbytes >= 1e5 else f"{nbytes / 1e3:.3g} kB"
 
@@ -138,6 +147,8 @@ def _atomic_write(path: pathlib.Path, fill, needed: int = 0) -> None:
         tmp.unlink(missing_ok=True)
         if is_disk_full(err):
             raise DiskFull(path, needed, free_bytes(path)) from None
+        if not path.parent.is_dir():
+            raise FolderGone(path) from None
         raise
     except BaseException:
         tmp.unlink(missing_ok=True)
@@ -415,6 +426,8 @@ def write_text(path: pathlib.Path, text: str) -> None:
         tmp.unlink(missing_ok=True)
         if is_disk_full(err):
             raise DiskFull(path, len(text.encode()), free_bytes(path)) from None
+        if not path.parent.is_dir():
+            raise FolderGone(path) from None
         raise
 
 
