@@ -179,6 +179,21 @@ def test_a_recorded_window_that_does_not_fit_in_the_run_is_noted_at_the_start():
     assert window_notes(load(rcfd, ["run.duration=0.6", "probes.rcfd_from=0.585"])) == []  # 3 frames
 
 
+def test_a_preset_saved_with_a_byte_order_mark_reads_as_without(tmp_path):
+    """Windows editors may save UTF-8 with a byte-order mark: that preset was refused as "not valid TOML: Invalid
+    statement (at line 1, column 1)", pointing at a character nobody can see. It now loads as the same file
+    without the mark; CRLF line ends too."""
+    settle = pathlib.Path(__file__).resolve().parents[1] / "presets" / "settle.toml"
+    text = settle.read_text()
+    (tmp_path / "bom.toml").write_bytes(b"\xef\xbb\xbf" + text.encode())
+    (tmp_path / "crlf.toml").write_bytes(text.replace("\n", "\r\n").encode())
+    plain = load(settle)
+    for name in ("bom.toml", "crlf.toml"):
+        cfg = load(tmp_path / name)
+        assert {k: v for k, v in vars(cfg).items() if k != "source"} == \
+            {k: v for k, v in vars(plain).items() if k != "source"}, name
+
+
 def test_a_duration_that_is_not_a_whole_number_of_steps_is_noted_and_ends_on_the_next_step():
     """run.duration = 0.0105 s in steps of 2 ms: the run takes the next whole step (6 steps, t = 0.012 s), as the
     Simulation counts them (`run_steps`), and says so at the start instead of silently running past the duration;

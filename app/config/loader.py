@@ -258,7 +258,7 @@ def load(path: str | pathlib.Path, overrides: list[str] | tuple = ()) -> schema.
     if p.is_dir():
         raise ConfigError("is a folder, not a preset file", str(p), hint="give the path to a .toml preset")
     try:
-        text = p.read_text(encoding="utf-8")
+        text = p.read_text(encoding="utf-8-sig")  # a byte-order mark (Windows editors) is not TOML: dropped
     except (OSError, UnicodeDecodeError) as err:
         raise ConfigError(f"cannot read: {err}", str(p)) from None
     return load_text(text, str(p), overrides)
