@@ -8,7 +8,7 @@
     fbed bench stress [--out DIR]     (hostile scenes: finish clean or stop with a clear message)
     fbed bench accuracy|stiffness [--size small|full] [--arch cpu|cuda] [--out DIR] [--resume]
                                       (error against cost; --resume goes on from the rows in --out)
-    fbed sweep PRESET --set key=v1,v2,... [--set ...] [--jobs N] [--out DIR] [--plot FIGURE]
+    fbed sweep PRESET --set key=v1,v2,... [--set ...] [--jobs N] [--out DIR] [--overwrite] [--plot FIGURE]
                [--scheduler ADDRESS|local]   (each case a task on a Dask cluster)
     fbed --version
     fbed rcfd analyze RUN_DIR         (recurrence plot, spectra, period of a run that recorded rcfd.h5)
@@ -104,7 +104,8 @@ def _add_sweep(sub) -> None:
     w.add_argument("--set", dest="sets", action="append", default=[], metavar="SECTION.KEY=V1,V2,...",
                    help="a key and its list of values (repeatable: the cases are the Cartesian product)")
     w.add_argument("--jobs", type=int, default=1, help="cases run at once (each on one CPU thread when > 1)")
-    w.add_argument("--out", help="output folder (default: runs/<preset>-sweep)")
+    w.add_argument("--out", help="output folder (default: a new runs/<preset>-sweep, -2, ...)")
+    w.add_argument("--overwrite", action="store_true", help="replace an earlier sweep in --out")
     w.add_argument("--plot", dest="plot_figure", metavar="FIGURE",
                    help="plot this summary figure against the first swept key")
     w.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto")
@@ -215,7 +216,8 @@ def main(argv: list[str] | None = None) -> int:
                 raise ConfigError("nothing to sweep", "--set", "", hint="e.g. --set boundary.bottom.velocity=[0,0,0.3],[0,0,0.6]")
             if args.jobs < 1:
                 raise ConfigError(f"--jobs must be at least 1, got {args.jobs}", "", "--jobs")
-            return sweep(args.preset, args.sets, args.jobs, args.out, args.plot_figure, args.arch, args.scheduler)
+            return sweep(args.preset, args.sets, args.jobs, args.out, args.plot_figure, args.arch, args.scheduler,
+                         args.overwrite)
     except ConfigError as err:
         print(f"fbed: error: {err}", file=sys.stderr)
         return 2

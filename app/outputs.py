@@ -79,7 +79,12 @@ def pick_out_dir(preset: pathlib.Path, out: str | None, overwrite: bool, video_f
                                   f"{', ...' if len(held) > 4 else ''})", str(d), "--out",
                                   hint="pass --overwrite to replace it, --resume to continue it, or another --out")
         return d
-    base = pathlib.Path("runs") / preset.stem
+    return fresh_folder(pathlib.Path("runs") / preset.stem)
+
+
+def fresh_folder(base: pathlib.Path) -> pathlib.Path:
+    """``base``, or base-2, base-3, ...: the first that does not exist or is empty (a default output folder never
+    writes over an earlier run's)."""
     d, k = base, 1
     while d.exists() and any(d.iterdir()):
         k += 1

@@ -21,11 +21,12 @@ import itertools
 import json
 import os
 import pathlib
+import shutil
 import subprocess
 import sys
 
 from .config import ConfigError, load
-from .outputs import out_folder
+from .outputs import fresh_folder, out_folder, run_outputs
 
 
 def split_values(raw: str) -> list[str]:
@@ -185,13 +186,41 @@ def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathl
             cluster.close()
 
 
+def sweep_outputs(d: pathlib.Path) -> list[pathlib.Path]:
+    """What a sweep wrote in ``d``: sweep.csv, its case folders and `fbed analyze`'s comparisons."""
+    found = [d / "sweep.csv"] if (d / "sweep.csv").exists() else []
+    found += sorted(p for p in d.glob("case-[0-9][0-9][0-9]*") if p.is_dir())
+    return found + sorted(d.glob("mri_compare.*")) + sorted(d.glob("umf_compare.*"))
+
+
+def sweep_folder(preset: str, out: str | None, overwrite: bool) -> pathlib.Path:
+    """The sweep's folder: by default a new one (runs/<preset>-sweep, -2, ...); a given one that holds a run is
+    refused, one that holds a sweep too unless ``overwrite`` (its files then go first). Before, each case ran with
+    --overwrite into case-NNN: a second sweep into the same folder replaced the first's cases without a word."""
+    if not out:
+        return out_folder(None, fresh_folder(pathlib.Path("runs") / (pathlib.Path(preset).stem + "-sweep")))
+    d = pathlib.Path(out)
+    if d.is_dir():
+        if held := run_outputs(d):
+            raise ConfigError(f"holds a run ({', '.join(p.name for p in held[:4])})", str(d), "--out",
+                              hint="give the sweep a folder of its own")
+        held = sweep_outputs(d)
+        if held and not overwrite:
+            raise ConfigError(f"already holds a sweep ({', '.join(p.name for p in held[:4])}"
+                              f"{', ...' if len(held) > 4 else ''})", str(d), "--out",
+                              hint="pass --overwrite to replace it, or another --out")
+        for p in held:
+            shutil.rmtree(p) if p.is_dir() else p.unlink()
+    return out_folder(out, d)
+
+
 def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, plot_figure: str | None = None,
-          arch: str = "auto", scheduler: str | None = None) -> int:
+          arch: str = "auto", scheduler: str | None = None, overwrite: bool = False) -> int:
     load(preset)  # the preset itself must be valid before anything runs
     keys, combos = cases(sets)
     for values in combos:  # every case's overrides are validated up front: no half-run sweep on a typo
         load(preset, [f"{k}={v}" for k, v in zip(keys, values)])
-    out_dir = out_folder(out, pathlib.Path("runs") / (pathlib.Path(preset).stem + "-sweep"))
+    out_dir = sweep_folder(preset, out, overwrite)
     threads = 1 if jobs > 1 else 0
     where = f"on the Dask scheduler {scheduler}" if scheduler and scheduler != "local" else f"{jobs} at a time"
     print(f"fbed sweep: {len(combos)} cases of {preset} over {', '.join(keys)}; {where}; output in {out_dir}",

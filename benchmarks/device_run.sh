@@ -168,7 +168,7 @@ for stage in "$@"; do
         $T python3 -m app run presets/mri_poppy.toml --arch cuda --out runs/mri_$law --overwrite \
           --set coupling.drag=$law "${FROM[@]}" ${MRI_SET:-}
       else
-        setsid nohup python3 -m app sweep presets/mri_poppy.toml --arch cuda --out runs/mri_poppy-sweep \
+        setsid nohup python3 -m app sweep presets/mri_poppy.toml --arch cuda --out runs/mri_poppy-sweep --overwrite \
           --set coupling.drag=koch_hill,di_felice,gidaspow,beetstra "${FROM[@]}" ${MRI_SET:-} \
           > "$L/mri_sweep.log" 2>&1 < /dev/null &
         echo $! > runs/mri.pid; sleep 20; tail -3 "$L/mri_sweep.log"
@@ -184,10 +184,10 @@ for stage in "$@"; do
     mri_compare)
       $T python3 -m app analyze runs/mri_poppy-sweep ;;
     mri_umf)
-      $T python3 -m app sweep presets/mri_umf.toml --arch cuda --out runs/mri_umf-sweep \
+      $T python3 -m app sweep presets/mri_umf.toml --arch cuda --out runs/mri_umf-sweep --overwrite \
         --set coupling.drag=koch_hill,di_felice,gidaspow,beetstra && python3 -m app analyze runs/mri_umf-sweep ;;
     sweep)
-      $T python3 -m app sweep presets/boyce.toml --arch cuda --out runs/boyce-sweep --plot bubble_peak_diameter \
+      $T python3 -m app sweep presets/boyce.toml --arch cuda --out runs/boyce-sweep --overwrite --plot bubble_peak_diameter \
         --set boundary.bottom.jet_duration=0.1542,0.0667,0.0514,0.025 --set video.enabled=false ;;
   esac > "$L/$stage.log" 2>&1
   rc=$?

@@ -285,6 +285,35 @@ def test_sweep_refuses_a_key_given_twice_and_a_value_given_twice(tmp_path):
         assert not (tmp_path / "s").exists()
 
 
+def test_a_second_sweep_does_not_write_over_the_first(tmp_path, monkeypatch):
+    """Each case runs with --overwrite into case-NNN, so a second sweep into the first's folder (its default one
+    included) replaced the first's cases and sweep.csv without a word. Now: the default folder is a new one
+    (runs/<preset>-sweep-2 beside -sweep), a given folder holding a sweep is refused unless --overwrite (which
+    removes the old cases first), and one holding a run is refused, all before anything runs."""
+    import csv
+
+    from app.sweep import sweep_folder
+
+    monkeypatch.chdir(tmp_path)  # the default folders go under ./runs
+    first = sweep_folder("presets/settle.toml", None, False)
+    (first / "sweep.csv").write_text("case\n")
+    assert first == pathlib.Path("runs/settle-sweep") and sweep_folder("presets/settle.toml", None, False) == \
+        pathlib.Path("runs/settle-sweep-2")
+    out = tmp_path / "sw"
+    sw = lambda *a: fbed("sweep", ROOT / "presets" / "settle.toml", "--set", "run.duration=0.002,0.004",  # noqa
+                         "--set", "particles.count=100", "--out", out, *a)
+    assert sw().returncode == 0
+    before = (out / "sweep.csv").read_text()
+    r = fbed("sweep", ROOT / "presets" / "settle.toml", "--set", "run.duration=0.006", "--out", out)
+    assert r.returncode == 2 and "already holds a sweep (sweep.csv, case-000, case-001)" in r.stderr
+    assert "--overwrite" in r.stderr and (out / "sweep.csv").read_text() == before
+    r = fbed("sweep", ROOT / "presets" / "settle.toml", "--set", "run.duration=0.006", "--out", out, "--overwrite")
+    assert r.returncode == 0 and not (out / "case-001").exists()
+    assert [row["run.duration"] for row in csv.DictReader(open(out / "sweep.csv"))] == ["0.006"]
+    r = fbed("sweep", ROOT / "presets" / "settle.toml", "--set", "run.duration=0.006", "--out", out / "case-000")
+    assert r.returncode == 2 and "holds a run" in r.stderr and "Traceback" not in r.stderr
+
+
 def test_a_saved_bed_is_reused_by_a_later_run(tmp_path):
     """bed.h5 of one run is another run's particles.initial_state: same grains, same places."""
     first, second = tmp_path / "first", tmp_path / "second"
