@@ -6,9 +6,16 @@ from __future__ import annotations
 
 import errno
 import math
+import os
 import pathlib
 import shutil
 import tempfile
+import time
+
+try:
+    import fcntl
+except ImportError:  # not on a POSIX system: folders go unlocked
+    fcntl = None
 
 import h5py
 
@@ -65,6 +72,42 @@ def out_folder(out: str | None, default: pathlib.Path, key: str = "--out") -> pa
         raise ConfigError(f"cannot make or write this folder ({err.strerror or err})", str(d), key,
                           hint="name a folder on a disk you can write to") from None
     return d
+
+
+#: folders this process holds the lock of (a resolved path -> the open descriptor whose flock holds it)
+_held: dict[str, int] = {}
+
+
+def hold_folder(d: pathlib.Path, key: str) -> None:
+    """This process's exclusive lock on a run folder, for as long as it runs there: a flock on the folder itself,
+    released by :func:`release_folders` or when the process ends, however it ends. A folder another run holds is
+    refused: before, `--resume` called that run's run.h5 damaged (HDF5's own lock) and `--overwrite` removed the
+    live run's files and wrote beside it."""
+    name = str(d.resolve())
+    if fcntl is None or name in _held or not d.is_dir():
+        return
+    fd = os.open(d, os.O_RDONLY)
+    wait = float(os.environ.get("FBED_LOCK_WAIT") or 0)  # s: a sweep's rerun on Dask waits for the orphan to stop
+    deadline = time.monotonic() + wait
+    while True:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            break
+        except OSError:
+            if time.monotonic() < deadline:
+                time.sleep(0.5)
+                continue
+        os.close(fd)
+        raise ConfigError("another run is writing into this folder (it holds the folder's lock)", str(d), key,
+                          hint="wait for it to end, or stop it (Ctrl-C, or kill -TERM its process: it writes a "
+                          "checkpoint), then resume; or give another --out") from None
+    _held[name] = fd
+
+
+def release_folders(keep=()) -> None:
+    """Let go of the folders this process holds, but those in ``keep`` (an outer run's, around a preparation)."""
+    for name in [n for n in _held if n not in keep]:
+        os.close(_held.pop(name))
 
 
 def pick_out_dir(preset: pathlib.Path, out: str | None, overwrite: bool, video_file: str = "") -> pathlib.Path:
@@ -133,6 +176,7 @@ def configure(preset, overrides, out, resume, overwrite):
         if not out_dir.is_dir():
             raise ConfigError("not a folder" if out_dir.exists() else "no such folder", str(out_dir), "--resume",
                               hint="give the output folder of an earlier run")
+        hold_folder(out_dir, "--resume")
         if not (out_dir / "checkpoint.h5").exists():
             raise ConfigError("no checkpoint.h5 to resume from", str(out_dir), "--resume",
                               hint="give the output folder of an earlier run that was stopped or finished")
@@ -152,6 +196,7 @@ def configure(preset, overrides, out, resume, overwrite):
         preset_path = pathlib.Path(preset)
         cfg = cfgmod.load(preset_path, overrides)
         out_dir = pick_out_dir(preset_path, out, overwrite, cfg.video.file)
+        hold_folder(out_dir, "--out")
     check_writable(out_dir, "--resume" if resume else "--out")
     if cfg.video.enabled:  # the video may be named outside the run's folder
         check_writable((out_dir / (cfg.video.file or "video.mp4")).parent, "video.file")

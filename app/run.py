@@ -13,7 +13,7 @@ import signal
 import threading
 import time as wallclock
 
-from . import config as cfgmod
+from . import config as cfgmod, outputs
 from .callbacks.bed import BedMeasures
 from .callbacks.guard import Guard
 from .callbacks.probes import attach_probes
@@ -39,6 +39,7 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
     """Run a preset (or resume DIR). ``viewer``: a callable ``viewer(renderer, schedule, out_dir)``
     returning a controller for ``Simulation.run`` (``fbed view``); None runs headless.
     A full disk before the run steps (its first files) stops it too, and after them (the analysis): exit 3."""
+    held = set(outputs._held)  # an outer run's folder (this one prepares its start) stays held
     try:
         return _run(preset, overrides, out, arch, resume, overwrite, viewer)
     except (store.DiskFull, OSError) as err:  # OSError: a full disk in a write outside the store (the analysis)
@@ -46,6 +47,8 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
             raise
         log(f"fbed: {what}; free some space or give another --out")
         return EXIT_UNSTABLE
+    finally:
+        outputs.release_folders(keep=held)
 
 
 def _attach(sim, scene, name, out_dir, runfile, config_text, renderer, viewer, resume):
@@ -146,6 +149,7 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
     if overwrite and not resume and out_dir.is_dir():
         remove_outputs(out_dir, cfg.video.file)
     out_dir.mkdir(parents=True, exist_ok=True)
+    outputs.hold_folder(out_dir, "--out")  # a new folder: held from now on
     config_text = cfgmod.dump(cfg)
     store.write_text(out_dir / "config.toml", config_text)
     runfile = open_run_file(out_dir / "run.h5", name, sim, scene, resume=bool(resume))

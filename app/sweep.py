@@ -93,8 +93,9 @@ def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: i
         args += ["--set", f"run.threads={threads}"]
     env = dict(os.environ)
     env["PYTHONPATH"] = str(pathlib.Path(__file__).resolve().parents[1]) + os.pathsep + env.get("PYTHONPATH", "")
-    if stop_with_parent:  # on a Dask worker: the run stops itself if the worker dies (the case is rerun elsewhere)
-        env["FBED_STOP_WITH_PARENT"] = str(os.getpid())
+    if stop_with_parent:  # on a Dask worker: the run stops itself if the worker dies (the case is rerun elsewhere,
+        env["FBED_STOP_WITH_PARENT"] = str(os.getpid())  # and that rerun waits until the orphan has let go of the
+        env["FBED_LOCK_WAIT"] = "300"                     # folder, at its next step)
     out.mkdir(parents=True, exist_ok=True)
     with open(out / "log.txt", "w") as logf:
         rc = subprocess.run(args, stdout=logf, stderr=subprocess.STDOUT, env=env).returncode

@@ -503,6 +503,33 @@ def test_an_output_folder_removed_mid_run_stops_it_cleanly(tmp_path):
     assert "run it again" in err and not out.exists()
 
 
+def test_a_folder_another_run_is_writing_into_is_refused(tmp_path):
+    """While a run is writing into its folder, `--resume DIR` said its run.h5 "is damaged" (HDF5's lock) and
+    advised moving it aside, and `--out DIR --overwrite` removed the live run's files and ran beside it. The
+    running run now holds a lock on its folder: both are refused (exit 2) and its files stay; once it has
+    stopped (SIGTERM: a checkpoint), the resume goes on."""
+    out = tmp_path / "run"
+    p = subprocess.Popen([sys.executable, "-m", "app", "run", str(SETTLE), *TINY, "--set", "run.duration=100",
+                          "--out", str(out)], stderr=subprocess.PIPE, text=True, env=ENV, cwd=ROOT)
+    try:
+        deadline = time.time() + 300
+        while time.time() < deadline and not (out / "run.h5").exists():
+            time.sleep(0.2)
+        for args in (["--resume", out], [SETTLE, *TINY, "--out", out, "--overwrite"]):
+            r = fbed("run", *args, "--set", "run.duration=200")
+            assert_clean_stop(r, out, 2, "another run is writing into this folder")
+            assert "damaged" not in r.stderr and (out / "run.h5").exists() and (out / "config.toml").exists()
+        p.send_signal(signal.SIGTERM)
+        _, err = p.communicate(timeout=300)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 130, err[-2000:]
+    t = checkpoint_time(out / "checkpoint.h5")
+    r = fbed("run", "--resume", out, "--set", f"run.duration={t + 0.002!r}")
+    assert r.returncode == 0, r.stderr[-2000:]
+
+
 def test_wall_checkpoints_come_early_then_spread(monkeypatch):
     """The first wall checkpoint after 30 s (a run killed in its first minute can resume), then 60, 120 ...
     up to output.checkpoint_wall_interval."""
