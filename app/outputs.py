@@ -93,7 +93,10 @@ def hold_folder(d: pathlib.Path, key: str) -> None:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             break
-        except OSError:
+        except OSError as err:
+            if err.errno not in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EACCES):  # a file system without locks
+                os.close(fd)                                                     # (ENOLCK): the folder goes unheld
+                return
             if time.monotonic() < deadline:
                 time.sleep(0.5)
                 continue

@@ -530,6 +530,27 @@ def test_a_folder_another_run_is_writing_into_is_refused(tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
 
 
+def test_a_folder_on_a_file_system_without_locks_runs_unheld(tmp_path, monkeypatch):
+    """flock on a file system without locks (some NFS mounts: ENOLCK) must not read as "another run holds it":
+    the folder then goes unheld. Only EWOULDBLOCK (held elsewhere) refuses it."""
+    import errno
+
+    from app import outputs
+    from app.config import ConfigError
+
+    def flock(err):
+        def f(fd, op):
+            raise OSError(err, os.strerror(err))
+        return f
+
+    monkeypatch.setattr(outputs.fcntl, "flock", flock(errno.ENOLCK))
+    outputs.hold_folder(tmp_path, "--out")
+    assert str(tmp_path.resolve()) not in outputs._held
+    monkeypatch.setattr(outputs.fcntl, "flock", flock(errno.EWOULDBLOCK))
+    with pytest.raises(ConfigError, match="another run is writing into this folder"):
+        outputs.hold_folder(tmp_path, "--out")
+
+
 def test_wall_checkpoints_come_early_then_spread(monkeypatch):
     """The first wall checkpoint after 30 s (a run killed in its first minute can resume), then 60, 120 ...
     up to output.checkpoint_wall_interval."""
