@@ -107,6 +107,11 @@ def hold_folder(d: pathlib.Path, key: str) -> None:
     _held[name] = fd
 
 
+def held_folders() -> frozenset:
+    """The folders this process holds now (for :func:`release_folders`'s ``keep``)."""
+    return frozenset(_held)
+
+
 def release_folders(keep=()) -> None:
     """Let go of the folders this process holds, but those in ``keep`` (an outer run's, around a preparation)."""
     for name in [n for n in _held if n not in keep]:
@@ -121,8 +126,7 @@ def pick_out_dir(preset: pathlib.Path, out: str | None, overwrite: bool, video_f
         if d.exists():
             held = run_outputs(d, video_file)
             if held and not overwrite:
-                raise ConfigError(f"already holds a run ({', '.join(p.name for p in held[:4])}"
-                                  f"{', ...' if len(held) > 4 else ''})", str(d), "--out",
+                raise ConfigError(f"already holds a run ({names(held)})", str(d), "--out",
                                   hint="pass --overwrite to replace it, --resume to continue it, or another --out")
         return d
     return fresh_folder(pathlib.Path("runs") / preset.stem)
@@ -138,13 +142,23 @@ def fresh_folder(base: pathlib.Path) -> pathlib.Path:
     return d
 
 
-def remove_outputs(d: pathlib.Path, video_file: str = "") -> None:
-    """--overwrite: the old run's files go before the new run writes, so none of them is left beside it."""
-    for p in run_outputs(d, video_file):
+def names(paths: list[pathlib.Path]) -> str:
+    """The first four of ``paths`` by name, for a message."""
+    return ", ".join(p.name for p in paths[:4]) + (", ..." if len(paths) > 4 else "")
+
+
+def remove_paths(paths: list[pathlib.Path]) -> None:
+    """Files and folders removed (a link as a link, not what it points to)."""
+    for p in paths:
         if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p)
         else:
             p.unlink()
+
+
+def remove_outputs(d: pathlib.Path, video_file: str = "") -> None:
+    """--overwrite: the old run's files go before the new run writes, so none of them is left beside it."""
+    remove_paths(run_outputs(d, video_file))
 
 
 def stop_disk_full(out_dir: pathlib.Path, summary: dict, err) -> int:

@@ -8,7 +8,6 @@ disk, 130 interrupted."""
 from __future__ import annotations
 
 import os
-import pathlib
 import signal
 import threading
 import time as wallclock
@@ -22,7 +21,6 @@ from .callbacks.summary import Summary
 from .callbacks.video import VideoFrames, renderer_for
 from .callbacks.writers import (Checkpoints, FinalOutputs, GasFields, GrainSnapshots, Series, WallCheckpoints,
                                 open_run_file)
-from .config import ConfigError
 from .io import store
 from .outputs import configure, remove_outputs, stop_disk_full
 from .resume import prepared_state, restore
@@ -39,7 +37,7 @@ def run(preset: str | None, overrides: list[str], out: str | None = None, arch: 
     """Run a preset (or resume DIR). ``viewer``: a callable ``viewer(renderer, schedule, out_dir)``
     returning a controller for ``Simulation.run`` (``fbed view``); None runs headless.
     A full disk before the run steps (its first files) stops it too, and after them (the analysis): exit 3."""
-    held = set(outputs._held)  # an outer run's folder (this one prepares its start) stays held
+    held = outputs.held_folders()  # an outer run's folder (this one prepares its start) stays held
     try:
         return _run(preset, overrides, out, arch, resume, overwrite, viewer)
     except (store.DiskFull, OSError) as err:  # OSError: a full disk in a write outside the store (the analysis)

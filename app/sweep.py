@@ -21,12 +21,11 @@ import itertools
 import json
 import os
 import pathlib
-import shutil
 import subprocess
 import sys
 
 from .config import ConfigError, load
-from .outputs import fresh_folder, out_folder, run_outputs
+from .outputs import fresh_folder, names, out_folder, remove_paths, run_outputs
 
 
 def split_values(raw: str) -> list[str]:
@@ -63,10 +62,12 @@ def cases(sets: list[str]) -> tuple[list[str], list[tuple[str, ...]]]:
         key, values = key.strip(), split_values(raw)
         if not values:
             raise ConfigError("no values given", "--set", key)
-        if key in keys and len(values) == len(lists[keys.index(key)]) == 1:  # one fixed value: the later wins,
-            lists[keys.index(key)] = values                                   # as in `fbed run`
-            continue
-        if key in keys:  # each case would apply both, and the later would win in every case
+        if key in keys:
+            k = keys.index(key)
+            if len(values) == len(lists[k]) == 1:  # one fixed value given again: the later wins, as in `fbed run`
+                lists[k] = values
+                continue
+            # a list beside another --set of its key: each case would apply both, the later winning in every case
             raise ConfigError("the key is given twice, with a list of values", "--set", key,
                               hint=f"give all its values in one --set {key}=v1,v2,...")
         twice = sorted({v for v in values if values.count(v) > 1})
@@ -203,15 +204,12 @@ def sweep_folder(preset: str, out: str | None, overwrite: bool) -> pathlib.Path:
     d = pathlib.Path(out)
     if d.is_dir():
         if held := run_outputs(d):
-            raise ConfigError(f"holds a run ({', '.join(p.name for p in held[:4])})", str(d), "--out",
-                              hint="give the sweep a folder of its own")
+            raise ConfigError(f"holds a run ({names(held)})", str(d), "--out", hint="give the sweep a folder of its own")
         held = sweep_outputs(d)
         if held and not overwrite:
-            raise ConfigError(f"already holds a sweep ({', '.join(p.name for p in held[:4])}"
-                              f"{', ...' if len(held) > 4 else ''})", str(d), "--out",
+            raise ConfigError(f"already holds a sweep ({names(held)})", str(d), "--out",
                               hint="pass --overwrite to replace it, or another --out")
-        for p in held:
-            shutil.rmtree(p) if p.is_dir() else p.unlink()
+        remove_paths(held)
     return out_folder(out, d)
 
 

@@ -1,7 +1,6 @@
 """Progress: a bar on a terminal, short log lines otherwise; and the run's log itself (stderr)."""
 from __future__ import annotations
 
-import math
 import pathlib
 import re
 import sys
@@ -9,7 +8,7 @@ import time as wallclock
 
 from rich.progress import BarColumn, Progress as RichProgress, TextColumn
 
-from ..config.derived import run_steps
+from ..config.derived import RCFD_MIN_FRAMES, rcfd_frames, run_steps
 
 
 def log(msg: str) -> None:
@@ -161,9 +160,9 @@ def window_notes(cfg) -> list[str]:
                      "second half)")
     pr = cfg.probes
     if pr.rcfd_from >= 0:
-        frames = max(0, math.floor((end - pr.rcfd_from) / pr.rcfd_interval + 1e-9))
-        if frames < 3:  # what `fbed rcfd` needs at the least (app.rcfd.database.load)
+        frames = rcfd_frames(end - pr.rcfd_from, pr.rcfd_interval)
+        if frames < RCFD_MIN_FRAMES:
             notes.append(f"fbed: note: rCFD frames from probes.rcfd_from = {pr.rcfd_from:g} s to run.duration = "
                          f"{end:g} s: {frames} of probes.rcfd_interval = {pr.rcfd_interval:g} s, and `fbed rcfd` "
-                         "needs at least 3 (record from earlier, or run longer)")
+                         f"needs at least {RCFD_MIN_FRAMES} (record from earlier, or run longer)")
     return notes

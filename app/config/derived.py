@@ -34,6 +34,15 @@ def run_steps(duration: float, step: float) -> int:
     return int(math.ceil(duration / step - 1e-9))
 
 
+#: the fewest frames `fbed rcfd` works on (a recurrence needs a state, its successor and one more)
+RCFD_MIN_FRAMES = 3
+
+
+def rcfd_frames(span: float, interval: float) -> int:
+    """Whole rCFD frames of ``interval`` [s] recorded over ``span`` [s] (none for a span of 0 or less)."""
+    return max(0, math.floor(span / interval + 1e-9))
+
+
 def grain_volume(radius):
     """Volume [m^3] of a grain (a sphere) of ``radius`` [m]: 4/3 pi r^3. One formula for a number, a numpy
     array and a Taichi kernel (``app.sim.coupling.grain_volume_func`` is this function as a ti.func):

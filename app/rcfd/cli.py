@@ -6,6 +6,7 @@ import pathlib
 import sys
 
 from ..config import ConfigError
+from ..config.derived import RCFD_MIN_FRAMES, rcfd_frames
 
 
 def _db_dir(target: str) -> pathlib.Path:
@@ -86,10 +87,10 @@ def main(args) -> int:
     from ..config import load  # the preset checked now, and the database's length before any run is made
 
     interval = load(args.target, args.overrides).probes.rcfd_interval
-    frames = math.floor((args.t1 - args.t0) / interval + 1e-9)
-    if frames < 3:  # what the analysis needs at the least (app.rcfd.database.load)
+    frames = rcfd_frames(args.t1 - args.t0, interval)
+    if frames < RCFD_MIN_FRAMES:
         raise ConfigError(f"t1 - t0 = {args.t1 - args.t0:g} s holds {frames} frame{'' if frames == 1 else 's'} of "
-                          f"probes.rcfd_interval = {interval:g} s; rCFD needs at least 3", "", "--t1",
+                          f"probes.rcfd_interval = {interval:g} s; rCFD needs at least {RCFD_MIN_FRAMES}", "", "--t1",
                           hint="record longer (a later --t1, an earlier --t0)")
     return validate(args.target, args.t0, args.t1, args.t2, args.out, args.paths, args.seed, args.continuations,
                     args.overrides, args.arch, log=log, lag=args.lag, sensitivity=args.sensitivity)

@@ -37,6 +37,8 @@ import h5py
 import numpy as np
 import scipy.sparse as sp
 
+from ..config.derived import RCFD_MIN_FRAMES
+
 _TAG = re.compile(r"^\s*([xyz])\s*(<=|>=|<|>)\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*$")
 
 
@@ -190,9 +192,9 @@ def load(path, lag: int = 1) -> Database:
                 db.octant = f["boundary/octant"][:nb]
     if lag > 1:
         db = _lagged(db, int(lag))
-    if db.n_frames < 3:
-        raise ValueError(f"{p}: {db.n_frames} frames recorded; rCFD needs at least 3 (record longer, or from "
-                         "earlier: probes.rcfd_from)")
+    if db.n_frames < RCFD_MIN_FRAMES:
+        raise ValueError(f"{p}: {db.n_frames} frames recorded; rCFD needs at least {RCFD_MIN_FRAMES} (record "
+                         "longer, or from earlier: probes.rcfd_from)")
     return db
 
 
