@@ -107,8 +107,8 @@ def test_a_stale_offline_cache_lock_is_removed_and_the_cache_is_written(tmp_path
 
 def test_cpu_threads_are_at_most_the_cpus_available_and_a_cut_is_noted(monkeypatch, capsys):
     """run.threads above the CPUs this process may use (99999 on 2 cores did not finish a step in a minute; 1000
-    made one 3x slower) runs on those CPUs and says so; at or below them it is taken as asked; 0 is the automatic
-    choice (one thread on 2 cores or fewer, else all)."""
+    took 15 s of wall for 2 steps where 4 threads took 5 s, one run each) runs on those CPUs and says so; at or
+    below them it is taken as asked; 0 is the automatic choice (one thread on 2 cores or fewer, else all)."""
     from types import SimpleNamespace
 
     from app.callbacks.progress import cpu_note
