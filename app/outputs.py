@@ -36,8 +36,12 @@ RUN_OUTPUT_PATTERNS = ("*.tmp", "*.tmp.mp4", "*.before_resume.mp4", "screenshot-
 
 
 def run_outputs(d: pathlib.Path, video_file: str = "") -> list[pathlib.Path]:
-    """The fbed outputs present in folder ``d``."""
-    names = set(RUN_OUTPUTS) | ({video_file} if video_file else set())
+    """The fbed outputs present in folder ``d``: the video under its configured name too, if that is a file in
+    ``d`` (a video named elsewhere is no sign of a run in ``d``, and --overwrite must never remove what lies
+    outside it: ``video.file = '/data'`` once took the folder /data with it)."""
+    video = pathlib.PurePath(video_file) if video_file else None
+    inside = video is not None and not video.is_absolute() and ".." not in video.parts and (d / video).is_file()
+    names = set(RUN_OUTPUTS) | ({video_file} if inside else set())
     found = [d / n for n in sorted(names) if (d / n).exists()]
     for pat in RUN_OUTPUT_PATTERNS:
         found += sorted(p for p in d.glob(pat) if p not in found)
@@ -216,7 +220,11 @@ def configure(preset, overrides, out, resume, overwrite):
         hold_folder(out_dir, "--out")
     check_writable(out_dir, "--resume" if resume else "--out")
     if cfg.video.enabled:  # the video may be named outside the run's folder
-        check_writable((out_dir / (cfg.video.file or "video.mp4")).parent, "video.file")
+        video = out_dir / (cfg.video.file or "video.mp4")
+        if video.is_dir():
+            raise ConfigError("is a folder, not a video file", str(video), "video.file",
+                              hint="name an .mp4 file (relative to the output folder), or leave video.file out")
+        check_writable(video.parent, "video.file")
     for note in window_notes(cfg):
         log(note)
     if cfg.run.start_from and overrides and not resume:

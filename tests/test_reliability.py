@@ -329,6 +329,34 @@ def test_output_protection_covers_every_fbed_file(done_run, tmp_path):
     assert json.loads((d / "summary.json").read_text())["time"] == pytest.approx(0.002)
 
 
+def test_overwrite_never_removes_what_video_file_names_outside_the_run(done_run, tmp_path):
+    """`video.file` is relative to the output folder, and --overwrite removed the old run's video under that name:
+    `--set video.file=/data` (a folder) removed /data with everything in it, the output folder included, before
+    the run failed with a traceback. Now video.file must name an .mp4 file, a folder in its place is refused, and
+    --overwrite removes a video only inside the run's folder."""
+    top = tmp_path / "data"
+    d = top / "run"
+    d.mkdir(parents=True)
+    (top / "precious.txt").write_text("mine")
+    (d / "bed.h5").write_bytes((done_run / "bed.h5").read_bytes())
+    before = digest(top), digest(d)
+    for value, said in ((str(top), "not an .mp4 file's name"), ("..", "not an .mp4 file's name"),
+                        ("v.gif", "not an .mp4 file's name"), ("../data.mp4/", "not an .mp4 file's name")):
+        r = fbed("run", SETTLE, *TINY, "--video", "--set", f"video.file={value}", "--out", d, "--overwrite")
+        assert_clean_stop(r, top, 2, said, "video.file", "bubble.mp4")
+        assert (digest(top), digest(d)) == before, value
+    (top / "folder.mp4").mkdir()
+    r = fbed("run", SETTLE, *TINY, "--video", "--set", "video.file=../folder.mp4", "--out", d, "--overwrite")
+    assert_clean_stop(r, top, 2, "is a folder, not a video file", "video.file")
+    assert (top / "folder.mp4").is_dir() and (d / "bed.h5").exists()
+    # a video named outside the folder, the video off: the old run in d is replaced, the file outside kept
+    (top / "mine.mp4").write_bytes(b"not fbed's")
+    r = fbed("run", SETTLE, *TINY, "--set", "run.duration=0.002", "--set", "video.file=../mine.mp4", "--out", d,
+             "--overwrite")
+    assert r.returncode == 0, r.stderr
+    assert (top / "mine.mp4").read_bytes() == b"not fbed's" and (top / "precious.txt").read_text() == "mine"
+    assert json.loads((d / "summary.json").read_text())["time"] == pytest.approx(0.002)
+
 def test_out_naming_a_file_and_a_damaged_run_h5_are_refused(done_run, tmp_path):
     f = tmp_path / "afile"
     f.write_text("x")

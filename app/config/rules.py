@@ -1,6 +1,8 @@
 """Rules that involve more than one key (each names the key to change)."""
 from __future__ import annotations
 
+import pathlib
+
 from .derived import periodic_axes
 from .errors import ConfigError, find_line
 from .schema import Config
@@ -169,6 +171,9 @@ def _output_and_video(cfg: Config, fail) -> None:
     if cfg.output.particles_interval and cfg.output.particles_interval < cfg.run.step:
         fail("output", "particles_interval", f"shorter than run.step ({cfg.run.step:g} s)")
     vid = cfg.video
+    if vid.file and (vid.file.endswith(("/", "\\")) or pathlib.PurePath(vid.file).suffix.lower() != ".mp4"):
+        fail("video", "file", f"'{vid.file}' is not an .mp4 file's name (the video is H.264 in an MP4 file)",
+             "e.g. video.file = 'bubble.mp4' (relative to the output folder), or leave it out for video.mp4")
     if vid.enabled or vid.file:
         if cfg.particles is None:
             fail("video", "enabled", "the renderer draws grains: this scene has none", "remove --video / video.enabled")

@@ -137,7 +137,7 @@ class OutputConfig:
 @dataclass(frozen=True)
 class VideoConfig:
     enabled: bool = spec(False, doc="write a video of the run (also switched on by `fbed run --video`)")
-    file: str = spec("", doc="video file (default: video.mp4 in the output folder); relative to the output folder")
+    file: str = spec("", doc="video file, an .mp4 (default: video.mp4 in the output folder); relative to the output folder")
     width: int = spec(1280, unit="px", doc="frame width of the 3-D view (the void-fraction panel is added beside it)",
                       lo=64, hi=7680)
     height: int = spec(720, unit="px", doc="frame height", lo=64, hi=4320)
