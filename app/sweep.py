@@ -19,6 +19,7 @@ import concurrent.futures
 import csv
 import itertools
 import json
+import math
 import os
 import pathlib
 import subprocess
@@ -113,32 +114,57 @@ def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: i
     return row
 
 
+def number(v) -> float:
+    """A swept value or summary figure as a number: the magnitude of a vector value such as [0,0,0.6]; NaN for
+    what is no number (a drag law's name, a failed case's missing figure)."""
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        pass
+    try:
+        import tomllib
+
+        return float(sum(float(x) ** 2 for x in tomllib.loads(f"v = {v}")["v"]) ** 0.5)
+    except Exception:
+        return float("nan")
+
+
+def plotted(rows: list[dict], key: str, figure: str, group: str | None = None):
+    """What --plot draws: ({group value: (x, y)}, categories). x is ``key``'s value where every case's is a number
+    (the points sorted by it); else ``categories`` lists the values in the order the cases were given (a swept
+    drag law: its names) and x is each case's index in it. Cases without the figure as a finite number (failed
+    ones) are left out; none with it is a ConfigError naming the figures the cases have."""
+    have = [r for r in rows if math.isfinite(number(r.get(figure)))]
+    if not have:
+        skip = {key, group, "case", "exit_code"}
+        figures = sorted({k for r in rows for k, v in r.items() if k not in skip and math.isfinite(number(v))})
+        raise ConfigError(f"no case's summary.json has the figure {figure!r} (sweep.csv holds each case's figures)",
+                          "--plot", figure, hint="figures of these cases: " + (", ".join(figures[:15]) or "none") +
+                          (", ..." if len(figures) > 15 else ""))
+    categories = None
+    if any(not math.isfinite(number(r.get(key))) for r in rows):
+        categories = list(dict.fromkeys(str(r.get(key)) for r in rows))
+    series = {}
+    for gval in (dict.fromkeys(r.get(group) for r in rows) if group else [None]):
+        sel = [r for r in have if group is None or r.get(group) == gval]
+        x = [categories.index(str(r.get(key))) if categories else number(r[key]) for r in sel]
+        pts = sorted(zip(x, (number(r[figure]) for r in sel)))
+        series[gval] = ([a for a, _ in pts], [b for _, b in pts])
+    return series, categories
+
+
 def plot(rows: list[dict], key: str, figure: str, path: pathlib.Path, group: str | None = None) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    def num(v):
-        """A number, or the magnitude of a vector value such as [0,0,0.6]."""
-        try:
-            return float(v)
-        except (TypeError, ValueError):
-            pass
-        try:
-            import tomllib
-
-            vec = tomllib.loads(f"v = {v}")["v"]
-            return float(sum(float(x) ** 2 for x in vec) ** 0.5)
-        except Exception:
-            return float("nan")
-
+    series, categories = plotted(rows, key, figure, group)
     fig, ax = plt.subplots(figsize=(6, 4))
-    groups = sorted({r.get(group) for r in rows}) if group else [None]
-    for gval in groups:
-        sel = [r for r in rows if (group is None or r.get(group) == gval) and figure in r]
-        sel.sort(key=lambda r: num(r[key]))
-        ax.plot([num(r[key]) for r in sel], [num(r[figure]) for r in sel], "o-", label=f"{group} = {gval}" if group else None)
+    for gval, (x, y) in series.items():
+        ax.plot(x, y, "o" if categories else "o-", label=f"{group} = {gval}" if group else None)
+    if categories:
+        ax.set_xticks(range(len(categories)), categories, rotation=20 if len(categories) > 3 else 0)
     ax.set_xlabel(key)
     ax.set_ylabel(figure)
     if group:
@@ -219,6 +245,9 @@ def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, p
     keys, combos = cases(sets)
     for values in combos:  # every case's overrides are validated up front: no half-run sweep on a typo
         load(preset, [f"{k}={v}" for k, v in zip(keys, values)])
+    if plot_figure is not None and not plot_figure.replace("_", "").isalnum():
+        raise ConfigError("not a summary figure's name (the plot is written as DIR/FIGURE.png)", "--plot",
+                          plot_figure, hint="a key of the cases' summary.json, e.g. --plot mean_pressure_drop")
     out_dir = sweep_folder(preset, out, overwrite)
     threads = 1 if jobs > 1 else 0
     where = f"on the Dask scheduler {scheduler}" if scheduler and scheduler != "local" else f"{jobs} at a time"
@@ -243,9 +272,9 @@ def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, p
         w = csv.DictWriter(f, fieldnames=columns)
         w.writeheader()
         w.writerows(rows)
-    if plot_figure:
-        plot(rows, keys[0], plot_figure, out_dir / f"{plot_figure}.png", group=keys[1] if len(keys) > 1 else None)
     failed = sum(1 for r in rows if r["exit_code"] != 0)
     print(f"fbed sweep: {len(rows) - failed} of {len(rows)} cases finished; table in {out_dir / 'sweep.csv'}",
           file=sys.stderr)
+    if plot_figure:  # (a figure no case has: exit 2 after the table, which keeps every case's figures)
+        plot(rows, keys[0], plot_figure, out_dir / f"{plot_figure}.png", group=keys[1] if len(keys) > 1 else None)
     return 0 if failed == 0 else 1

@@ -285,6 +285,38 @@ def test_sweep_refuses_a_key_given_twice_and_a_value_given_twice(tmp_path):
         assert not (tmp_path / "s").exists()
 
 
+def test_sweep_plot_draws_named_values_and_names_a_missing_figure(tmp_path):
+    """--plot drew each case at x = float(value): a swept drag law (the MRI study's four laws) gave every point an
+    x of NaN and an empty figure without a word; a figure no case has gave an empty figure too; a FIGURE with a
+    path in it was written outside the sweep (DIR / '/x.png' is /x.png, with '.png' added) after every case ran,
+    or failed with a traceback. Now named values are categories in the order given, a missing figure is an error
+    naming the figures there, and a FIGURE that is not a name is refused before anything runs."""
+    from app.config import ConfigError
+    from app.sweep import plot, plotted
+
+    laws = ["wen_yu", "gidaspow", "beetstra", "tang"]
+    rows = [{"case": f"case-{i:03d}", "coupling.drag": law, "status": "finished", "exit_code": 0,
+             "mean_pressure_drop": 100.0 + i} for i, law in enumerate(laws)]
+    rows[2].update(status="unstable", exit_code=3)
+    del rows[2]["mean_pressure_drop"]  # a failed case: left out
+    series, categories = plotted(rows, "coupling.drag", "mean_pressure_drop")
+    assert categories == laws and series == {None: ([0, 1, 3], [100.0, 101.0, 103.0])}
+    plot(rows, "coupling.drag", "mean_pressure_drop", tmp_path / "p.png")
+    assert (tmp_path / "p.png").stat().st_size > 1000
+    # numbers (a vector by its magnitude) sorted along x, one series per value of the second key
+    rows = [{"boundary.bottom.velocity": v, "particles.count": c, "kinetic_energy": e}
+            for v, c, e in (("[0,0,0.8]", "1", 3.0), ("[0,0,0.6]", "1", 2.0), ("[0,0,0.6]", "2", 5.0))]
+    series, categories = plotted(rows, "boundary.bottom.velocity", "kinetic_energy", group="particles.count")
+    assert categories is None and series == {"1": ([0.6, 0.8], [2.0, 3.0]), "2": ([0.6], [5.0])}
+    with pytest.raises(ConfigError, match="no case's summary.json has the figure 'kinetc_energy'") as err:
+        plotted(rows, "boundary.bottom.velocity", "kinetc_energy")
+    assert "kinetic_energy" in err.value.hint
+    r = fbed("sweep", ROOT / "presets" / "settle.toml", "--set", "particles.count=100,200", "--plot", "/tmp/x.png",
+             "--out", tmp_path / "s")
+    assert r.returncode == 2 and "not a summary figure's name" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "s").exists()
+
+
 def test_a_second_sweep_does_not_write_over_the_first(tmp_path, monkeypatch):
     """Each case runs with --overwrite into case-NNN, so a second sweep into the first's folder (its default one
     included) replaced the first's cases and sweep.csv without a word. Now: the default folder is a new one
