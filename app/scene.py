@@ -314,32 +314,65 @@ CPU_BYTES_PER_DEVICE_BYTE = 3.0
 CPU_BYTES_PER_GAS_CELL = {"float32": 520.0, "float64": 780.0}
 
 
-def check_memory(scene: "Scene") -> None:
-    """On the CPU (Taichi started there): refuse a scene whose estimated peak memory exceeds what is available,
-    before anything is allocated: past it the kernel's out-of-memory killer would end the run mid-start-up
-    without a word."""
-    cur = runtime.current()
-    if cur is None or cur[0] != "cpu" or (scene.model is None and scene.flow is None):
-        return
-    cfg = scene.cfg
-    per = 0.0 if scene.model is None else \
-        CPU_BYTES_PER_DEVICE_BYTE * bytes_per_grain(scene.model, 8 if cfg.run.precision == "float64" else 4)
+#: a gas cell's device memory [B]: the gas solver's ndarrays (runtime.ndarray_bytes over gas-only boxes of 1.6 x
+#: 10^4 to 6.4 x 10^4 cells, 2026-12-06, the same in the serial and parallel forms: 300.5 B a cell in float32,
+#: 597 B in float64) and the coupling's per-cell fields (4 scalars and 2 vectors: 40 B, 80 B)
+GAS_DEVICE_BYTES_PER_CELL = {"float32": 341.0, "float64": 677.0}
+
+
+def device_bytes(scene: "Scene") -> float:
+    """The memory a scene's fields take on the device [B]: the DEM's bytes_per_grain a grain and
+    :data:`GAS_DEVICE_BYTES_PER_CELL` a gas cell (Taichi's own buffers not counted)."""
+    fp = 8 if scene.cfg.run.precision == "float64" else 4
+    grains = 0.0 if scene.model is None else scene.n * bytes_per_grain(scene.model, fp)
     cells = 0 if scene.flow is None else math.prod(scene.flow.shape)
-    grains, gas = scene.n * per, cells * CPU_BYTES_PER_GAS_CELL[cfg.run.precision]
-    have = available_memory()
-    if have is None or CPU_BASE_BYTES + grains + gas <= have:
+    return grains + cells * GAS_DEVICE_BYTES_PER_CELL[scene.cfg.run.precision]
+
+
+def check_memory(scene: "Scene") -> None:
+    """Refuse, before anything is allocated, a scene whose estimated peak memory exceeds what is there: past it the
+    kernel's out-of-memory killer would end a CPU run mid-start-up without a word, and on a GPU Taichi would fail
+    with a traceback (its pool, :data:`runtime.CUDA_MEMORY_FRACTION` of the GPU's memory, full). On CUDA both the
+    GPU's memory (the DEM's bytes_per_grain and :data:`GAS_DEVICE_BYTES_PER_CELL`; Taichi's own buffers are not
+    counted, so a scene just under the pool may still fail there) and the host's (the CPU estimate, whose share of
+    device arrays lives on the GPU there: on the safe side) are checked."""
+    cur = runtime.current()
+    if cur is None or (scene.model is None and scene.flow is None):
         return
-    need = f"about {(CPU_BASE_BYTES + grains + gas) / 1e9:.3g} GB of memory on the CPU"
+    fp = 8 if scene.cfg.run.precision == "float64" else 4
+    bpg = 0.0 if scene.model is None else bytes_per_grain(scene.model, fp)
+    if cur[0] == "cuda":
+        total = runtime.cuda_memory()
+        if total is not None:
+            _refuse_beyond(scene, "of the GPU's memory", bpg, GAS_DEVICE_BYTES_PER_CELL[scene.cfg.run.precision],
+                           0.0, runtime.CUDA_MEMORY_FRACTION * total,
+                           f"Taichi's pool ({runtime.CUDA_MEMORY_FRACTION:g} of the GPU's {total / 1e9:.3g} GB)")
+    have = available_memory()
+    if have is not None:
+        _refuse_beyond(scene, "of memory on the CPU", CPU_BYTES_PER_DEVICE_BYTE * bpg,
+                       CPU_BYTES_PER_GAS_CELL[scene.cfg.run.precision], CPU_BASE_BYTES, have, "available")
+
+
+def _refuse_beyond(scene: "Scene", where: str, per_grain: float, per_cell: float, base: float, have: float,
+                   what: str) -> None:
+    """A ConfigError naming the key to change (gas.cell_size where the gas needs the more) when ``base`` + the
+    grains x ``per_grain`` + the gas cells x ``per_cell`` [B] exceed ``have`` [B]."""
+    cells = 0 if scene.flow is None else math.prod(scene.flow.shape)
+    grains, gas = scene.n * per_grain, cells * per_cell
+    if base + grains + gas <= have:
+        return
+    need = f"about {(base + grains + gas) / 1e9:.3g} GB {where}"
+    gpu = "GPU" in where
     if gas > grains:
         raise ConfigError(f"{cells:,} gas cells ({' x '.join(map(str, scene.flow.shape))}) need {need} (about "
-                          f"{CPU_BYTES_PER_GAS_CELL[cfg.run.precision]:.0f} B a cell), and {have / 1e9:.3g} GB is "
-                          "available", scene.file, "gas.cell_size",
-                          hint="larger gas cells (each doubling divides the cells by 8), a smaller domain, or a "
-                          "machine with more memory")
-    key = "particles.initial_state" if cfg.particles.initial_state else "particles.count"
-    raise ConfigError(f"{scene.n:,} grains need {need} ({per:.0f} B a grain), and {have / 1e9:.3g} GB is "
-                      "available", scene.file, key, hint="fewer grains (particles.count or particles.bed_height), a "
-                      "machine with more memory, or a GPU (--arch cuda)")
+                          f"{per_cell:.0f} B a cell), and {have / 1e9:.3g} GB is {what}", scene.file,
+                          "gas.cell_size", hint="larger gas cells (each doubling divides the cells by 8), a smaller "
+                          "domain, or a machine with more memory")
+    key = "particles.initial_state" if scene.cfg.particles.initial_state else "particles.count"
+    raise ConfigError(f"{scene.n:,} grains need {need} ({per_grain:.0f} B a grain), and {have / 1e9:.3g} GB is "
+                      f"{what}", scene.file, key, hint="fewer grains (particles.count or particles.bed_height), "
+                      + ("a GPU with more memory, or --arch cpu on a machine with more" if gpu else
+                         "a machine with more memory, or a GPU (--arch cuda)"))
 
 
 def place_grains(dem: DemSolver, initial: dict) -> None:

@@ -260,3 +260,82 @@ def test_a_gas_grid_too_large_for_the_cpus_memory_is_refused_before_it_is_built(
     monkeypatch.setattr(scene_mod, "available_memory", lambda: 0.99 * need)
     with pytest.raises(ConfigError, match="32,000 gas cells"):
         scene_mod.Scene(load_text(gas_only.format(h=5e-3), "gas.toml"))
+
+
+GAS_BOX = ('[run]\nduration = 0.001\nprecision = "{p}"\n[domain]\nlo = [-0.05, -0.05, 0.0]\nhi = [0.05, 0.05, {top}]\n'
+           '[vessel]\nshape = "box"\n[gas]\ncell_size = 5e-3\n[boundary]\n'
+           'bottom = {{ kind = "velocity_inlet", velocity = [0.0, 0.0, 0.5] }}\ntop = {{ kind = "pressure_outlet" }}\n')
+
+
+def test_a_scene_too_large_for_the_gpus_memory_is_refused_before_it_is_built(monkeypatch):
+    """On CUDA no memory was checked: gas.cell_size = 1e-5 m in fluidize's column ended in a numpy traceback (the
+    host's cut cells of 5 x 10^11 cells), and a scene too large for the GPU in Taichi's. Now both the GPU's memory
+    (Taichi's pool: 0.9 of the GPU's) and the host's are checked, naming the key. Taichi on CUDA and the GPU's
+    memory are stood in for here (no GPU in CI): a GPU of 80 GB, then of 0.3 GB."""
+    import app.scene as scene_mod
+    from app.sim import runtime
+
+    monkeypatch.setattr(runtime, "current", lambda: ("cuda", "float32", None, False))
+    monkeypatch.setattr(scene_mod, "available_memory", lambda: 1e12)  # the host has room: the GPU is the limit
+    monkeypatch.setattr(runtime, "cuda_memory", lambda: 80e9)
+    root = pathlib.Path(__file__).resolve().parents[1] / "presets"
+    with pytest.raises(ConfigError) as err:
+        scene_mod.Scene(load(root / "fluidize.toml", ["gas.cell_size=1e-5"]))
+    assert err.value.key == "gas.cell_size" and "(4500 x 4500 x 25000)" in str(err.value), str(err.value)
+    assert "of the GPU's memory" in str(err.value) and "Taichi's pool (0.9 of the GPU's 80 GB)" in str(err.value)
+    verma = load(root / "verma.toml")
+    assert scene_mod.Scene(verma).n > 9e5  # the million grains fit an 80 GB GPU
+    monkeypatch.setattr(runtime, "cuda_memory", lambda: 0.3e9)
+    with pytest.raises(ConfigError) as err:
+        scene_mod.Scene(verma)
+    assert err.value.key == "particles.count" and "of the GPU's memory" in str(err.value), str(err.value)
+    assert "a GPU with more memory" in err.value.hint
+    monkeypatch.setattr(runtime, "cuda_memory", lambda: None)  # a driver that cannot say: the host is still checked
+    monkeypatch.setattr(scene_mod, "available_memory", lambda: 0.3e9)
+    with pytest.raises(ConfigError, match="of memory on the CPU"):
+        scene_mod.Scene(verma)
+
+
+def _gas_cell_device_bytes(precision: str) -> float:
+    """Device bytes a gas cell takes (Taichi running in ``precision``): the slope of the gas solver's ndarrays over
+    boxes of 16,000 and 48,000 cells, plus the coupling's per-cell fields."""
+    from app.scene import Scene, flow_config
+    from app.sim import runtime
+    from app.sim.coupling import CouplingFields
+    from app.sim.gas import FlowSolver
+
+    sizes = []
+    for top in (0.2, 0.6):
+        before = runtime.ndarray_bytes()
+        scene = Scene(load_text(GAS_BOX.format(p=precision, top=top), "box.toml"))
+        solver = FlowSolver(scene.flow)
+        sizes.append((math.prod(scene.flow.shape), runtime.ndarray_bytes() - before))
+        del solver
+    fields = CouplingFields((4, 5, 6))
+    per = [getattr(fields, k) for k in ("solid", "solid_tmp", "vec_tmp", "k_sum", "k_v", "eps_prev")]
+    coupling = sum(f.shape[0] * f.shape[1] * f.shape[2] * getattr(f, "n", 1) * (8 if precision == "float64" else 4)
+                   for f in per) / 120
+    return (sizes[1][1] - sizes[0][1]) / (sizes[1][0] - sizes[0][0]) + coupling
+
+
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_the_gpu_memory_of_a_gas_cell_is_what_the_solver_allocates(precision):
+    """app.scene.GAS_DEVICE_BYTES_PER_CELL against the arrays the gas solver and the coupling allocate, counted: at
+    least them (the check must not let through a grid that cannot fit) and within 3% (nor refuse one that fits).
+    float32 in a process of its own (this worker's Taichi runs in float64)."""
+    import subprocess
+    import sys
+
+    from app.scene import GAS_DEVICE_BYTES_PER_CELL
+
+    if precision == "float64":
+        per_cell = _gas_cell_device_bytes("float64")
+    else:
+        code = ("import sys; sys.path.insert(0, sys.argv[1]); from app.sim import runtime; runtime.init('cpu', "
+                "'float32', threads=1); import test_config; print(test_config._gas_cell_device_bytes('float32'))")
+        tests = pathlib.Path(__file__).resolve().parent
+        r = subprocess.run([sys.executable, "-c", code, str(tests)], capture_output=True, text=True, cwd=tests,
+                           timeout=300)
+        assert r.returncode == 0, r.stderr[-2000:]
+        per_cell = float(r.stdout.split()[-1])
+    assert per_cell <= GAS_DEVICE_BYTES_PER_CELL[precision] <= 1.03 * per_cell, per_cell

@@ -3,12 +3,15 @@ figures) and summary_units.json, written when a run ends."""
 from __future__ import annotations
 
 from ..io import store
+from ..scene import device_bytes
+from ..sim import runtime
 from ..sim.fields import bytes_per_grain
 from ..postprocess import post_process
 from .writers import DEM_SERIES, GAS_SERIES, write_xdmf
 
 UNITS = {"time": "s", "wall_time": "s", "dem_dt": "s", "collision_time": "s", "rayleigh_time": "s",
          "bed_height": "m", "kinetic_energy": "J", "particle_substeps_per_s": "1/s", "bytes_per_grain": "B",
+         "device_memory": "B", "gpu_memory": "B",
          "gas_cell_size": "m", "gas_max_speed": "m/s", "steps_per_s": "1/s", "bed_weight_per_area": "Pa",
          "bed_area": "m^2",
          "mean_pressure_drop": "Pa", "mean_bed_height": "m", "pressure_drop_over_weight": "1", "average_from": "s",
@@ -37,6 +40,9 @@ class Summary:
                         "bytes_per_grain": bytes_per_grain(scene.model, 8 if cfg.run.precision == "float64" else 4),
                         "particle_substeps_per_s": scene.n * der.substeps * steps_here * rate,
                         "neighbor_rebuilds": sim.dem.nlist.builds})
+        out["device_memory"] = device_bytes(scene)
+        if self.arch == "cuda":  # the GPU's memory as the start-up's memory check read it (libcuda)
+            out["gpu_memory"] = runtime.cuda_memory()
         if sim.flow is not None:
             out.update({"gas_cells": list(scene.flow.shape), "gas_cell_size": cfg.gas.cell_size,
                         "gas_split_peak": sim.gas_split_peak, "gas_split_changes": sim.gas_split_changes})

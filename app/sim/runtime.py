@@ -31,6 +31,35 @@ def gpu_available() -> bool:
     return True
 
 
+#: the share of the GPU's memory Taichi takes as its pool at start-up (every field and ndarray lives in it)
+CUDA_MEMORY_FRACTION = 0.9
+
+
+def cuda_memory() -> int | None:
+    """Total memory of CUDA device 0 [bytes], asked of the driver (libcuda); None where there is no driver or it
+    cannot say."""
+    try:
+        import ctypes
+
+        cu = ctypes.CDLL("libcuda.so.1")
+        dev, total = ctypes.c_int(), ctypes.c_size_t()
+        if cu.cuInit(0) or cu.cuDeviceGet(ctypes.byref(dev), 0) or cu.cuDeviceTotalMem_v2(ctypes.byref(total), dev):
+            return None
+        return int(total.value)
+    except (OSError, AttributeError):
+        return None
+
+
+def ndarray_bytes() -> int:
+    """Bytes of the Taichi ndarrays alive in the running program (those of programs before a restart excluded):
+    what the gas solver holds, which :data:`app.scene.GAS_DEVICE_BYTES_PER_CELL` is measured from."""
+    from taichi.lang._ndarray import Ndarray
+
+    gc.collect()
+    live = {id(o): o for o in gc.get_objects() if isinstance(o, Ndarray) and id(o) not in _survivors}
+    return sum(o._get_nelement() * o._get_element_size() for o in live.values())
+
+
 def available_cpus() -> int:
     """CPUs this process may run on (its affinity, which a container or `taskset` may narrow), else all."""
     try:
@@ -126,7 +155,7 @@ def init(arch: str = "auto", precision: str = "float32", threads: int | None = N
         kwargs["cpu_max_num_threads"] = cpu_threads(threads)
         ti.init(arch=ti.cpu, **kwargs)
     elif arch == "cuda":
-        ti.init(arch=ti.cuda, device_memory_fraction=0.9, **kwargs)
+        ti.init(arch=ti.cuda, device_memory_fraction=CUDA_MEMORY_FRACTION, **kwargs)
         if ti.lang.impl.current_cfg().arch != ti.cuda:  # Taichi fell back to the CPU: a run would say 'cuda'
             ti.reset()
             _current = None
