@@ -8,6 +8,7 @@ in :class:`~app.sim.gas.outputs.SolverOutputs`.
 """
 import numpy as np
 import taichi as ti
+from taichi.lang.util import to_numpy_type
 
 from .. import runtime
 from . import advection, boundary, cycle_check, layout, predictor, projection
@@ -157,7 +158,9 @@ class FlowSolver(SolverOutputs):
     # ------------------------------------------------------------------ host <-> bundle arrays
     @staticmethod
     def _put(arr, values, off: int = 0) -> None:
-        layout.k_write(arr, int(off), np.ascontiguousarray(np.asarray(values, np.float64).ravel()))
+        # in the array's own precision: a float64 source into float32 made Taichi warn "Assign may lose
+        # precision" at every float32 start (the rounding is the same either side of the copy)
+        layout.k_write(arr, int(off), np.ascontiguousarray(np.asarray(values, to_numpy_type(arr.dtype)).ravel()))
 
     @staticmethod
     def _get(arr, n: int, off: int = 0) -> np.ndarray:
