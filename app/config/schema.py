@@ -146,8 +146,8 @@ class VideoConfig:
     view: str = spec("perspective", doc="'perspective': the whole bed from the camera below; 'slab': the grains with "
                      "|y - y_centre| < slab_width/2 seen from the side (orthographic), where bubbles show",
                      choices=("perspective", "slab"))
-    color: str = spec("speed", doc="grain colouring: speed [m/s], height [m], local void fraction [-], radius [m], "
-                      "or tracer (bands of initial height)",
+    color: str = spec("speed", doc="grain colouring: speed [m/s], height [m], void_fraction (the local one) [-], size (the "
+                      "radius) [m], or tracer (bands of initial height)",
                       choices=("speed", "height", "void_fraction", "size", "tracer"))
     color_range: tuple[float, float] = spec((0.0, 0.0), unit="unit of the colouring", doc="values mapped to the "
                                             "ends of the colour map; (0, 0): automatic", length=2)
