@@ -346,6 +346,24 @@ def test_a_second_sweep_does_not_write_over_the_first(tmp_path, monkeypatch):
     assert r.returncode == 2 and "holds a run" in r.stderr and "Traceback" not in r.stderr
 
 
+def test_the_runs_end_reads_the_grains_once_for_its_checkpoint_and_bed(tmp_path, monkeypatch, session_runtime_after):
+    """The final checkpoint and bed.h5 hold the same grains at the same step, and each read them from the DEM
+    (DemSolver.state_arrays: 2.5 s a million grains on a CPU, every field copied to the host and put in id order).
+    bed.h5 is now written from the checkpoint's arrays: one read, and bed.h5's grains are the checkpoint's."""
+    from app.sim.dem.solver import DemSolver
+
+    calls, real = [], DemSolver.state_arrays
+    monkeypatch.setattr(DemSolver, "state_arrays", lambda self: calls.append(1) or real(self))
+    out = tmp_path / "o"
+    rc = cli_main(["run", str(ROOT / "presets" / "settle.toml"), "--set", "particles.count=300", "--set",
+                   "run.duration=0.004", "--set", "run.precision=float64", "--arch", "cpu", "--out", str(out)])
+    assert rc == 0 and len(calls) == 1, calls
+    with h5py.File(out / "bed.h5") as bed, h5py.File(out / "checkpoint.h5") as ck:
+        assert sorted(bed["grains"]) == sorted(ck["grains"]) and "position" in bed["grains"]
+        for k in bed["grains"]:
+            np.testing.assert_array_equal(bed["grains"][k][...], ck["grains"][k][...], err_msg=k)
+
+
 def test_a_saved_bed_is_reused_by_a_later_run(tmp_path):
     """bed.h5 of one run is another run's particles.initial_state: same grains, same places."""
     first, second = tmp_path / "first", tmp_path / "second"
