@@ -163,11 +163,11 @@ def test_sigterm_stops_cleanly_with_checkpoint(tmp_path):
 def test_every_preset_runs_briefly(preset, tmp_path, capsys, session_runtime_after):
     """Smoke tier: each preset starts, steps and writes its outputs (float32, as on a GPU). In-process, through
     the CLI's own entry point (the other tests here run `python -m app` in fresh processes, as a user would):
-    one Taichi start-up for all presets of a worker instead of one each. Two fluid steps of 0.25 ms (a quarter of
-    the presets' 1 ms: the million-grain beds' DEM substeps were most of this tier's time on the CPU; 0.25 ms
-    divides every output interval of the presets)."""
+    one Taichi start-up for all presets of a worker instead of one each. Two fluid steps of 0.05 ms (a twentieth of
+    the presets' 1 ms: the million-grain beds' DEM substeps were most of this tier's time on the CPU, mri_poppy's
+    39 s at 0.25 ms, 25 s at 0.05; 0.05 ms divides every output interval of the presets)."""
     # run.start_from is emptied: the smoke run starts from the preset's own fill, not a prepared stage
-    rc = cli_main(["run", str(preset), "--set", "run.duration=5e-4", "--set", "run.step=2.5e-4", "--set",
+    rc = cli_main(["run", str(preset), "--set", "run.duration=1e-4", "--set", "run.step=5e-5", "--set",
                    'run.start_from=""', "--arch", "cpu", "--out", str(tmp_path / "o")])
     assert rc == 0, capsys.readouterr().err
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
