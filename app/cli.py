@@ -20,6 +20,7 @@ Bad input (preset, key, unit, range, file) prints one clear message and exits wi
 from __future__ import annotations
 
 import argparse
+import pathlib
 import sys
 
 from .config import ConfigError
@@ -164,8 +165,18 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "run":
             from .run import run
 
+            if args.resume and (args.out or args.overwrite):  # both were ignored: the run went on in --resume's folder
+                flag = "--out" if args.out else "--overwrite"
+                raise ConfigError(f"a resumed run goes on in its own folder ({args.resume}): {flag} does not apply",
+                                  flag, "", hint=f"to branch it, copy the folder and resume the copy: cp -r "
+                                  f"{args.resume} NEW && fbed run --resume NEW" if args.out else
+                                  "leave out --overwrite to resume; to start the run again, leave out --resume (PRESET --out DIR --overwrite)")
             overrides = list(args.overrides)
             if args.video is not None:
+                if args.video and pathlib.PurePath(args.video).suffix.lower() != ".mp4":
+                    raise ConfigError(f"'{args.video}' is not an .mp4 file's name (the video is H.264 in an MP4 "
+                                      "file)", "--video", "", hint="e.g. --video bubble.mp4, or --video alone for "
+                                      "video.mp4 in the output folder")
                 overrides.append("video.enabled=true")
                 if args.video:
                     overrides.append(f"video.file={args.video!r}".replace("'", '"'))

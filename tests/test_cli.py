@@ -364,6 +364,29 @@ def test_the_runs_end_reads_the_grains_once_for_its_checkpoint_and_bed(tmp_path,
             np.testing.assert_array_equal(bed["grains"][k][...], ck["grains"][k][...], err_msg=k)
 
 
+def test_resume_refuses_out_and_overwrite_and_video_a_non_mp4(tmp_path, capsys):
+    """`fbed run --resume A --out B` went on in A without a word (B never made), and `--resume A --overwrite`
+    ignored --overwrite; `--video x.gif` was reported as `--set video.file=...`, a flag the user never typed.
+    Each is refused before anything runs, naming the flag the user gave."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "notes.txt").write_text("mine")
+    for argv, said in ((["--resume", str(run), "--out", str(tmp_path / "branch")], "--out: a resumed run goes on"),
+                       (["--resume", str(run), "--overwrite"], "--overwrite: a resumed run goes on"),
+                       ([str(ROOT / "presets" / "settle.toml"), "--video", "x.gif", "--out", str(tmp_path / "v")],
+                        "--video: 'x.gif' is not an .mp4 file's name")):
+        assert cli_main(["run", *argv]) == 2
+        err = capsys.readouterr().err
+        assert said in err and "Traceback" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"] and (run / "notes.txt").read_text() == "mine"
+    assert "cp -r" in cli_err(["run", "--resume", str(run), "--out", str(tmp_path / "b")], capsys)
+
+
+def cli_err(argv, capsys) -> str:
+    cli_main(argv)
+    return capsys.readouterr().err
+
+
 def test_a_saved_bed_is_reused_by_a_later_run(tmp_path):
     """bed.h5 of one run is another run's particles.initial_state: same grains, same places."""
     first, second = tmp_path / "first", tmp_path / "second"
