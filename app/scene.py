@@ -49,20 +49,44 @@ def build_walls(cfg: Config) -> list:
         walls += geometry.box_walls(d.lo, d.hi, faces=tuple(ax + s for ax, p in zip("xy", periodic_axes(cfg))
                                                              if not p for s in "-+"))
     elif v.shape == "sampled":
-        path = resolve_path(cfg, v.sdf_file)
-        try:
-            data = np.load(path)
-            walls.append(geometry.SampledWall(np.asarray(data["values"], float), tuple(map(float, data["origin"])),
-                                              float(data["spacing"]), name=path.stem))
-        except (OSError, KeyError, ValueError) as err:
-            raise ConfigError(f"cannot read the sampled SDF: {err}", str(path), "vessel.sdf_file",
-                              hint="an .npz with arrays 'values' (nx,ny,nz, m), 'origin' (3, m), 'spacing' (m)") from None
+        walls.append(sampled_wall(resolve_path(cfg, v.sdf_file)))
         return walls  # a sampled vessel carries its own floor
     if cfg.particles is not None or v.floor is not None:
         walls.append(geometry.PlaneWall((0.0, 0.0, floor), (0.0, 0.0, 1.0), name="floor"))
     if v.lid is not None:
         walls.append(geometry.PlaneWall((0.0, 0.0, v.lid), (0.0, 0.0, -1.0), name="lid"))
     return walls
+
+
+def sampled_wall(path: pathlib.Path) -> "geometry.SampledWall":
+    """vessel.sdf_file's wall, its arrays checked: a ConfigError naming the file and what is wrong (a file that is
+    no .npz, a missing array, NaN clearances, a spacing that is no positive number were tracebacks or a vessel
+    that "fits 0 grains")."""
+    import zipfile
+
+    def bad(what: str):
+        return ConfigError(f"cannot read the sampled SDF: {what}", str(path), "vessel.sdf_file",
+                           hint="an .npz (numpy.savez) with arrays 'values' (nx, ny, nz clearances at the nodes, m, "
+                           "positive inside), 'origin' (3, m) and 'spacing' (one number, m)")
+    try:
+        if path.is_file() and not zipfile.is_zipfile(path):
+            raise bad("not an .npz archive")
+        with np.load(path, allow_pickle=False) as data:
+            values, origin, spacing = (np.asarray(data[k], float) for k in ("values", "origin", "spacing"))
+    except KeyError as err:
+        raise bad(f"no array {str(err.args[0]).split()[0]!r} in the file") from None
+    except OSError as err:
+        raise bad(err.strerror or str(err)) from None
+    except (ValueError, TypeError) as err:
+        raise bad(str(err)) from None
+    if values.ndim != 3 or min(values.shape) < 2 or not np.isfinite(values).all():
+        raise bad(f"'values' must be a 3-D array of finite clearances, at least 2 nodes an axis (got shape "
+                  f"{values.shape}, {int((~np.isfinite(values)).sum())} not finite)")
+    if origin.shape != (3,) or not np.isfinite(origin).all():
+        raise bad(f"'origin' must be 3 finite numbers (got {origin.tolist()})")
+    if spacing.size != 1 or not np.isfinite(spacing).all() or float(spacing.ravel()[0]) <= 0:
+        raise bad(f"'spacing' must be one number > 0 (got {spacing.tolist()})")
+    return geometry.SampledWall(values, tuple(map(float, origin)), float(spacing.ravel()[0]), name=path.stem)
 
 
 def open_area(cfg: Config, walls: list, z: float) -> float:

@@ -339,3 +339,31 @@ def test_the_gpu_memory_of_a_gas_cell_is_what_the_solver_allocates(precision):
         assert r.returncode == 0, r.stderr[-2000:]
         per_cell = float(r.stdout.split()[-1])
     assert per_cell <= GAS_DEVICE_BYTES_PER_CELL[precision] <= 1.03 * per_cell, per_cell
+
+
+def test_a_sampled_vessel_file_that_is_wrong_is_refused_saying_what_is_wrong(tmp_path):
+    """vessel.sdf_file: a spacing given as a one-element array of 0 was a TypeError traceback, NaN clearances
+    a vessel where "only 0 grains fit", a file that is no .npz a message about pickled data. Each is now a
+    ConfigError naming the file and the array; a good file loads."""
+    from app.scene import build_walls
+
+    settle = pathlib.Path(__file__).resolve().parents[1] / "presets" / "settle.toml"
+    good = dict(values=np.ones((3, 4, 5)), origin=np.zeros(3), spacing=0.01)
+    cases = {"spacing": (dict(good, spacing=np.array([0.0])), "'spacing' must be one number > 0"),
+             "nan": (dict(good, values=np.full((3, 4, 5), np.nan)), "60 not finite"),
+             "flat": (dict(good, values=np.ones((3, 4))), "'values' must be a 3-D array"),
+             "origin": (dict(good, origin=np.zeros(2)), "'origin' must be 3 finite numbers"),
+             "missing": ({k: v for k, v in good.items() if k != "origin"}, "no array 'origin' in the file"),
+             "good": (good, None)}
+    for name, (arrays, said) in cases.items():
+        np.savez(tmp_path / f"{name}.npz", **arrays)
+    (tmp_path / "text.npz").write_text("not numpy")
+    cases["text"] = (None, "not an .npz archive")
+    for name, (_, said) in cases.items():
+        cfg = load(settle, ["vessel.shape=sampled", f"vessel.sdf_file={tmp_path / (name + '.npz')}"])
+        if said is None:
+            assert build_walls(cfg)[0].name == "good"
+            continue
+        with pytest.raises(ConfigError, match=said) as err:
+            build_walls(cfg)
+        assert err.value.key == "vessel.sdf_file" and name in err.value.file, str(err.value)
