@@ -28,6 +28,9 @@ def test_a_gpu_sized_scene_on_the_cpu_says_its_time_and_its_small_variant():
     assert note and "GPU-sized" in note and "presets/verma_small.toml" in note and " h " in note
     # its small variant (14,000 grains, 52 substeps, 1000 steps: 90 s of stepping measured) gets no note
     assert cpu_estimate_note(ROOT / "presets" / "verma_small.toml", 14_000, 52, 1000) is None
+    # a few grains over many substeps (a stiff contact) are long too, and not for the scene's size
+    note = cpu_estimate_note(ROOT / "presets" / "settle.toml", 2_500, 19_618, 15_000)
+    assert note and "GPU-sized" not in note and " h on the CPU" in note and "19,618 DEM substeps" in note
 
 
 class FakeSim:

@@ -97,12 +97,17 @@ class Progress:
 # run of hours says so before it starts. A million grains outgrow the CPU's caches: read it as a lower bound
 CPU_PARTICLE_SUBSTEPS_PER_S = 8.0e6
 LONG_ON_CPU = 3600.0  # s
+GPU_SIZED_GRAINS = 100_000  # fewer grains than this in a long run: the note blames the steps, not the scene's size
 
 
 def cpu_estimate_note(preset_path: pathlib.Path, n: int, substeps: int, steps: int) -> str | None:
     est = n * substeps * steps / CPU_PARTICLE_SUBSTEPS_PER_S
     if est < LONG_ON_CPU:
         return None
+    if n < GPU_SIZED_GRAINS:  # few grains: the time is in the steps (a small DEM step, a long duration)
+        return (f"fbed: note: this run takes roughly {_duration(est)} on the CPU ({n:,} grains x {substeps:,} DEM "
+                f"substeps a step x {steps:,} steps, at verma_small's rate on 2 cores): dem.dt, "
+                "contact.youngs_modulus and run.duration set it")
     small = preset_path.with_name(preset_path.stem + "_small.toml")
     alt = f"; its small variant runs in minutes: fbed run {small}" if small.exists() else ""
     return (f"fbed: note: this is a GPU-sized scene ({n:,} grains): on the CPU it takes roughly "

@@ -23,7 +23,7 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 from .errors import ConfigError
-from .schema import Config
+from .schema import DT_FRACTION_MIN, Config
 
 FOUR_THIRDS_PI = 4.0 / 3.0 * math.pi
 
@@ -227,6 +227,11 @@ def derive(cfg: Config, file: str = "<preset>") -> Derived:
             file, "dem.dt",
             hint="lower dem.dt (0 picks dt_fraction x collision time), soften contact.youngs_modulus, "
                  "or set dem.force_dt = true to run anyway")
+    if dt < DT_FRACTION_MIN * t_short:  # (an explicit dem.dt: dt_fraction has this bound)
+        raise ConfigError(f"{dt:.3g} s is {t_short / dt:.3g} times shorter than the {t_short:.3g} s collision time: "
+                          f"below {DT_FRACTION_MIN:g} of it a step buys no accuracy and costs "
+                          f"{math.ceil(cfg.run.step / dt):,} substeps a {cfg.run.step:g} s step", file, "dem.dt",
+                          hint="dem.dt = 0: the automatic step, dem.dt_fraction x the collision time")
     substeps = max(1, math.ceil(cfg.run.step / dt - 1e-9))
     dt = cfg.run.step / substeps
     skin = cfg.dem.skin if cfg.dem.skin > 0 else 0.15 * 2 * rmax
