@@ -170,7 +170,8 @@ def main(argv: list[str] | None = None) -> int:
                 raise ConfigError(f"a resumed run goes on in its own folder ({args.resume}): {flag} does not apply",
                                   flag, "", hint=f"to branch it, copy the folder and resume the copy: cp -r "
                                   f"{args.resume} NEW && fbed run --resume NEW" if args.out else
-                                  "leave out --overwrite to resume; to start the run again, leave out --resume (PRESET --out DIR --overwrite)")
+                                  "leave out --overwrite to resume; to start the run again, leave out --resume "
+                                  "(PRESET --out DIR --overwrite)")
             overrides = list(args.overrides)
             if args.video is not None:
                 if args.video and pathlib.PurePath(args.video).suffix.lower() != ".mp4":
