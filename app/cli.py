@@ -154,6 +154,26 @@ def _add_rcfd(sub) -> None:
     rc.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto")
 
 
+def run_overrides(args) -> list[str]:
+    """`fbed run`'s --set list, with --video's; the flags that cannot go together refused, naming the flag."""
+    if args.resume and (args.out or args.overwrite):  # both were ignored: the run went on in --resume's folder
+        flag = "--out" if args.out else "--overwrite"
+        raise ConfigError(f"a resumed run goes on in its own folder ({args.resume}): {flag} does not apply", flag, "",
+                          hint=f"to branch it, copy the folder and resume the copy: cp -r {args.resume} NEW && fbed "
+                          "run --resume NEW" if args.out else "leave out --overwrite to resume; to start the run "
+                          "again, leave out --resume (PRESET --out DIR --overwrite)")
+    overrides = list(args.overrides)
+    if args.video is not None:
+        if args.video and pathlib.PurePath(args.video).suffix.lower() != ".mp4":
+            raise ConfigError(f"'{args.video}' is not an .mp4 file's name (the video is H.264 in an MP4 file)",
+                              "--video", "", hint="e.g. --video bubble.mp4, or --video alone for video.mp4 in the "
+                              "output folder")
+        overrides.append("video.enabled=true")
+        if args.video:
+            overrides.append(f"video.file={args.video!r}".replace("'", '"'))
+    return overrides
+
+
 def main(argv: list[str] | None = None) -> int:
     # each command imports its module when chosen: `fbed --version`, `fbed analyze` and `fbed rcfd` never load
     # Taichi, and a bad argument is reported before any solver is imported
@@ -165,23 +185,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "run":
             from .run import run
 
-            if args.resume and (args.out or args.overwrite):  # both were ignored: the run went on in --resume's folder
-                flag = "--out" if args.out else "--overwrite"
-                raise ConfigError(f"a resumed run goes on in its own folder ({args.resume}): {flag} does not apply",
-                                  flag, "", hint=f"to branch it, copy the folder and resume the copy: cp -r "
-                                  f"{args.resume} NEW && fbed run --resume NEW" if args.out else
-                                  "leave out --overwrite to resume; to start the run again, leave out --resume "
-                                  "(PRESET --out DIR --overwrite)")
-            overrides = list(args.overrides)
-            if args.video is not None:
-                if args.video and pathlib.PurePath(args.video).suffix.lower() != ".mp4":
-                    raise ConfigError(f"'{args.video}' is not an .mp4 file's name (the video is H.264 in an MP4 "
-                                      "file)", "--video", "", hint="e.g. --video bubble.mp4, or --video alone for "
-                                      "video.mp4 in the output folder")
-                overrides.append("video.enabled=true")
-                if args.video:
-                    overrides.append(f"video.file={args.video!r}".replace("'", '"'))
-            return run(args.preset, overrides, args.out, args.arch, args.resume, args.overwrite)
+            return run(args.preset, run_overrides(args), args.out, args.arch, args.resume, args.overwrite)
         if args.command == "view":  # the runner and the window composed here: the GUI never drives the runner
             from .gui.viewer import ViewerController, display_available
             from .run import run
