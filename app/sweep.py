@@ -176,7 +176,13 @@ def plot(rows: list[dict], key: str, figure: str, path: pathlib.Path, group: str
 
 
 def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathlib.Path, arch: str, done) -> None:
-    """Each case as one Dask task (an `fbed run` subprocess on a worker); ``done(i, row)`` as each ends."""
+    """Each case as one Dask task (an `fbed run` subprocess on a worker); ``done(i, row)`` as each ends.
+
+    A local cluster's own log is silenced (its workers inherit the setting): fbed says how each case ended, and a
+    worker that a killed case's nanny restarts while the cluster closes logged a traceback on the sweep's terminal
+    ("Failed to communicate with scheduler during heartbeat", seen once in four runs of the dead-worker test)."""
+    if scheduler == "local":
+        os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "critical")  # read when distributed is first imported
     try:
         from distributed import Client, LocalCluster, as_completed
     except ImportError:
