@@ -107,6 +107,11 @@ def load_bed(path: pathlib.Path) -> dict:
     """The grains alive in an earlier run's bed.h5 or checkpoint.h5: position, velocity, radius and, with friction,
     omega. A damaged or hand-made file (arrays of other lengths, a value not finite, a radius not positive) is
     refused here, naming the first grain, not left to the guard to stop at t = 0 as unstable."""
+    if path.is_dir():  # (HDF5's own message was a dump of its read call's arguments)
+        inside = [n for n in ("bed.h5", "checkpoint.h5") if (path / n).is_file()]
+        raise ConfigError("is a folder, not a bed file", str(path), "particles.initial_state",
+                          hint=f"give {path / inside[0]}" if inside else "give the bed.h5 or checkpoint.h5 written "
+                          "by an earlier fbed run")
     try:
         grains, _, _ = store.read_checkpoint(path)
         if grains is None:

@@ -391,3 +391,18 @@ def test_an_outlet_pressure_beyond_a_megapascal_is_refused():
         with pytest.raises(ConfigError, match="out of range") as err:
             load(fluidize, [f"boundary.top.pressure={value}"])
         assert err.value.key == "boundary.top.pressure" and "gauge" in err.value.hint
+
+
+def test_a_folder_given_as_the_initial_state_is_named_with_the_bed_file_in_it(tmp_path):
+    """particles.initial_state = a run's folder (not its bed.h5) printed HDF5's dump of its read call ("file read
+    failed: time = ..., filename = ..., file descriptor = 3, errno = 21, ..., buf = 0x7ff..."), over two lines.
+    Now: "is a folder", and the bed file in it named as the fix."""
+    from app.scene import Scene
+
+    settle = pathlib.Path(__file__).resolve().parents[1] / "presets" / "settle.toml"
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "bed.h5").write_bytes(b"")
+    with pytest.raises(ConfigError, match="is a folder, not a bed file") as err:
+        Scene(load(settle, ["particles.count=0", f"particles.initial_state={run}"]))
+    assert err.value.key == "particles.initial_state" and err.value.hint == f"give {run / 'bed.h5'}"
