@@ -20,10 +20,10 @@ Bad input (preset, key, unit, range, file) prints one clear message and exits wi
 from __future__ import annotations
 
 import argparse
-import pathlib
 import sys
 
 from .config import ConfigError
+from .config.rules import mp4_name
 from .io.store import VERSION, DiskFull, disk_full_text
 
 
@@ -164,7 +164,7 @@ def run_overrides(args) -> list[str]:
                           "again, leave out --resume (PRESET --out DIR --overwrite)")
     overrides = list(args.overrides)
     if args.video is not None:
-        if args.video and pathlib.PurePath(args.video).suffix.lower() != ".mp4":
+        if args.video and not mp4_name(args.video):
             raise ConfigError(f"'{args.video}' is not an .mp4 file's name (the video is H.264 in an MP4 file)",
                               "--video", "", hint="e.g. --video bubble.mp4, or --video alone for video.mp4 in the "
                               "output folder")

@@ -167,11 +167,16 @@ def _particles_and_contact(cfg: Config, fail) -> None:
         fail("contact", "friction", "rolling resistance needs friction > 0 (grains must be able to roll)")
 
 
+def mp4_name(name: str) -> bool:
+    """Whether ``name`` names an .mp4 file (video.file, and `fbed run --video FILE`): the video is H.264 in MP4."""
+    return not name.endswith(("/", "\\")) and pathlib.PurePath(name).suffix.lower() == ".mp4"
+
+
 def _output_and_video(cfg: Config, fail) -> None:
     if cfg.output.particles_interval and cfg.output.particles_interval < cfg.run.step:
         fail("output", "particles_interval", f"shorter than run.step ({cfg.run.step:g} s)")
     vid = cfg.video
-    if vid.file and (vid.file.endswith(("/", "\\")) or pathlib.PurePath(vid.file).suffix.lower() != ".mp4"):
+    if vid.file and not mp4_name(vid.file):
         fail("video", "file", f"'{vid.file}' is not an .mp4 file's name (the video is H.264 in an MP4 file)",
              "e.g. video.file = 'bubble.mp4' (relative to the output folder), or leave it out for video.mp4")
     if vid.enabled or vid.file:
