@@ -344,8 +344,8 @@ CPU_BYTES_PER_GAS_CELL = {"float32": 520.0, "float64": 780.0}
 
 
 #: a gas cell's device memory [B]: the gas solver's ndarrays (runtime.ndarray_bytes over gas-only boxes of 1.6 x
-#: 10^4 to 6.4 x 10^4 cells, 2026-12-06, the same in the serial and parallel forms: 300.5 B a cell in float32,
-#: 597 B in float64) and the coupling's per-cell fields (4 scalars and 2 vectors: 40 B, 80 B)
+#: 10^4 to 6.4 x 10^4 cells, 2026-12-06: 300.5 B a cell in float32, the same with 1 and 2 threads, and 597 B in
+#: float64) and the coupling's per-cell fields (4 scalars and 2 vectors: 40 B, 80 B)
 GAS_DEVICE_BYTES_PER_CELL = {"float32": 341.0, "float64": 677.0}
 
 
