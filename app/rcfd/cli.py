@@ -48,6 +48,9 @@ def main(args) -> int:
         if args.paths < 1:
             raise ConfigError(f"--paths must be at least 1, got {args.paths}", "", "--paths")
         _check_seed_and_lag(args)
+        if args.name is not None and (args.name in ("", ".", "..") or any(c in args.name for c in "/\\")):
+            raise ConfigError(f"--name must be one folder name (made under RUN_DIR/rcfd), got {args.name!r}", "",
+                              "--name", hint="to write elsewhere give --out FOLDER")  # '../../x' wrote outside the run
         if args.tag is not None:
             from .database import parse_tag
 
@@ -61,7 +64,8 @@ def main(args) -> int:
         except ValueError as err:
             key = next((k for k in ("--lag", "--horizon") if k in str(err)), "--jump" if str(err).startswith("jump")
                        else "RUN_DIR")
-            raise ConfigError(str(err), str(d / "rcfd.h5"), key) from None
+            msg = str(err).removeprefix(f"{d / 'rcfd.h5'}: ")  # the error names the file already
+            raise ConfigError(msg, str(d / "rcfd.h5"), key) from None
         c = s["cost"]
         print(f"mixing index at {args.horizon:g} s: {s['mixing_final_mean']:.4f} ± {s['mixing_final_std']:.4f} "
               f"({args.paths} paths); t50 {s['t50_mean']:.4g} s, t90 {s['t90_mean']:.4g} s")

@@ -221,6 +221,9 @@ def _lagged(db: Database, lag: int) -> Database:
         b0.append(s0), b1.append(s1)
         c0s.append(keys // n), c1s.append(keys % n), ws.append(np.bincount(inv, weights=vol))
         off.append(off[-1] + keys.size)
+    if len(b0) < RCFD_MIN_FRAMES:  # 1000 on 24 recorded frames: numpy's "need at least one array to concatenate"
+        raise ValueError(f"{db.path}: --lag {lag} leaves {len(b0)} frames of {lag} recorded frames from the "
+                         f"{db.n_frames} recorded; rCFD needs at least {RCFD_MIN_FRAMES}: give a smaller --lag")
     return dataclasses.replace(db, b0=np.asarray(b0, np.int64), b1=np.asarray(b1, np.int64),
                                offset=np.asarray(off, np.int64), c0=np.concatenate(c0s).astype(np.int64),
                                c1=np.concatenate(c1s).astype(np.int64), w=np.concatenate(ws),
