@@ -139,9 +139,17 @@ def test_a_negative_seed_or_lag_and_a_horizon_beyond_memory_are_refused_naming_t
         r = fbed("rcfd", "run", recorded, "--horizon", "0.05", "--paths", "1", *args, "--out", tmp_path / "o")
         assert r.returncode == 2 and said in r.stderr and "Traceback" not in r.stderr, r.stderr[-2000:]
         assert not (tmp_path / "o").exists()
-    r = fbed("rcfd", "validate", ROOT / "presets" / "rcfd_small.toml", "--t0", "0.3", "--t1", "0.4", "--t2", "0.5",
-             "--seed", "-1", "--out", tmp_path / "v")
-    assert r.returncode == 2 and "--seed must be 0 or more" in r.stderr and not (tmp_path / "v").exists()
+    # validate: --paths 0, --continuations 0 and --lag 1000 ran the database and the continuations (minutes on a
+    # GPU-sized preset), then stopped in a traceback; t0 < 0 was blamed on --t1
+    for args, said in ((["--seed", "-1"], "--seed: --seed must be 0 or more"),
+                       (["--paths", "0"], "--paths: --paths must be at least 1"),
+                       (["--continuations", "0"], "--continuations: --continuations must be at least 1"),
+                       (["--lag", "19"], "--lag: --lag 19 leaves 2 frames of the 20"),
+                       (["--t0", "-1"], "--t0: need 0 <= t0 < t1 < t2")):
+        r = fbed("rcfd", "validate", ROOT / "presets" / "rcfd_small.toml", "--t0", "0.3", "--t1", "0.4", "--t2", "0.5",
+                 *args, "--out", tmp_path / "v")
+        assert r.returncode == 2 and said in r.stderr and "Traceback" not in r.stderr, r.stderr[-2000:]
+        assert not (tmp_path / "v").exists()
 
 
 def test_validate_refuses_a_database_window_too_short_before_any_run(tmp_path):

@@ -86,8 +86,14 @@ def main(args) -> int:
         if getattr(args, k) is None:
             raise ConfigError(f"validate needs --{k}", "", f"--{k}", hint="e.g. --t0 0.5 --t1 1.5 --t2 2.5")
     if not (0 <= args.t0 < args.t1 < args.t2):
-        raise ConfigError(f"need 0 <= t0 < t1 < t2 (got {args.t0:g}, {args.t1:g}, {args.t2:g})", "", "--t1")
+        bad = "--t0" if not args.t0 >= 0 else "--t2" if not args.t1 < args.t2 else "--t1"
+        raise ConfigError(f"need 0 <= t0 < t1 < t2 (got {args.t0:g}, {args.t1:g}, {args.t2:g})", "", bad)
     _check_seed_and_lag(args)
+    if args.paths < 1:  # 0 ran the database and the continuations, then stopped in a traceback (as did 0
+        raise ConfigError(f"--paths must be at least 1, got {args.paths}", "", "--paths")  # continuations)
+    if args.continuations < 1:
+        raise ConfigError(f"--continuations must be at least 1 (full runs the paths are checked against), got "
+                          f"{args.continuations}", "", "--continuations")
     from ..config import load  # the preset checked now, and the database's length before any run is made
 
     interval = load(args.target, args.overrides).probes.rcfd_interval
@@ -96,5 +102,9 @@ def main(args) -> int:
         raise ConfigError(f"t1 - t0 = {args.t1 - args.t0:g} s holds {frames} frame{'' if frames == 1 else 's'} of "
                           f"probes.rcfd_interval = {interval:g} s; rCFD needs at least {RCFD_MIN_FRAMES}", "", "--t1",
                           hint="record longer (a later --t1, an earlier --t0)")
+    if frames - args.lag + 1 < RCFD_MIN_FRAMES:  # a frame spans LAG recorded ones, one starting at each boundary
+        raise ConfigError(f"--lag {args.lag} leaves {max(0, frames - args.lag + 1)} frames of the {frames} that "
+                          f"t1 - t0 = {args.t1 - args.t0:g} s records; rCFD needs at least {RCFD_MIN_FRAMES}", "",
+                          "--lag", hint=f"give --lag {frames - RCFD_MIN_FRAMES + 1} or less, or record longer")
     return validate(args.target, args.t0, args.t1, args.t2, args.out, args.paths, args.seed, args.continuations,
                     args.overrides, args.arch, log=log, lag=args.lag, sensitivity=args.sensitivity)
