@@ -152,6 +152,9 @@ def _add_rcfd(sub) -> None:
     rc.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="validate: override a preset key of the runs")
     rc.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto")
+    from .rcfd.cli import FLAG_ACTIONS  # (no Taichi) the flags an action does not read are refused
+
+    rc.set_defaults(flag_defaults={d: rc.get_default(d) for d in FLAG_ACTIONS})
 
 
 def run_overrides(args) -> list[str]:

@@ -17,6 +17,25 @@ def _db_dir(target: str) -> pathlib.Path:
     return d
 
 
+#: the commands each flag of `fbed rcfd` is read by (its dest -> actions); given to another, it did nothing
+FLAG_ACTIONS = {"horizon": ("run",), "paths": ("run", "validate"), "seed": ("run", "validate"), "tag": ("run",),
+                "name": ("run",), "start": ("run",), "gas": ("run",), "jump": ("run",), "lag": ("run", "validate"),
+                "t0": ("validate",), "t1": ("validate",), "t2": ("validate",), "continuations": ("validate",),
+                "sensitivity": ("validate",), "overrides": ("validate",), "arch": ("validate",)}
+
+
+def _check_flags(args) -> None:
+    """A flag another action reads is refused: `fbed rcfd validate --horizon 5` ran over t2 - t1 without a word."""
+    defaults = getattr(args, "flag_defaults", {})
+    for dest, actions in FLAG_ACTIONS.items():
+        if args.action not in actions and dest in defaults and getattr(args, dest) != defaults[dest]:
+            flag = "--set" if dest == "overrides" else f"--{dest}"
+            hint = ("validate runs its paths over t2 - t1" if dest == "horizon" and args.action == "validate"
+                    else f"drop {flag} here")
+            raise ConfigError(f"{flag} is for fbed rcfd {' and '.join(actions)}, not {args.action}", "", flag,
+                              hint=hint)
+
+
 def _check_seed_and_lag(args) -> None:
     if args.seed < 0:  # numpy's seeds are non-negative: it said so as an error of the run's rcfd.h5
         raise ConfigError(f"--seed must be 0 or more, got {args.seed}", "", "--seed")
@@ -30,6 +49,7 @@ def main(args) -> int:
     def log(msg):
         print(msg, file=sys.stderr, flush=True)
 
+    _check_flags(args)
     if args.action == "analyze":
         d = _db_dir(args.target)
         try:
