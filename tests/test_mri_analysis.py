@@ -3,6 +3,7 @@ and period are known by construction. Images are rendered with each pixel's part
 sub-samples), so a pixel is gas at threshold 0.30 when more than half of it lies in a bubble of an emulsion
 at solid fraction 0.60: the digitised area is then an unbiased estimate of the disc's."""
 import math
+import pathlib
 
 import numpy as np
 import pytest
@@ -188,3 +189,38 @@ def test_sweep_cases_side_by_side(tmp_path):
     assert rows[0].startswith("| case-000 | koch_hill | finished | 0.17 | 0.05 | 0.171 |")
     assert rows[1].startswith("| case-001 | gidaspow | finished | 0.19 |")
     assert (tmp_path / "mri_compare.png").exists() and (tmp_path / "mri_compare.csv").exists()
+
+
+def _umf_run(tmp_path, schedule: str, t_end: float, dp: float = 100.0):
+    """A run folder for umf.summarize: mri_umf's preset with ``schedule``, a flat pressure-drop series to t_end."""
+    import json
+    import re
+
+    import h5py
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    text = (root / "presets" / "mri_umf.toml").read_text()
+    text = re.sub(r"schedule = \[\[.*?\]\] ", f"schedule = {schedule} ", text)
+    text = text.replace('start_from = "mri_umf_prepare.toml"', 'start_from = ""')
+    (tmp_path / "config.toml").write_text(text)
+    time = np.arange(0.0, t_end + 1e-9, 1e-3)
+    with h5py.File(tmp_path / "run.h5", "w") as f:
+        f["series/time"], f["series/pressure_drop"] = time, np.full_like(time, dp)
+    (tmp_path / "summary.json").write_text(json.dumps({"bed_weight_per_area": 1000.0}))
+    return tmp_path
+
+
+def test_umf_without_holds_or_fixed_bed_points_says_why(tmp_path):
+    """A schedule that only ramps (rcfd_small's) gave an empty umf.csv and U_mf NaN without a word; a run that
+    ended before its first hold's second half the same. Both are now errors naming the cause; a curve whose
+    holds are all fluidized keeps its table and says why U_mf is NaN (too few fixed-bed holds)."""
+    from app.analysis import umf
+
+    with pytest.raises(ValueError, match="holds no velocity"):
+        umf.summarize(_umf_run(tmp_path, "[[0, 0], [0.15, 0], [0.25, 1.0]]", 0.5))
+    with pytest.raises(ValueError, match=r"ended at t = 0.19 s, before the second half of the schedule's first hold"):
+        umf.summarize(_umf_run(tmp_path, "[[0, 0], [0.1, 0.5], [0.3, 0.5]]", 0.19))
+    fig = umf.summarize(_umf_run(tmp_path, "[[0, 0], [0.1, 0.5], [0.3, 0.5], [0.31, 0.4], [0.5, 0.4]]", 0.5, 1000.0))
+    assert math.isnan(fig["umf_simulated"]) and fig["umf_fixed_bed_points"] == 0
+    assert "0 hold(s) on the fixed-bed branch" in fig["umf_note"]
+    assert len((tmp_path / "analysis" / "umf.csv").read_text().splitlines()) == 3  # header and both holds

@@ -92,7 +92,14 @@ def summarize(run_dir) -> dict:
     # open cross-section): with the pressure drop's share it sums to 1 for a bed at rest (Model A and B alike)
     area = summary.get("bed_area")
     walls = {k[len("wall_force_z_"):]: v for k, v in series.items() if k.startswith("wall_force_z_")} if area else {}
-    rows = curve(series["time"], series["pressure_drop"], holds(inlet[0].schedule, speed), walls)
+    stretches = holds(inlet[0].schedule, speed)
+    if not stretches:  # rcfd_small's ramp to a last point: an empty umf.csv and U_mf NaN, without a reason
+        raise ValueError("the inlet's schedule holds no velocity (no two points [t, fraction] of equal fraction > 0); "
+                         "the curve is read on holds at decreasing velocities, as presets/mri_umf.toml's schedule")
+    rows = curve(series["time"], series["pressure_drop"], stretches, walls)
+    if not rows:
+        raise ValueError(f"the run ended at t = {float(series['time'][-1]):.4g} s, before the second half of the "
+                         f"schedule's first hold ({stretches[0][0]:g} to {stretches[0][1]:g} s): run longer")
     fit = umf(rows, weight)
     out = run_dir / "analysis"
     out.mkdir(exist_ok=True)
@@ -106,6 +113,11 @@ def summarize(run_dir) -> dict:
                        + [f"{r['walls'][k] / (weight * area):.6g}" for k in walls])
     figures = {"umf_simulated": fit.get("umf", math.nan), "umf_weight_per_area": weight,
                "umf_fixed_bed_points": fit["fixed_bed_points"]}
+    if "umf" not in fit:  # why U_mf is NaN, in summary.json and umf.json (sweep.csv keeps numbers only)
+        figures["umf_note"] = (f"no U_mf: {fit['fixed_bed_points']} hold(s) on the fixed-bed branch (pressure drop "
+                               f"< {FIXED_BED:g} of the weight, up from the lowest velocity); the fit needs 2: hold "
+                               "lower velocities" if fit["fixed_bed_points"] < 2 else
+                               "no U_mf: the fixed-bed fit never reaches the bed's weight")
     (out / "umf.json").write_text(json.dumps({**figures, **fit, "drag": cfg.coupling.drag,
                                               "units": "m/s, Pa"}, indent=2) + "\n")
     plot([(cfg.coupling.drag, rows, fit)], weight, out / "umf.png")
