@@ -427,3 +427,16 @@ def test_analyze_without_reference(synthetic_run, tmp_path):
         header = next(csv.reader(fh))
     assert header == ["quantity", "fbed"]
     assert res["table"]["De_at_H_0.05m_mm"]["fbed"] == pytest.approx(1e3 * SYN["D"], rel=REL)
+
+
+def test_analyze_a_run_without_planes_or_volume_is_refused(tmp_path):
+    """`fbed analyze RUN --kind verma` on a run without plane or 3-D records wrote a table of dashes beside the
+    X-ray's and said "written": now the analysis fails, naming the probe keys that record them."""
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    with h5py.File(run_dir / verma.RUN_FILE, "w") as f:
+        f.create_dataset(f"{verma.SERIES}/{verma.TIME}", data=np.linspace(0, 2, 201))
+        f.create_dataset(f"{verma.SERIES}/{verma.PRESSURE_DROP}", data=np.full(201, 1400.0))
+    (run_dir / verma.SUMMARY_FILE).write_text(json.dumps({verma.BED_WEIGHT_KEY: 1500.0}))
+    with pytest.raises(ValueError, match="neither /planes nor /porosity3d.*probes.planes.*probes.volume_interval"):
+        verma.analyze(run_dir, reference=None)

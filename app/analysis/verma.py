@@ -235,6 +235,9 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
     summary = json.loads((run_dir / SUMMARY_FILE).read_text())
     weight = float(summary[BED_WEIGHT_KEY])
     run = _read_run(run_dir / RUN_FILE, t_discard)
+    if not run["planes"] and run["vol"] is None:  # a table of dashes beside the X-ray's, said to be "written"
+        raise ValueError("run.h5 holds neither /planes nor /porosity3d: the bubble statistics need "
+                         "probes.planes with probes.planes_interval, or probes.volume_interval")
     t_cut = run["t_cut"]
     planes = _plane_bubbles(run, threshold, factor)
     pairs = _pair_velocities(run, threshold)
