@@ -20,6 +20,7 @@ Bad input (preset, key, unit, range, file) prints one clear message and exits wi
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 from .config import ConfigError
@@ -95,7 +96,8 @@ def _add_bench(sub) -> None:
     b.add_argument("--resume", action="store_true",
                    help="accuracy, stiffness: keep the rows already in --out's CSV (same --size and --arch) and "
                         "measure only the rest (a bench cut off by a time limit goes on where it stopped)")
-    b.add_argument("--limit", type=float, default=600.0, help="wall-clock limit per scene [s] (a hang fails)")
+    b.add_argument("--limit", type=float, default=600.0, help="stress: wall-clock limit per scene [s] (a hang fails)")
+    _flags_read_by(b, "kind", BENCH_FLAGS)
 
 
 def _add_sweep(sub) -> None:
@@ -152,9 +154,37 @@ def _add_rcfd(sub) -> None:
     rc.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="validate: override a preset key of the runs")
     rc.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto")
-    from .rcfd.cli import FLAG_ACTIONS  # (no Taichi) the flags an action does not read are refused
+    from .rcfd.cli import FLAG_ACTIONS  # (no Taichi)
 
-    rc.set_defaults(flag_defaults={d: rc.get_default(d) for d in FLAG_ACTIONS})
+    _flags_read_by(rc, "action", FLAG_ACTIONS)
+
+
+#: the kinds of `fbed bench` each flag is read by (its dest -> kinds)
+BENCH_FLAGS = {"scenes": ("stress",), "limit": ("stress",), "cases": ("accuracy",), "size": ("accuracy", "stiffness"),
+               "resume": ("accuracy", "stiffness")}
+
+
+def _flags_read_by(parser, choice: str, table: dict) -> None:
+    """Record on ``parser`` which values of its positional ``choice`` read each flag of ``table``, and the flags'
+    defaults, for :func:`refuse_unread_flags`."""
+    parser.set_defaults(flag_choice=choice, flag_table=table,
+                        flag_defaults={d: parser.get_default(d) for d in table})
+
+
+def refuse_unread_flags(args) -> None:
+    """A flag the chosen action does not read is refused, naming the actions that read it: `fbed rcfd validate
+    --horizon 5` ran over t2 - t1, `fbed bench stress --cases x` ran every scene, each without a word."""
+    table = getattr(args, "flag_table", None)
+    if not table:
+        return
+    chosen = getattr(args, args.flag_choice)
+    for dest, readers in table.items():
+        if chosen not in readers and getattr(args, dest) != args.flag_defaults[dest]:
+            flag = "--set" if dest == "overrides" else f"--{dest}"
+            hint = ("validate runs its paths over t2 - t1" if dest == "horizon" and chosen == "validate"
+                    else f"drop {flag} here")
+            raise ConfigError(f"{flag} is for fbed {args.command} {' and '.join(readers)}, not {chosen}", "", flag,
+                              hint=hint)
 
 
 def run_overrides(args) -> list[str]:
@@ -185,6 +215,7 @@ def main(argv: list[str] | None = None) -> int:
         build_parser().print_help()
         return 2
     try:
+        refuse_unread_flags(args)
         if args.command == "run":
             from .run import run
 
@@ -214,6 +245,9 @@ def main(argv: list[str] | None = None) -> int:
                 return stiffness(args.out, args.size, args.arch, 1 if args.arch == "cpu" else None,
                                  resume=args.resume)
             from .bench.stress import SCENES, stress
+
+            if not (args.limit > 0 and math.isfinite(args.limit)):  # -1: every scene reported "hung (killed at the
+                raise ConfigError(f"--limit must be a positive time in s, got {args.limit:g}", "", "--limit")  # limit)"
 
             unknown = sorted(set(args.scenes or []) - {sc.name for sc in SCENES})
             if unknown:

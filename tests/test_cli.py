@@ -55,6 +55,29 @@ def test_bad_preset_clear_message_exit_2(case, tmp_path):
     assert not (tmp_path / "out" / "run.h5").exists()
 
 
+@pytest.mark.parametrize("argv, said", [
+    (["rcfd", "validate", "p.toml", "--t0", "0.3", "--t1", "0.4", "--t2", "0.5", "--horizon", "5"],
+     "--horizon: --horizon is for fbed rcfd run, not validate"),
+    (["rcfd", "analyze", "d", "--paths", "3"], "--paths: --paths is for fbed rcfd run and validate, not analyze"),
+    (["rcfd", "run", "d", "--t0", "1"], "--t0: --t0 is for fbed rcfd validate, not run"),
+    (["rcfd", "run", "d", "--set", "run.duration=1"], "--set: --set is for fbed rcfd validate, not run"),
+    (["rcfd", "analyze", "d", "--arch", "cpu"], "--arch: --arch is for fbed rcfd validate, not analyze"),
+    (["bench", "stress", "--cases", "x"], "--cases: --cases is for fbed bench accuracy, not stress"),
+    (["bench", "accuracy", "--scenes", "x"], "--scenes: --scenes is for fbed bench stress, not accuracy"),
+    (["bench", "stress", "--resume"], "--resume: --resume is for fbed bench accuracy and stiffness, not stress"),
+    (["bench", "stiffness", "--limit", "5"], "--limit: --limit is for fbed bench stress, not stiffness"),
+    (["bench", "stress", "--limit", "-1"], "--limit: --limit must be a positive time in s, got -1")])
+def test_a_flag_the_action_does_not_read_is_refused(argv, said, tmp_path, capsys):
+    """`fbed rcfd validate ... --horizon 5` ran its paths over t2 - t1, `rcfd run --set` and `analyze --paths` did
+    nothing; `fbed bench stress --cases x` ran every scene and --limit -1 called each one hung: each without a word.
+    Now exit 2 naming the flag (and the actions that read it), before any file is written."""
+    argv = [str(tmp_path / a) if a in ("d", "p.toml") else a for a in argv]
+    assert cli_main([*argv, *(["--out", str(tmp_path / "o")] if argv[0] == "bench" else [])]) == 2
+    err = capsys.readouterr().err
+    assert said in err and "Traceback" not in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.skipif(__import__("app.sim.runtime", fromlist=["gpu_available"]).gpu_available(),
                     reason="this machine has a CUDA driver: --arch cuda would run there")
 def test_cuda_asked_for_without_a_gpu_is_an_error_not_a_cpu_run_labelled_cuda(tmp_path):

@@ -272,19 +272,3 @@ def test_a_damaged_rcfd_h5_is_refused_at_resume_and_left_as_it_was(recorded, tmp
     assert "rcfd.h5 is damaged" in r.stderr and "--resume" in r.stderr and "start anew" in r.stderr, r.stderr
     assert {p.name: hashlib.sha1(p.read_bytes()).hexdigest() for p in d.iterdir() if p.is_file()} == before
 
-
-@pytest.mark.parametrize("argv, flag", [(["validate", "p.toml", "--t0", "0.3", "--t1", "0.4", "--t2", "0.5",
-                                          "--horizon", "5"], "--horizon is for fbed rcfd run, not validate"),
-                                        (["analyze", "d", "--paths", "3"], "--paths is for fbed rcfd run and validate"),
-                                        (["run", "d", "--t0", "1"], "--t0 is for fbed rcfd validate, not run"),
-                                        (["run", "d", "--set", "run.duration=1"], "--set is for fbed rcfd validate"),
-                                        (["analyze", "d", "--arch", "cpu"], "--arch is for fbed rcfd validate")])
-def test_a_flag_another_action_reads_is_refused(argv, flag, tmp_path, capsys):
-    """`fbed rcfd validate ... --horizon 5` ran its paths over t2 - t1, and `run --set` or `analyze --paths`
-    did nothing, each without a word: now exit 2 naming the flag and the actions that read it, before any file."""
-    from app.cli import main as cli_main
-
-    assert cli_main(["rcfd", *[str(tmp_path / a) if a in ("d", "p.toml") else a for a in argv]]) == 2
-    err = capsys.readouterr().err
-    assert flag in err and "Traceback" not in err, err
-    assert list(tmp_path.iterdir()) == []

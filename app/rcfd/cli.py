@@ -17,23 +17,12 @@ def _db_dir(target: str) -> pathlib.Path:
     return d
 
 
-#: the commands each flag of `fbed rcfd` is read by (its dest -> actions); given to another, it did nothing
+#: the actions each flag of `fbed rcfd` is read by (its dest -> actions); given to another, it did nothing (app.cli
+#: refuses it)
 FLAG_ACTIONS = {"horizon": ("run",), "paths": ("run", "validate"), "seed": ("run", "validate"), "tag": ("run",),
                 "name": ("run",), "start": ("run",), "gas": ("run",), "jump": ("run",), "lag": ("run", "validate"),
                 "t0": ("validate",), "t1": ("validate",), "t2": ("validate",), "continuations": ("validate",),
                 "sensitivity": ("validate",), "overrides": ("validate",), "arch": ("validate",)}
-
-
-def _check_flags(args) -> None:
-    """A flag another action reads is refused: `fbed rcfd validate --horizon 5` ran over t2 - t1 without a word."""
-    defaults = getattr(args, "flag_defaults", {})
-    for dest, actions in FLAG_ACTIONS.items():
-        if args.action not in actions and dest in defaults and getattr(args, dest) != defaults[dest]:
-            flag = "--set" if dest == "overrides" else f"--{dest}"
-            hint = ("validate runs its paths over t2 - t1" if dest == "horizon" and args.action == "validate"
-                    else f"drop {flag} here")
-            raise ConfigError(f"{flag} is for fbed rcfd {' and '.join(actions)}, not {args.action}", "", flag,
-                              hint=hint)
 
 
 def _check_seed_and_lag(args) -> None:
@@ -49,7 +38,6 @@ def main(args) -> int:
     def log(msg):
         print(msg, file=sys.stderr, flush=True)
 
-    _check_flags(args)
     if args.action == "analyze":
         d = _db_dir(args.target)
         try:
@@ -100,8 +88,15 @@ def main(args) -> int:
             print(f"gas tracer (step input): outlet F at {args.horizon:g} s {g['step_response_final']:.4f}, mean "
                   f"residence time {g['mean_residence_time']:.4g} s, balance error {g['balance_error_max']:.2g}")
         return 0
+    _check_validate(args)
     from .validate import validate
 
+    return validate(args.target, args.t0, args.t1, args.t2, args.out, args.paths, args.seed, args.continuations,
+                    args.overrides, args.arch, log=log, lag=args.lag, sensitivity=args.sensitivity)
+
+
+def _check_validate(args) -> None:
+    """`fbed rcfd validate`'s arguments, the preset and the database's length, before any run is made."""
     for k in ("t0", "t1", "t2"):
         if getattr(args, k) is None:
             raise ConfigError(f"validate needs --{k}", "", f"--{k}", hint="e.g. --t0 0.5 --t1 1.5 --t2 2.5")
@@ -114,7 +109,7 @@ def main(args) -> int:
     if args.continuations < 1:
         raise ConfigError(f"--continuations must be at least 1 (full runs the paths are checked against), got "
                           f"{args.continuations}", "", "--continuations")
-    from ..config import load  # the preset checked now, and the database's length before any run is made
+    from ..config import load
 
     interval = load(args.target, args.overrides).probes.rcfd_interval
     frames = rcfd_frames(args.t1 - args.t0, interval)
@@ -126,5 +121,3 @@ def main(args) -> int:
         raise ConfigError(f"--lag {args.lag} leaves {max(0, frames - args.lag + 1)} frames of the {frames} that "
                           f"t1 - t0 = {args.t1 - args.t0:g} s records; rCFD needs at least {RCFD_MIN_FRAMES}", "",
                           "--lag", hint=f"give --lag {frames - RCFD_MIN_FRAMES + 1} or less, or record longer")
-    return validate(args.target, args.t0, args.t1, args.t2, args.out, args.paths, args.seed, args.continuations,
-                    args.overrides, args.arch, log=log, lag=args.lag, sensitivity=args.sensitivity)
