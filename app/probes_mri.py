@@ -19,6 +19,8 @@ import math
 
 import numpy as np
 
+from .config.derived import mri_pixels
+
 
 def slab_volume(dy: np.ndarray, r: np.ndarray, half: float) -> np.ndarray:
     """Volume [m^3] of spheres of radius r centred dy from a slab's mid-plane that lies within |y| < half."""
@@ -36,16 +38,7 @@ class MriImage:
         pr, d, v = cfg.probes, cfg.domain, cfg.vessel
         self.dx, self.dz = (float(a) for a in pr.mri_pixel)
         self.width = float(pr.slab_width)
-        floor = v.floor if v.floor is not None else d.lo[2]
-        top = v.lid if v.lid is not None else d.hi[2]
-        if v.shape == "cylinder":
-            xc, self.yc = v.center
-            half_x = v.radius
-        else:
-            xc, self.yc = 0.5 * (d.lo[0] + d.hi[0]), 0.5 * (d.lo[1] + d.hi[1])
-            half_x = 0.5 * (d.hi[0] - d.lo[0])
-        self.nx = int(math.ceil(2.0 * half_x / self.dx - 1e-9))
-        self.nz = int(math.ceil((top - floor) / self.dz - 1e-9))
+        self.nx, self.nz, xc, self.yc, floor = mri_pixels(cfg)
         self.x0, self.z0 = xc - 0.5 * self.nx * self.dx, floor
         # open fraction of each column of the slab: 64 x 64 samples of (x, y) over its cross-section
         s = (np.arange(64) + 0.5) / 64

@@ -51,6 +51,19 @@ def test_image_grid_and_open_area_of_the_cylinder_slab():
     assert (fine.nx, fine.nz) == (96, 240)
 
 
+def test_an_image_of_too_many_pixels_is_refused_at_load():
+    """probes.mri_pixel = [1e-6, 1e-6] in fluidize's column asked Taichi for an array beyond int32 indices and ran
+    the host out of memory (the process was killed): the image is now limited to MRI_MAX_PIXELS, checked at load
+    on the same grid the probe records."""
+    from app.config import ConfigError
+    from app.config.derived import MRI_MAX_PIXELS
+
+    with pytest.raises(ConfigError, match=r"probes.mri_pixel.*9,600 x 24,000 pixels an image; at most 1,048,576"):
+        image(mri_pixel=[1e-5, 1e-5], mri_interval=4e-3)
+    im = image(mri_pixel=[2.5e-4, 2.5e-4], mri_interval=4e-3)  # 384 x 960: finer than the MRI's, still taken
+    assert (im.nx, im.nz) == (384, 960) and im.nx * im.nz <= MRI_MAX_PIXELS
+
+
 def test_binning_keeps_the_grains_volume():
     im = image()
     rng = np.random.default_rng(3)

@@ -43,6 +43,28 @@ def rcfd_frames(span: float, interval: float) -> int:
     return max(0, math.floor(span / interval + 1e-9))
 
 
+#: the most pixels of one synthetic MRI image, 1024 x 1024 (4 MB a frame in run.h5): 0.25 mm pixels over the poppy
+#: bed's 96 mm x 600 mm are 921,600 (the MRI's are 4 mm x 8 mm, 1,800); 1 um pixels in fluidize's column asked Taichi
+#: for an array beyond int32 indices, and the host's memory ran out
+MRI_MAX_PIXELS = 1 << 20
+
+
+def mri_pixels(cfg: Config) -> tuple[int, int, float, float, float]:
+    """The synthetic MRI's pixel grid: (nx, nz) pixels of probes.mri_pixel over the vessel's width (its diameter,
+    or the domain's x extent) and from its floor to its lid (or the domain's top), the vessel's x centre and
+    axis y, and the floor z."""
+    d, v = cfg.domain, cfg.vessel
+    dx, dz = (float(a) for a in cfg.probes.mri_pixel)
+    floor = v.floor if v.floor is not None else d.lo[2]
+    top = v.lid if v.lid is not None else d.hi[2]
+    if v.shape == "cylinder":
+        (xc, yc), half_x = v.center, v.radius
+    else:
+        xc, yc, half_x = 0.5 * (d.lo[0] + d.hi[0]), 0.5 * (d.lo[1] + d.hi[1]), 0.5 * (d.hi[0] - d.lo[0])
+    return (int(math.ceil(2.0 * half_x / dx - 1e-9)), int(math.ceil((top - floor) / dz - 1e-9)), float(xc),
+            float(yc), float(floor))
+
+
 def grain_volume(radius):
     """Volume [m^3] of a grain (a sphere) of ``radius`` [m]: 4/3 pi r^3. One formula for a number, a numpy
     array and a Taichi kernel (``app.sim.coupling.grain_volume_func`` is this function as a ti.func):

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pathlib
 
-from .derived import periodic_axes
+from .derived import MRI_MAX_PIXELS, mri_pixels, periodic_axes
 from .errors import ConfigError, find_line
 from .schema import Config
 
@@ -203,6 +203,10 @@ def _probes(cfg: Config, fail) -> None:
                  "and [gas]")
         if any(not isinstance(v, float) or v <= 0 for v in pr.mri_pixel):
             fail("probes", "mri_pixel", "pixel sizes must be numbers > 0 (m)", "e.g. mri_pixel = [0.004, 0.008]")
+        nx, nz = mri_pixels(cfg)[:2]
+        if nx * nz > MRI_MAX_PIXELS:
+            fail("probes", "mri_pixel", f"{nx:,} x {nz:,} pixels an image; at most {MRI_MAX_PIXELS:,}",
+                 "give a larger pixel (the MRI's: [0.004, 0.008])")
     if pr.analysis == "mri" and not (pr.mri_interval or pr.slab_interval):
         fail("probes", "analysis", "the mri analysis reads /mri or /slab images",
              "set probes.mri_interval and/or probes.slab_interval (the MRI's 4 ms: 0.004)")
