@@ -393,6 +393,23 @@ def test_an_outlet_pressure_beyond_a_megapascal_is_refused():
         assert err.value.key == "boundary.top.pressure" and "gauge" in err.value.hint
 
 
+def test_gas_blown_in_with_no_pressure_outlet_is_refused():
+    """fluidize with its top made a wall (or free_slip) ran, and the guard stopped the first step saying the pressure
+    solve had too few iterations: gas blown in and let out nowhere has no incompressible solution. Refused at load,
+    naming the inlet; inlets of mixed sign (one drawing gas out) may balance, and are taken."""
+    fluidize = pathlib.Path(__file__).resolve().parents[1] / "presets" / "fluidize.toml"
+    for top, face in (('{kind="wall"}', "z-"), ('{kind="free_slip"}', "z-"),
+                      ('{kind="velocity_inlet",velocity=[0,0,-0.5]}', "z+")):  # blowing in from the top too
+        with pytest.raises(ConfigError, match="let out nowhere: no face is a pressure_outlet") as err:
+            load(fluidize, [f"boundary.top={top}"])
+        assert err.value.key == f"boundary.{face}" and "pressure_outlet" in err.value.hint
+    jet_only = 'boundary.bottom={kind="velocity_inlet",jet_velocity=[0,0,5],jet_radius=0.004}'
+    with pytest.raises(ConfigError, match="let out nowhere"):
+        load(fluidize, [jet_only, 'boundary.top={kind="wall"}'])
+    drawn = load(fluidize, ['boundary.top={kind="velocity_inlet",velocity=[0,0,1.1]}'])  # out through the top
+    assert {b.kind for _, b in drawn.boundary} == {"velocity_inlet"}
+
+
 def test_a_folder_given_as_the_initial_state_is_named_with_the_bed_file_in_it(tmp_path):
     """particles.initial_state = a run's folder (not its bed.h5) printed HDF5's dump of its read call ("file read
     failed: time = ..., filename = ..., file descriptor = 3, errno = 21, ..., buf = 0x7ff..."), over two lines.

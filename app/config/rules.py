@@ -76,6 +76,7 @@ def _gas_and_boundaries(cfg: Config, fail) -> None:
         _periodic_pairs(cfg, fail)
         for face, b in dict(cfg.boundary).items():
             _boundary_face(face, b, fail)
+        _gas_way_out(dict(cfg.boundary), fail)
     else:
         for face, b in cfg.boundary:  # without gas only periodic faces mean something (the grains wrap)
             if b.kind != "periodic":
@@ -91,6 +92,24 @@ def _periodic_pairs(cfg: Config, fail) -> None:
         hi_p = faces.get(ax + "+") is not None and faces[ax + "+"].kind == "periodic"
         if lo_p != hi_p:
             fail("boundary", ax + "-", f"periodic boundaries come in pairs: set both {ax}- and {ax}+ periodic")
+
+
+def _gas_way_out(faces: dict, fail) -> None:
+    """Gas blown in through velocity inlets needs a way out: with no pressure outlet, inlets that only blow inwards
+    left the incompressible solve without a solution, and the guard stopped the first step blaming the solver's
+    iterations. Inlets of mixed sign may balance (one blowing in, one drawing out), and are left to the guard."""
+    if any(b.kind == "pressure_outlet" for b in faces.values()):
+        return
+    inlets = {f: b for f, b in faces.items() if b.kind == "velocity_inlet"}
+    inward = {f: (1.0 if f[1] == "-" else -1.0) * b.velocity["xyz".index(f[0])] for f, b in inlets.items()}
+    jets = {f: (1.0 if f[1] == "-" else -1.0) * b.jet_velocity["xyz".index(f[0])] for f, b in inlets.items()}
+    fractions = [r[1] for b in inlets.values() for r in b.schedule]
+    if (all(v >= 0 for v in (*inward.values(), *jets.values(), *fractions))
+            and any(v > 0 for v in (*inward.values(), *jets.values()))):
+        face = next(f for f in inlets if inward[f] > 0 or jets[f] > 0)
+        fail("boundary", face, "gas is blown in through velocity inlets and let out nowhere: no face is a "
+             "pressure_outlet, and the incompressible gas has no solution",
+             "add one, e.g. top = { kind = \"pressure_outlet\" } (0 Pa: the atmosphere)")
 
 
 def _boundary_face(face: str, b, fail) -> None:
