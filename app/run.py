@@ -121,6 +121,8 @@ def _step(sim, start, final) -> tuple[str, str, float]:
     finally:
         for sig, h in old.items():
             signal.signal(sig, h)
+    if final.unstable:  # the end state failed the guard: it said "done", exit 0, with its final files unwritten
+        status, message = "unstable", final.unstable
     if final.disk_full:
         status, message = "disk_full", str(final.disk_full[0])
     return status, message, wallclock.perf_counter() - t_start

@@ -231,6 +231,22 @@ def test_guard_stops_an_unstable_run_and_keeps_readable_outputs(tmp_path):
         assert np.all(np.isfinite(f["grains/position"][...]))
 
 
+def test_inlets_that_do_not_balance_without_an_outlet_are_named_by_the_guard(tmp_path):
+    """No pressure outlet, 1.1 m/s in at the bottom and 0.5 out at the top: the pressure solve has no solution.
+    The guard said "raise gas.max_iterations, or lower run.step", knobs that cannot help; it now names the missing
+    outlet. With 300 grains no guard row is due before the end (guard.interval 5 ms, a 3 ms run): the end state
+    failed the guard, its files were not written, and yet the run said "done" with exit 0 and status "finished";
+    it now ends unstable (exit 3)."""
+    r = fbed("run", ROOT / "presets" / "fluidize.toml", "--set", "particles.count=300", "--set", "run.duration=0.003",
+             "--set", 'boundary.bottom={kind="velocity_inlet",velocity=[0,0,1.1]}', "--set",
+             'boundary.top={kind="velocity_inlet",velocity=[0,0,0.5]}', "--arch", "cpu", "--out", tmp_path / "o")
+    assert r.returncode == 3, r.stderr[-2000:]
+    assert "no face is a pressure_outlet" in r.stderr and "max_iterations" not in r.stderr, r.stderr[-2000:]
+    assert "the final state was not written" in r.stderr and "fbed: done" not in r.stderr
+    assert json.loads((tmp_path / "o" / "summary.json").read_text())["status"] == "unstable"
+    assert not (tmp_path / "o" / "bed.h5").exists()
+
+
 def test_energy_growth_stops_a_blow_up_the_other_limits_were_raised_for(tmp_path):
     """With the overlap and speed limits out of the way, the same forced step is stopped by the kinetic energy's
     growth, at the same check (t = 0.042 s with the default limits too), and names the step."""

@@ -168,6 +168,7 @@ class FinalOutputs:
         self.guard, self.writers, self.series, self.series_every = guard, writers, series, series_every
         self.checkpoints, self.save_bed = checkpoints, save_bed
         self.disk_full: list = []
+        self.unstable = ""  # why the end state failed the guard (the run then ends unstable, not finished)
 
     def finish(self, sim, reason: str) -> None:
         if reason in ("finished", "interrupted"):
@@ -175,7 +176,7 @@ class FinalOutputs:
                 self.guard(sim)
             except Unstable as err:  # the last steps went bad: keep the last good files
                 reason = "unstable"
-                log(f"fbed: final state not written: {err}")
+                self.unstable = f"{err} (the final state was not written)"
         ck = self.checkpoints
         try:
             if reason in ("finished", "interrupted"):
