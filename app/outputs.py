@@ -111,6 +111,25 @@ def hold_folder(d: pathlib.Path, key: str) -> None:
     _held[name] = fd
 
 
+def refuse_live_folder(d: pathlib.Path, key: str) -> None:
+    """A folder another run holds is refused for reading too: `fbed analyze` on a live run failed for want of its
+    summary.json, `fbed rcfd analyze` in a traceback (HDF5 could not lock the rcfd.h5 being written)."""
+    if fcntl is None or str(d.resolve()) in _held or not d.is_dir():
+        return
+    fd = os.open(d, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)  # released when fd closes
+        return
+    except OSError as err:
+        if err.errno not in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EACCES):  # a file system without locks
+            return
+    finally:
+        os.close(fd)
+    raise ConfigError("a run is still writing into this folder (it holds the folder's lock)", str(d), key,
+                      hint="read it when that run ends (or stop it: Ctrl-C, or kill -TERM its process, writes a "
+                      "checkpoint)")
+
+
 def held_folders() -> frozenset:
     """The folders this process holds now (for :func:`release_folders`'s ``keep``)."""
     return frozenset(_held)

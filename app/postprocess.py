@@ -11,6 +11,7 @@ from . import config as cfgmod
 from .callbacks.progress import log
 from .config import ConfigError
 from .io import store
+from .outputs import refuse_live_folder
 
 EXIT_OK, EXIT_INPUT = 0, 2
 
@@ -37,6 +38,7 @@ def analyze(run_dir: str, kind: str | None = None) -> int:
     if not (d / "run.h5").exists() or not (d / "config.toml").exists():
         raise ConfigError("not a run folder (no run.h5 / config.toml)", str(d), "RUN_DIR",
                           hint="give the output folder of an fbed run")
+    refuse_live_folder(d, "RUN_DIR")
     cfg = cfgmod.load(d / "config.toml")
     kind = kind or cfg.probes.analysis
     if kind == "none":

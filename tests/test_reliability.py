@@ -564,6 +564,31 @@ def test_a_folder_another_run_is_writing_into_is_refused(tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
 
 
+def test_a_folder_a_run_is_writing_into_is_not_analyzed(tmp_path, capsys):
+    """`fbed analyze` on a live run failed for want of its summary.json (the analysis said "failed" with a
+    FileNotFoundError); `fbed rcfd analyze|run` stopped in a traceback (HDF5 could not lock the rcfd.h5 being
+    written). A folder another process holds is now refused (exit 2), naming it; once let go, it is read."""
+    import fcntl
+
+    from app.cli import main as cli_main
+
+    d = tmp_path / "live"
+    d.mkdir()
+    for name in ("run.h5", "config.toml", "rcfd.h5"):
+        (d / name).write_bytes(b"")
+    fd = os.open(d, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # as a live run holds its folder (outputs.hold_folder)
+        for argv in (["analyze", str(d)], ["rcfd", "analyze", str(d)], ["rcfd", "run", str(d)]):
+            assert cli_main(argv) == 2
+            err = capsys.readouterr().err
+            assert "a run is still writing into this folder" in err and "Traceback" not in err, err
+    finally:
+        os.close(fd)
+    assert cli_main(["analyze", str(d)]) == 2  # let go: read, and the empty files are what it now says
+    assert "a run is still writing" not in capsys.readouterr().err
+
+
 def test_a_folder_on_a_file_system_without_locks_runs_unheld(tmp_path, monkeypatch):
     """flock on a file system without locks (some NFS mounts: ENOLCK) must not read as "another run holds it":
     the folder then goes unheld. Only EWOULDBLOCK (held elsewhere) refuses it."""

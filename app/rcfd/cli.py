@@ -7,6 +7,7 @@ import sys
 
 from ..config import ConfigError
 from ..config.derived import RCFD_MIN_FRAMES, rcfd_frames
+from ..outputs import refuse_live_folder
 
 
 def _db_dir(target: str) -> pathlib.Path:
@@ -14,6 +15,7 @@ def _db_dir(target: str) -> pathlib.Path:
     if not (d / "rcfd.h5").exists():
         raise ConfigError("no rcfd.h5 in this folder", str(d), "RUN_DIR",
                           hint="give the output folder of a run that recorded rCFD frames (probes.rcfd_from >= 0)")
+    refuse_live_folder(d, "RUN_DIR")
     return d
 
 
