@@ -44,10 +44,12 @@ class BedMeasures:
 
     def summary(self, runfile, cfg) -> dict:
         series = store.read_series(runfile)
-        t = series["time"]
+        t = series.get("time", np.zeros(0))
+        wpa = self.weight_per_area
+        if not t.size:  # stopped before its first row (the guard at the start): a KeyError traceback
+            return {"bed_weight_per_area": wpa, "bed_area": self.area}
         t0 = cfg.output.average_from if cfg.output.average_from >= 0 else 0.5 * t[-1]
         sel = t >= t0 - 1e-12
-        wpa = self.weight_per_area
         out = {"bed_weight_per_area": wpa, "bed_area": self.area, "average_from": float(t0)}
         if sel.any():
             dp = float(np.nanmean(series["pressure_drop"][sel]))
