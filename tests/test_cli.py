@@ -234,18 +234,14 @@ def test_guard_stops_an_unstable_run_and_keeps_readable_outputs(tmp_path):
 INLETS = ("--set", 'boundary.bottom={kind="velocity_inlet",velocity=[0,0,1.1]}', "--set", "particles.count=300")
 
 
-@pytest.mark.parametrize("top, stops", [(1.0, True), (1.1, False)])
-def test_inlets_that_do_not_balance_without_an_outlet_are_stopped_naming_the_outlet(top, stops, tmp_path):
+def test_inlets_that_do_not_balance_without_an_outlet_are_stopped_naming_the_outlet(tmp_path):
     """No pressure outlet, 1.1 m/s in at the bottom and 1.0 out at the top (9% of the flow with nowhere to go):
     the incompressible gas has no solution, yet the run went on ("done"): the divergence residual, a per-cell
     ratio, read 1e-4 for it. (0.5 out: the guard blamed the solver's iterations.) The guard now checks the inlets'
-    net flow, from the first row. Balanced, 1.1 out, the run goes on."""
+    net flow, from the first row (balanced inlets read 0: test_flow's inflow test)."""
     r = fbed("run", ROOT / "presets" / "fluidize.toml", *INLETS, "--set", "run.duration=0.003", "--set",
-             f'boundary.top={{kind="velocity_inlet",velocity=[0,0,{top}]}}', "--set", "guard.interval=0.001",
+             'boundary.top={kind="velocity_inlet",velocity=[0,0,1.0]}', "--set", "guard.interval=0.001",
              "--arch", "cpu", "--out", tmp_path / "o")
-    if not stops:
-        assert r.returncode == 0, r.stderr[-2000:]
-        return
     assert r.returncode == 3 and "Traceback" not in r.stderr, r.stderr[-2000:]
     assert "no face is a pressure_outlet" in r.stderr and "(4.76% of their flow)" in r.stderr, r.stderr[-2000:]
     s = json.loads((tmp_path / "o" / "summary.json").read_text())  # stopped before its first row: no traceback

@@ -119,6 +119,29 @@ def test_pipe_inlet_outlet_mass_balance():
     assert np.max(np.abs(d_np - d_solver)) <= 1e-9 * U / H_PIPE
 
 
+def test_the_inlets_net_flow_without_an_outlet_is_what_they_are_given():
+    """FlowSolver.inflow_imbalance (the guard's check when no face is a pressure outlet): the inlets' net volume
+    flow into the domain is U times the open area of the cylinder's end faces, summed with their signs; balanced
+    inlets give 0, an outlet makes the check moot, and a per-cell profile (a jet) counts cell by cell."""
+    U = 0.2
+
+    def solver(top):
+        return gas.FlowSolver(gas.FlowConfig(shape=(18, 18, 4), h=H_PIPE, rho=1.0, mu=0.01, gravity=(0, 0, 0),
+                                             walls=(CYL,), bcs={"bottom": gas.velocity_inlet((0, 0, U)), "top": top}))
+
+    s = solver(gas.velocity_inlet((0, 0, 0.5 * U)))  # half as much drawn out at the top
+    area = np.sum(s.cut.apertures[2][:, :, 0]) * H_PIPE ** 2
+    assert np.sum(s.cut.apertures[2][:, :, -1]) * H_PIPE ** 2 == pytest.approx(area, rel=1e-12)
+    net, share = s.inflow_imbalance()
+    assert net == pytest.approx(0.5 * U * area, rel=1e-12) and share == pytest.approx(1 / 3, rel=1e-12)
+    prof = np.zeros((18, 18))
+    prof[8:10, 8:10] = 4 * U  # a jet of 4 cells, inside the wall: the whole bottom flow is 4 U h^2 x 4
+    s.set_inlet_profile("bottom", prof)
+    assert s.inflow_imbalance()[0] == pytest.approx(16 * U * H_PIPE ** 2 - 0.5 * U * area, rel=1e-12)
+    assert solver(gas.velocity_inlet((0, 0, U))).inflow_imbalance() == pytest.approx((0.0, 0.0), abs=1e-15)
+    assert solver(gas.pressure_outlet()).inflow_imbalance() == (0.0, 0.0)
+
+
 # ----------------------------------------------------------------------------- plane channel
 @pytest.mark.parametrize("walls", ["domain", "sdf"])
 def test_plane_channel_poiseuille(walls):
