@@ -224,3 +224,27 @@ def test_umf_without_holds_or_fixed_bed_points_says_why(tmp_path):
     assert math.isnan(fig["umf_simulated"]) and fig["umf_fixed_bed_points"] == 0
     assert "0 hold(s) on the fixed-bed branch" in fig["umf_note"]
     assert len((tmp_path / "analysis" / "umf.csv").read_text().splitlines()) == 3  # header and both holds
+
+
+def test_umf_sweep_compare_keeps_a_failed_case(tmp_path):
+    """`fbed analyze SWEEP_DIR` on the U_mf sweep: each case's U_mf in one table and its curve on one figure. A
+    case whose run or analysis failed vanished from the table without a word; it keeps its row, with its status."""
+    import csv
+    import json
+
+    from app.analysis import umf
+
+    with open(tmp_path / "sweep.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["case", "coupling.drag", "status"])
+        w.writerow(["case-000", "koch_hill", "finished"])
+        w.writerow(["case-001", "gidaspow", "failed: exit 3"])
+    a = tmp_path / "case-000" / "analysis"
+    a.mkdir(parents=True)
+    (a / "umf.json").write_text(json.dumps({"umf_simulated": 0.31, "umf_fixed_bed_points": 4,
+                                            "umf_weight_per_area": 1000.0, "drag": "koch_hill"}))
+    (a / "umf.csv").write_text("velocity [m/s],pressure_drop [Pa]\n0.2,600\n0.1,300\n")
+    text = umf.compare(tmp_path).read_text()
+    assert "| case-000 | koch_hill | 0.31 | 4 | 1000 |" in text
+    assert "| case-001 | gidaspow | no analysis: failed: exit 3 | - | - |" in text
+    assert (tmp_path / "umf_compare.png").stat().st_size > 0

@@ -157,7 +157,9 @@ def compare(sweep_dir) -> pathlib.Path:
                                  "|---|---|---|---|---|"], math.nan
     for c in cases:
         j = d / c["case"] / "analysis" / "umf.json"
-        if not j.exists():
+        if not j.exists():  # a failed case kept its row (it vanished from the table without a word)
+            lines.append(f"| {c['case']} | {c.get('coupling.drag') or '-'} | no analysis: "
+                         f"{c.get('status') or 'see its log.txt'} | - | - |")
             continue
         fig = json.loads(j.read_text())
         with open(d / c["case"] / "analysis" / "umf.csv", newline="") as f:
