@@ -259,7 +259,8 @@ def test_a_gas_grid_too_large_for_the_cpus_memory_is_refused_before_it_is_built(
     gas_only = ('[run]\nduration = 0.001\n[domain]\nlo = [-0.05, -0.05, 0.0]\nhi = [0.05, 0.05, 0.4]\n'
                 '[vessel]\nshape = "box"\n[gas]\ncell_size = {h}\n[boundary]\n'
                 'bottom = {{ kind = "velocity_inlet", velocity = [0.0, 0.0, 0.5] }}\ntop = {{ kind = "pressure_outlet" }}\n')
-    for cfg, grid in ((load(fluidize, ["gas.cell_size=1e-5"]), "(4500 x 4500 x 25000)"),
+    # (no smoothing: its 3 mm on 1e-5 m cells are 3e5 passes a step, refused at load, naming gas.cell_size too)
+    for cfg, grid in ((load(fluidize, ["gas.cell_size=1e-5", "coupling.smoothing_width=0"]), "(4500 x 4500 x 25000)"),
                       (load_text(gas_only.format(h=1e-4), "gas.toml"), "(1000 x 1000 x 4000)")):
         with pytest.raises(ConfigError) as err:
             scene_mod.Scene(cfg)
@@ -291,7 +292,7 @@ def test_a_scene_too_large_for_the_gpus_memory_is_refused_before_it_is_built(mon
     monkeypatch.setattr(runtime, "cuda_memory", lambda: 80e9)
     root = pathlib.Path(__file__).resolve().parents[1] / "presets"
     with pytest.raises(ConfigError) as err:
-        scene_mod.Scene(load(root / "fluidize.toml", ["gas.cell_size=1e-5"]))
+        scene_mod.Scene(load(root / "fluidize.toml", ["gas.cell_size=1e-5", "coupling.smoothing_width=0"]))
     assert err.value.key == "gas.cell_size" and "(4500 x 4500 x 25000)" in str(err.value), str(err.value)
     assert "of the GPU's memory" in str(err.value) and "Taichi's pool (0.9 of the GPU's 80 GB)" in str(err.value)
     verma = load(root / "verma.toml")
@@ -408,6 +409,23 @@ def test_gas_blown_in_with_no_pressure_outlet_is_refused():
         load(fluidize, [jet_only, 'boundary.top={kind="wall"}'])
     drawn = load(fluidize, ['boundary.top={kind="velocity_inlet",velocity=[0,0,1.1]}'])  # out through the top
     assert {b.kind for _, b in drawn.boundary} == {"velocity_inlet"}
+
+
+def test_a_smoothing_width_of_more_than_a_thousand_passes_is_refused():
+    """coupling.smoothing_width = 10 m on fluidize's 5 mm cells is 1.4e7 smoothing passes a fluid step: the run was
+    still in its first step after 15 minutes, deaf to SIGTERM (which waits for the step). Passes are width^2 /
+    (2 alpha h^2), alpha = 1/7: more than 1000 are refused naming the key; 3 cm (126 passes) is taken."""
+    from app.config.derived import smoothing_passes
+
+    fluidize = pathlib.Path(__file__).resolve().parents[1] / "presets" / "fluidize.toml"
+    assert smoothing_passes(0.03, 0.005) == math.ceil(0.03 ** 2 * 7 / (2 * 0.005 ** 2)) == 126
+    assert load(fluidize, ["coupling.smoothing_width=0.03"]).coupling.smoothing_width == 0.03
+    with pytest.raises(ConfigError, match=r"= 10 m on gas.cell_size = 0.005 m cells is 1.4e\+07 smoothing pass") as err:
+        load(fluidize, ["coupling.smoothing_width=10"])
+    assert err.value.key == "coupling.smoothing_width"
+    with pytest.raises(ConfigError, match=r"= 0.003 m on gas.cell_size = 1e-05 m cells is 3.15e\+05") as err:
+        load(fluidize, ["gas.cell_size=1e-5"])  # the preset's 3 mm width: the cells are to blame
+    assert err.value.key == "gas.cell_size"
 
 
 def test_a_folder_given_as_the_initial_state_is_named_with_the_bed_file_in_it(tmp_path):

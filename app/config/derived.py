@@ -43,6 +43,19 @@ def rcfd_frames(span: float, interval: float) -> int:
     return max(0, math.floor(span / interval + 1e-9))
 
 
+SMOOTH_ALPHA = 1.0 / 7.0  # explicit diffusion weight per pass of the coupling's smoothing (stable below 1/6 in 3-D)
+#: the most smoothing passes a fluid step may take: coupling.smoothing_width = 10 m on fluidize's 5 mm cells was
+#: 1.4e7 passes, still in its first step after 15 minutes (a SIGTERM waits for the step); the presets take 1 or 2
+MAX_SMOOTHING_PASSES = 1000
+
+
+def smoothing_passes(width: float, h: float) -> int:
+    """Passes giving a Gaussian spread of standard deviation ``width`` [m] (each adds 2 alpha h^2 per axis)."""
+    if width <= 0:
+        return 0
+    return int(math.ceil(width ** 2 / (2 * SMOOTH_ALPHA * h * h)))
+
+
 #: the most pixels of one synthetic MRI image, 1024 x 1024 (4 MB a frame in run.h5): 0.25 mm pixels over the poppy
 #: bed's 96 mm x 600 mm are 921,600 (the MRI's are 4 mm x 8 mm, 1,800); 1 um pixels in fluidize's column asked Taichi
 #: for an array beyond int32 indices, and the host's memory ran out

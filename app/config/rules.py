@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pathlib
 
-from .derived import MRI_MAX_PIXELS, mri_pixels, periodic_axes
+from .derived import MAX_SMOOTHING_PASSES, MRI_MAX_PIXELS, mri_pixels, periodic_axes, smoothing_passes
 from .errors import ConfigError, find_line
 from .schema import Config
 
@@ -74,6 +74,7 @@ def _gas_and_boundaries(cfg: Config, fail) -> None:
                 fail("gas", "cell_size", f"the domain's {'xyz'[a]} extent {d.hi[a] - d.lo[a]:g} m is not a whole "
                      f"number of {g.cell_size:g} m cells ({n:.4g})", "adjust gas.cell_size or domain.lo / domain.hi")
         _periodic_pairs(cfg, fail)
+        _smoothing(cfg, fail)
         for face, b in dict(cfg.boundary).items():
             _boundary_face(face, b, fail)
         _gas_way_out(dict(cfg.boundary), fail)
@@ -83,6 +84,20 @@ def _gas_and_boundaries(cfg: Config, fail) -> None:
                 fail("boundary", face, f"a {b.kind} boundary needs a [gas] section",
                      "add [gas], or keep only periodic faces (they wrap the grains)")
         _periodic_pairs(cfg, fail)
+
+
+def _smoothing(cfg: Config, fail) -> None:
+    """More than MAX_SMOOTHING_PASSES passes a fluid step: the width is blamed when it is beyond three grain
+    diameters (the usual width is one or two), else the cells (1e-5 m cells under fluidize's 3 mm width)."""
+    width, h, p = cfg.coupling.smoothing_width, cfg.gas.cell_size, cfg.particles
+    passes = smoothing_passes(width, h)
+    if p is None or passes <= MAX_SMOOTHING_PASSES:
+        return
+    what = (f"coupling.smoothing_width = {width:g} m on gas.cell_size = {h:g} m cells is {passes:.3g} smoothing passes "
+            f"a fluid step (at most {MAX_SMOOTHING_PASSES}; each pass sweeps the grid)")
+    if width > 3 * max(p.diameters or [p.diameter]):
+        fail("coupling", "smoothing_width", what, "a grain diameter or two (the presets: 1.5-4 mm, 1 or 2 passes)")
+    fail("gas", "cell_size", what, "unresolved CFD-DEM wants cells of a few grain diameters")
 
 
 def _periodic_pairs(cfg: Config, fail) -> None:

@@ -33,7 +33,7 @@ import numpy as np
 import taichi as ti
 
 from .launch import kernel
-from ..config.derived import grain_volume
+from ..config.derived import SMOOTH_ALPHA, grain_volume, smoothing_passes  # noqa: F401 (the scene's)
 from . import drag
 from .dem import grain_radius
 from .gas.layout import CellGeometry, Inputs, Outputs
@@ -55,14 +55,6 @@ class CouplingModel:
 
 grain_volume_func = ti.func(grain_volume)  # a grain's volume inside a kernel: the config's one formula
 
-SMOOTH_ALPHA = 1.0 / 7.0  # explicit diffusion weight per pass (stable below 1/6 in 3-D)
-
-
-def smoothing_passes(width: float, h: float) -> int:
-    """Passes giving a Gaussian spread of standard deviation ``width`` [m] (each adds 2 alpha h^2 per axis)."""
-    if width <= 0:
-        return 0
-    return int(np.ceil(width ** 2 / (2 * SMOOTH_ALPHA * h * h)))
 
 
 @ti.data_oriented
