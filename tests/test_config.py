@@ -428,6 +428,17 @@ def test_a_smoothing_width_of_more_than_a_thousand_passes_is_refused():
     assert err.value.key == "gas.cell_size"
 
 
+def test_an_rcfd_tag_outside_the_domain_is_refused():
+    """probes.rcfd_tag = 'z>100' tagged no grain: every rCFD index was NaN, and `fbed rcfd validate` found it
+    only after its runs. A tag value outside the domain (all or none of it) is refused at load."""
+    rcfd_small = pathlib.Path(__file__).resolve().parents[1] / "presets" / "rcfd_small.toml"
+    for tag in ("z>100", "x<=1e9", "y<-0.5"):
+        with pytest.raises(ConfigError, match="tags all or none of the domain") as err:
+            load(rcfd_small, [f'probes.rcfd_tag="{tag}"'])
+        assert err.value.key == "probes.rcfd_tag"
+    assert load(rcfd_small, ['probes.rcfd_tag="z>=0.03"']).probes.rcfd_tag == "z>=0.03"
+
+
 def test_a_folder_given_as_the_initial_state_is_named_with_the_bed_file_in_it(tmp_path):
     """particles.initial_state = a run's folder (not its bed.h5) printed HDF5's dump of its read call ("file read
     failed: time = ..., filename = ..., file descriptor = 3, errno = 21, ..., buf = 0x7ff..."), over two lines.

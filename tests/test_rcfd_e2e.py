@@ -130,11 +130,14 @@ def test_a_negative_seed_or_lag_and_a_horizon_beyond_memory_are_refused_naming_t
     words); --lag -3 ran as if 1; --horizon 1e12 (2e14 frames of 5 ms) ended in a numpy traceback allocating the
     path. Each now names its flag (exit 2), before any output folder is made; the horizon with the frames and the
     memory they need against what is available. --lag 30 on 24 recorded frames said numpy's "need at least one array
-    to concatenate"; --name ../../x wrote the path's files two folders above RUN_DIR/rcfd."""
+    to concatenate"; --name ../../x wrote the path's files two folders above RUN_DIR/rcfd; a --tag that tags none
+    or all of the grains gave indices of NaN on every path."""
     for args, said in ((["--seed", "-5"], "--seed: --seed must be 0 or more"),
                        (["--lag", "-3"], "--lag: --lag must be at least 1"),
                        (["--lag", "30"], "--lag: --lag 30 leaves 0 frames of 30 recorded frames from the 24"),
                        (["--name", "../../x"], "--name: --name must be one folder name"),
+                       (["--tag", "z>100"], "--tag: --tag 'z>100' tags none of the grains at t = 0.4 s"),
+                       (["--tag", "x<=1e9"], "--tag: --tag 'x<=1e9' tags all of the grains"),
                        (["--horizon", "1e12"], "--horizon: --horizon 1e+12 s is 200,000,000,000,000 frames of 0.005 s")):
         r = fbed("rcfd", "run", recorded, "--horizon", "0.05", "--paths", "1", *args, "--out", tmp_path / "o")
         assert r.returncode == 2 and said in r.stderr and "Traceback" not in r.stderr, r.stderr[-2000:]

@@ -57,9 +57,13 @@ def _rcfd(cfg: Config, fail) -> None:
         from ..rcfd.database import parse_tag  # h5py and scipy.sparse: only for rCFD scenes
 
         try:
-            parse_tag(pr.rcfd_tag)
+            axis, _, value = parse_tag(pr.rcfd_tag)
         except ValueError as err:
             fail("probes", "rcfd_tag", str(err))
+        lo, hi = cfg.domain.lo[axis], cfg.domain.hi[axis]
+        if not lo < value < hi:  # 'z>100' tagged no grain: every rCFD index NaN (validate: after all its runs)
+            fail("probes", "rcfd_tag", f"the tag {pr.rcfd_tag!r} tags all or none of the domain "
+                 f"({'xyz'[axis]} {lo:g}..{hi:g} m)", "give a value inside it, e.g. 'x<0' for the half x < 0")
         if cfg.gas is None or cfg.particles is None:
             fail("probes", "rcfd_from", "rCFD frames need both grains and gas", "set probes.rcfd_from = -1")
 

@@ -72,7 +72,7 @@ def main(args) -> int:
             s = commands.run_paths(str(d), args.horizon, args.paths, args.seed, args.tag, args.name, args.out,
                                    args.start, log=log, gas=args.gas, lag=args.lag, jump=args.jump)
         except ValueError as err:
-            key = next((k for k in ("--lag", "--horizon") if k in str(err)), "--jump" if str(err).startswith("jump")
+            key = next((k for k in ("--lag", "--horizon", "--tag") if k in str(err)), "--jump" if str(err).startswith("jump")
                        else "RUN_DIR")
             msg = str(err).removeprefix(f"{d / 'rcfd.h5'}: ")  # the error names the file already
             raise ConfigError(msg, str(d / "rcfd.h5"), key) from None

@@ -204,6 +204,20 @@ def initial_concentration(db: Database, state: int, tag: str | None) -> np.ndarr
     return tag_mask(tag, db.cell_centres().reshape(-1, 3)).astype(np.float64)
 
 
+def _check_tagged(db: Database, state: int, c: np.ndarray, tag: str) -> None:
+    """Some grains and not all must be tagged: 'z>100' (none) or 'x<=1e9' (all) gave mixing and Lacey indices of
+    NaN on every path, without a word."""
+    sol = db.solid[state].astype(np.float64)
+    tagged, total = float(np.sum(c * sol)), float(np.sum(sol))
+    if 0.0 < tagged < total * (1.0 - 1e-9):
+        return
+    occupied = db.cell_centres().reshape(-1, 3)[sol > 0]
+    span = ", ".join(f"{a} {lo:.4g}..{hi:.4g}" for a, lo, hi in zip("xyz", occupied.min(0), occupied.max(0)))
+    raise ValueError(f"--tag {tag!r} tags {'none' if tagged <= 0 else 'all'} of the grains at t = "
+                     f"{float(db.time[state]):.4g} s (their cells' centres span {span} m): the mixing index needs "
+                     "grains tagged and grains not")
+
+
 def _write_curves(path: pathlib.Path, time: np.ndarray, Ms: np.ndarray) -> None:
     """A csv of each path's index against time, with the ensemble mean and std."""
     mean, std = Ms.mean(0), Ms.std(0, ddof=1) if len(Ms) > 1 else np.zeros(Ms.shape[1])
@@ -333,6 +347,7 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
                          f"need about {need / 1e9:.3g} GB of memory, and {have / 1e9:.3g} GB is available")
     start_state = db.n_states - 1 if start == "end" else 0
     c0 = initial_concentration(db, start_state, tag)
+    _check_tagged(db, start_state, c0, tag or db.tag)
     od = out_folder(out, rd / "rcfd" / (name or f"run_T{horizon:g}_N{n_paths}_s{seed}"))
     t_path = wallclock.perf_counter()
     ps = [eng.path(n_frames, start_state, (seed, i)) for i in range(n_paths)]
