@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .config.derived import plane_name
+
 
 def slab_layers(ny: int, h: float, y0: float, y_mid: float, width: float) -> np.ndarray:
     """Indices of the y cell layers whose centres lie within width/2 of y_mid (at least the nearest one or two)."""
@@ -37,10 +39,6 @@ def plane_weights(nz: int, h: float, z0: float, z: float) -> tuple[int, int, flo
     k1 = min(k0 + 1, nz - 1)
     w = float(np.clip(q - k0, 0.0, 1.0)) if k1 != k0 else 0.0
     return k0, k1, w
-
-
-def plane_name(z: float) -> str:
-    return f"z{z:.3f}"
 
 
 class Probes:

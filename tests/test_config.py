@@ -428,6 +428,17 @@ def test_a_smoothing_width_of_more_than_a_thousand_passes_is_refused():
     assert err.value.key == "gas.cell_size"
 
 
+def test_two_heights_of_one_plane_are_refused():
+    """probes.planes = [0.05, 0.05] recorded each frame twice into one run.h5 group (times 0.001, 0.001, 0.002,
+    ...); 0.0501 and 0.0504 are one plane too (named z0.050). Refused at load; 1 mm apart is taken."""
+    fluidize = pathlib.Path(__file__).resolve().parents[1] / "presets" / "fluidize.toml"
+    for planes in ("[0.05,0.05]", "[0.0501,0.1,0.0504]"):
+        with pytest.raises(ConfigError, match=r"two heights are the same plane, 0.050 m") as err:
+            load(fluidize, [f"probes.planes={planes}", "probes.planes_interval=0.002"])
+        assert err.value.key == "probes.planes"
+    assert load(fluidize, ["probes.planes=[0.05,0.051]", "probes.planes_interval=0.002"]).probes.planes == [0.05, 0.051]
+
+
 def test_an_rcfd_tag_outside_the_domain_is_refused():
     """probes.rcfd_tag = 'z>100' tagged no grain: every rCFD index was NaN, and `fbed rcfd validate` found it
     only after its runs. A tag value outside the domain (all or none of it) is refused at load."""

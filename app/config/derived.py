@@ -78,6 +78,11 @@ def mri_pixels(cfg: Config) -> tuple[int, int, float, float, float]:
             float(yc), float(floor))
 
 
+def plane_name(z: float) -> str:
+    """The run.h5 group of the plane at height ``z`` [m] (to the mm: heights within it are one plane)."""
+    return f"z{z:.3f}"
+
+
 def grain_volume(radius):
     """Volume [m^3] of a grain (a sphere) of ``radius`` [m]: 4/3 pi r^3. One formula for a number, a numpy
     array and a Taichi kernel (``app.sim.coupling.grain_volume_func`` is this function as a ti.func):

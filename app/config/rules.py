@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import pathlib
 
-from .derived import MAX_SMOOTHING_PASSES, MRI_MAX_PIXELS, mri_pixels, periodic_axes, smoothing_passes
+from .derived import (MAX_SMOOTHING_PASSES, MRI_MAX_PIXELS, mri_pixels, periodic_axes, plane_name,
+                      smoothing_passes)
 from .errors import ConfigError, find_line
 from .schema import Config
 
@@ -253,6 +254,11 @@ def _probes(cfg: Config, fail) -> None:
             fail("probes", "planes", f"plane heights must be numbers inside the domain ({d.lo[2]:g}..{d.hi[2]:g} m)")
         if not pr.planes_interval:
             fail("probes", "planes_interval", "planes are given but planes_interval = 0", "set it, e.g. 2e-3 s")
+        names = [plane_name(z) for z in pr.planes]
+        if len(set(names)) < len(names):  # [0.05, 0.05] recorded each frame twice into one group
+            same = next(n for n in names if names.count(n) > 1)
+            fail("probes", "planes", f"two heights are the same plane, {same[1:]} m (planes are named to the mm)",
+                 "give each height once, at least 1 mm apart")
     for key in ("slab_interval", "planes_interval", "volume_interval", "mri_interval"):
         v = getattr(pr, key)
         if v and v < cfg.run.step * (1 - 1e-9):
