@@ -31,6 +31,7 @@ from .sim.simulation import Simulation
 
 ROLLING = {"none": 0, "constant_torque": ROLL_CONSTANT, "epsd": ROLL_EPSD}
 CELLS_PER_GRAIN = 4  # cap on the cell list's size (4 bytes per cell)
+LAYER_POINTS = 1_000_000  # lattice points of one fill layer beyond which only a centred patch is made
 
 
 def build_walls(cfg: Config) -> list:
@@ -188,6 +189,20 @@ def sample_radii(n: int, der: Derived, rng: np.random.Generator) -> np.ndarray:
     return r
 
 
+def _layer_axes(spans: list, s: float, n: int) -> list:
+    """The x and y lattice lines of a fill layer, np.arange(lo, hi, s) for each (lo, hi) of ``spans``; where the
+    layer would be far larger than the n grains need, a centred patch of about 4n points: a 1e6 m domain with
+    vessel.shape = 'none' asked numpy for 1.57 EiB. The presets' layers are thousands of points, far under
+    LAYER_POINTS."""
+    nx, ny = (max(0, math.ceil((hi - lo) / s)) for lo, hi in spans)
+    if nx * ny <= LAYER_POINTS + 4 * n:
+        return [np.arange(lo, hi, s) for lo, hi in spans]
+    wy = min(ny, math.isqrt(4 * n) + 1)
+    wx = min(nx, -(-4 * n // wy) + 1)
+    wy = min(ny, -(-4 * n // wx) + 1)
+    return [lo + (np.arange(w) + (c - w) // 2) * s for (lo, _), c, w in zip(spans, (nx, ny), (wx, wy))]
+
+
 def lattice_fill(cfg: Config, walls: list, n: int, radius_max: float, rng: np.random.Generator,
                  file: str = "<preset>") -> np.ndarray:
     """n non-overlapping centres on a jittered cubic lattice, lowest first, inside the vessel."""
@@ -197,8 +212,10 @@ def lattice_fill(cfg: Config, walls: list, n: int, radius_max: float, rng: np.ra
     top = d.hi[2] if cfg.vessel.lid is None else cfg.vessel.lid
     gap = s - 2 * radius_max
     margin = radius_max + 0.5 * gap + 1e-9
-    axes = [np.arange(d.lo[a] + margin, d.hi[a] - margin + 1e-12, s) for a in range(2)]
-    zs = np.arange(max(floor, d.lo[2]) + margin, min(top, d.hi[2]) - margin + 1e-12, s)
+    axes = _layer_axes([(d.lo[a] + margin, d.hi[a] - margin + 1e-12) for a in range(2)], s, n)
+    z0, z1 = max(floor, d.lo[2]) + margin, min(top, d.hi[2]) - margin + 1e-12
+    dz = (z0 + s) - z0  # np.arange(z0, z1, s)'s heights to the bit (its step is this difference), made as needed
+    zs = (z0 + k * dz for k in range(max(0, math.ceil((z1 - z0) / s))))
     X, Y = np.meshgrid(axes[0], axes[1], indexing="ij")
     layer = np.stack([X.ravel(), Y.ravel()], -1)
     pts = []

@@ -428,6 +428,36 @@ def test_a_smoothing_width_of_more_than_a_thousand_passes_is_refused():
     assert err.value.key == "gas.cell_size"
 
 
+def test_a_domain_far_larger_than_the_bed_fills_and_float32_refuses_one_that_cannot_resolve_the_grains():
+    """domain.hi = [1e6, 1e6, 1e6] with vessel.shape = 'none': the filler built every lattice point of a layer
+    (numpy: "Unable to allocate 1.57 EiB"); it now fills a centred patch of about 4n points where the layer is far
+    larger (none of the presets' layers is). In float32 such a domain is refused at load: positions 1e6 m out are
+    0.12 m apart, and the grains sat on one point (the run stopped blaming the contact stiffness)."""
+    import numpy as np
+
+    from app.scene import lattice_fill
+
+    fluidize = pathlib.Path(__file__).resolve().parents[1] / "presets" / "fluidize.toml"
+    huge = ["domain.hi=[1e6,1e6,1e6]", 'vessel.shape="none"', "gas.cell_size=1e5"]
+    with pytest.raises(ConfigError, match=r"1e\+06 m from the origin are 0.12 m apart") as err:
+        load(fluidize, huge)
+    assert err.value.key == "domain.hi"
+    cfg = load(fluidize, [*huge, 'run.precision="float64"'])
+    pos = lattice_fill(cfg, [], 500, 1e-3, np.random.default_rng(0))
+    assert pos.shape == (500, 3) and np.all(np.abs(pos[:, :2] - 5e5) < 0.2)  # about the centre, on the floor
+    gaps = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(500)
+    assert gaps.min() >= 2e-3 and pos[:, 2].max() < 0.01
+    # the presets' fills are unchanged to the bit (the heights were np.arange's, now made one at a time)
+    cfg = load(fluidize)
+    pos = lattice_fill(cfg, [], 5000, 1e-3, np.random.default_rng(0))
+    s = cfg.particles.fill_spacing * 2 * 1e-3  # the filler's own spacing, gap and margin
+    gap = s - 2e-3
+    m = 1e-3 + 0.5 * gap + 1e-9
+    lines = [np.arange(lo + m, hi - m + 1e-12, s) for lo, hi in zip(cfg.domain.lo, cfg.domain.hi)]
+    grid = np.stack(np.meshgrid(*lines, indexing="ij"), -1).transpose(2, 0, 1, 3).reshape(-1, 3)[:5000]
+    assert np.array_equal(pos, grid + np.random.default_rng(0).uniform(-1, 1, (5000, 3)) * 0.45 * gap / 3 ** 0.5)
+
+
 def test_two_heights_of_one_plane_are_refused():
     """probes.planes = [0.05, 0.05] recorded each frame twice into one run.h5 group (times 0.001, 0.001, 0.002,
     ...); 0.0501 and 0.0504 are one plane too (named z0.050). Refused at load; 1 mm apart is taken."""

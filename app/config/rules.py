@@ -180,6 +180,12 @@ def _particles_and_contact(cfg: Config, fail) -> None:
     width = min(h - l for l, h in zip(d.lo, d.hi))
     if dmax >= width:
         fail("particles", "diameter", f"grains of {dmax:g} m do not fit in a domain {width:g} m wide")
+    far = max(abs(v) for v in (*d.lo, *d.hi))
+    rmin = 0.5 * min(p.diameters or [p.diameter])
+    if cfg.run.precision == "float32" and far * 2.0 ** -23 > 0.01 * rmin:  # 1e6 m: grains on one float32 point
+        fail("domain", "hi" if far in map(abs, d.hi) else "lo", f"in float32 positions {far:g} m from the origin are {far * 2.0 ** -23:.2g} m apart, more "
+             f"than 1% of the smallest grain's radius ({rmin:g} m): the grains cannot move in such steps",
+             "a smaller domain, or one placed about the origin, or run.precision = 'float64'")
     sources = sum([p.count > 0, p.bed_height > 0, bool(p.initial_state)])
     if sources == 0:
         fail("particles", "count", "say how many grains: count, bed_height (m) or initial_state (a bed.h5)")
