@@ -18,7 +18,7 @@ import pathlib
 import numpy as np
 
 from .config import ConfigError, resolve_path
-from .config.derived import Derived, derive, periodic_axes
+from .config.derived import Derived, derive, periodic_axes, smoothing_passes
 from .config.schema import Config
 from .io import store
 from .io.store import available_memory
@@ -287,7 +287,7 @@ def coupling_model(cfg: Config, serial: bool = False):
     return coupling.CouplingModel(law=drag.law_of(c.drag), model_b=cfg.gas.pressure_form == "gas",
                                   eps_min=c.eps_min, gas_density=cfg.gas.density, gas_viscosity=cfg.gas.viscosity,
                                   gravity=tuple(cfg.domain.gravity),
-                                  smoothing_passes=coupling.smoothing_passes(c.smoothing_width, cfg.gas.cell_size),
+                                  smoothing_passes=smoothing_passes(c.smoothing_width, cfg.gas.cell_size),
                                   serial=serial)
 
 

@@ -22,7 +22,7 @@ class Guard:
     def __init__(self, max_overlap: float, max_speed: float, dt: float = 0.0, dt_limit: float = float("inf"),
                  max_gas_speed: float = float("inf"), max_divergence: float = float("inf"),
                  max_energy_growth: float = float("inf"), energy_floor: float = 0.0, interval: float = 0.0,
-                 trace_forces: bool = False, no_outlet: bool = False):
+                 trace_forces: bool = False):
         # energy growth: the grains' kinetic energy against the one of the check an interval before, measured
         # from at least energy_floor [J] (from rest any factor is physical: a bed starting to move)
         self.max_energy_growth = max_energy_growth
@@ -34,7 +34,6 @@ class Guard:
         # known to run away by itself (benchmarks/RESULTS.md, the gust case), so its knob is named first
         self.trace_forces = trace_forces
         self.max_divergence = max_divergence
-        self.no_outlet = no_outlet  # gas inlets and no pressure outlet: their flows must balance at every instant
         self.max_overlap = max_overlap
         self.max_speed = max_speed
         self.dt = dt
@@ -59,11 +58,9 @@ class Guard:
             floor = 0.5 * float(np.sum(masses)) * STANDARD_GRAVITY * 2.0 * derived.radius_min
         gas = getattr(cfg, "gas", None)
         trace = bool(gas is not None and gas.trace_forces and gas.convection == "maccormack")
-        kinds = {b.kind for _, b in cfg.boundary}
-        no_outlet = gas is not None and "velocity_inlet" in kinds and "pressure_outlet" not in kinds
         return cls(g.max_overlap, g.max_speed, derived.dt if derived else 0.0,
                    derived.dt_limit if derived else float("inf"), g.max_gas_speed, g.max_divergence,
-                   g.max_energy_growth, floor, g.interval, trace, no_outlet)
+                   g.max_energy_growth, floor, g.interval, trace)
 
     def _gas_knobs(self, usual: str) -> str:
         """The settings a gas that runs away should change: the force trace first where it is on."""
@@ -87,13 +84,12 @@ class Guard:
             raise Unstable(f"non-finite gas velocity or pressure at t = {t:.6g} s (gas CFL {d['gas_cfl']:.3g}): "
                            + self._gas_knobs("lower run.step (the fluid step), raise gas.max_iterations, or check "
                                              "[boundary]"))
-        if self.no_outlet:
-            net, share = sim.flow.inflow_imbalance()
-            if share > INFLOW_IMBALANCE:
-                raise Unstable(f"the velocity inlets blow {net:.3g} m^3/s more into the domain than they draw out "
-                               f"({100 * share:.3g}% of their flow) at t = {t:.6g} s, and no face is a "
-                               "pressure_outlet: the incompressible gas has no solution: add a pressure_outlet, or "
-                               "balance the inlets (in as much as out, at every instant)")
+        net, share = sim.flow.inflow_imbalance()  # (0, 0) where a face is a pressure outlet
+        if share > INFLOW_IMBALANCE:
+            raise Unstable(f"the velocity inlets blow {net:.3g} m^3/s more into the domain than they draw out "
+                           f"({100 * share:.3g}% of their flow) at t = {t:.6g} s, and no face is a "
+                           "pressure_outlet: the incompressible gas has no solution: add a pressure_outlet, or "
+                           "balance the inlets (in as much as out, at every instant)")
         if d["divergence_residual"] > self.max_divergence:
             raise Unstable(f"the gas's divergence residual is {d['divergence_residual']:.3g} at t = {t:.6g} s "
                            f"(guard.max_divergence = {self.max_divergence:g}; {d['pressure_iterations']} pressure "

@@ -33,7 +33,7 @@ import numpy as np
 import taichi as ti
 
 from .launch import kernel
-from ..config.derived import SMOOTH_ALPHA, grain_volume, smoothing_passes  # noqa: F401 (the scene's)
+from ..config.derived import SMOOTH_ALPHA, grain_volume
 from . import drag
 from .dem import grain_radius
 from .gas.layout import CellGeometry, Inputs, Outputs
@@ -54,7 +54,6 @@ class CouplingModel:
 
 
 grain_volume_func = ti.func(grain_volume)  # a grain's volume inside a kernel: the config's one formula
-
 
 
 @ti.data_oriented
