@@ -78,6 +78,8 @@ def out_folder(out: str | None, default: pathlib.Path, key: str = "--out") -> pa
     return d
 
 
+#: flock's errors when another process holds the lock (any other: a file system without locks, the folder unheld)
+HELD_ELSEWHERE = (errno.EAGAIN, errno.EWOULDBLOCK, errno.EACCES)
 #: folders this process holds the lock of (a resolved path -> the open descriptor whose flock holds it)
 _held: dict[str, int] = {}
 
@@ -98,8 +100,8 @@ def hold_folder(d: pathlib.Path, key: str) -> None:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             break
         except OSError as err:
-            if err.errno not in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EACCES):  # a file system without locks
-                os.close(fd)                                                     # (ENOLCK): the folder goes unheld
+            if err.errno not in HELD_ELSEWHERE:  # a file system without locks (ENOLCK): the folder goes unheld
+                os.close(fd)
                 return
             if time.monotonic() < deadline:
                 time.sleep(0.5)
@@ -121,7 +123,7 @@ def refuse_live_folder(d: pathlib.Path, key: str) -> None:
         fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)  # released when fd closes
         return
     except OSError as err:
-        if err.errno not in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EACCES):  # a file system without locks
+        if err.errno not in HELD_ELSEWHERE:
             return
     finally:
         os.close(fd)

@@ -121,8 +121,11 @@ def _gas_way_out(faces: dict, fail) -> None:
     if any(b.kind == "pressure_outlet" for b in faces.values()):
         return
     inlets = {f: b for f, b in faces.items() if b.kind == "velocity_inlet"}
-    inward = {f: (1.0 if f[1] == "-" else -1.0) * b.velocity["xyz".index(f[0])] for f, b in inlets.items()}
-    jets = {f: (1.0 if f[1] == "-" else -1.0) * b.jet_velocity["xyz".index(f[0])] for f, b in inlets.items()}
+
+    def into(f: str, v) -> float:  # v's component into the domain through face f
+        return (1.0 if f[1] == "-" else -1.0) * v["xyz".index(f[0])]
+    inward = {f: into(f, b.velocity) for f, b in inlets.items()}
+    jets = {f: into(f, b.jet_velocity) for f, b in inlets.items()}
     fractions = [r[1] for b in inlets.values() for r in b.schedule]
     if (all(v >= 0 for v in (*inward.values(), *jets.values(), *fractions))
             and any(v > 0 for v in (*inward.values(), *jets.values()))):
@@ -183,8 +186,9 @@ def _particles_and_contact(cfg: Config, fail) -> None:
     far = max(abs(v) for v in (*d.lo, *d.hi))
     rmin = 0.5 * min(p.diameters or [p.diameter])
     if cfg.run.precision == "float32" and far * 2.0 ** -23 > 0.01 * rmin:  # 1e6 m: grains on one float32 point
-        fail("domain", "hi" if far in map(abs, d.hi) else "lo", f"in float32 positions {far:g} m from the origin are {far * 2.0 ** -23:.2g} m apart, more "
-             f"than 1% of the smallest grain's radius ({rmin:g} m): the grains cannot move in such steps",
+        fail("domain", "hi" if far in map(abs, d.hi) else "lo", f"in float32 positions {far:g} m from the origin "
+             f"are {far * 2.0 ** -23:.2g} m apart, more than 1% of the smallest grain's radius ({rmin:g} m): the "
+             "grains cannot move in such steps",
              "a smaller domain, or one placed about the origin, or run.precision = 'float64'")
     sources = sum([p.count > 0, p.bed_height > 0, bool(p.initial_state)])
     if sources == 0:

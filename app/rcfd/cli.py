@@ -27,7 +27,10 @@ FLAG_ACTIONS = {"horizon": ("run",), "paths": ("run", "validate"), "seed": ("run
                 "sensitivity": ("validate",), "overrides": ("validate",), "arch": ("validate",)}
 
 
-def _check_seed_and_lag(args) -> None:
+def _check_counts(args) -> None:
+    """--paths, --seed and --lag, read by run and validate (validate's --paths 0 ran every run, then a traceback)."""
+    if args.paths < 1:
+        raise ConfigError(f"--paths must be at least 1, got {args.paths}", "", "--paths")
     if args.seed < 0:  # numpy's seeds are non-negative: it said so as an error of the run's rcfd.h5
         raise ConfigError(f"--seed must be 0 or more, got {args.seed}", "", "--seed")
     if args.lag < 1:  # a frame of LAG recorded frames: -3 ran, as if 1
@@ -55,9 +58,7 @@ def main(args) -> int:
         d = _db_dir(args.target)
         if not (args.horizon > 0 and math.isfinite(args.horizon)):
             raise ConfigError(f"--horizon must be a positive time in s, got {args.horizon:g}", "", "--horizon")
-        if args.paths < 1:
-            raise ConfigError(f"--paths must be at least 1, got {args.paths}", "", "--paths")
-        _check_seed_and_lag(args)
+        _check_counts(args)
         if args.name is not None and (args.name in ("", ".", "..") or any(c in args.name for c in "/\\")):
             raise ConfigError(f"--name must be one folder name (made under RUN_DIR/rcfd), got {args.name!r}", "",
                               "--name", hint="to write elsewhere give --out FOLDER")  # '../../x' wrote outside the run
@@ -72,8 +73,8 @@ def main(args) -> int:
             s = commands.run_paths(str(d), args.horizon, args.paths, args.seed, args.tag, args.name, args.out,
                                    args.start, log=log, gas=args.gas, lag=args.lag, jump=args.jump)
         except ValueError as err:
-            key = next((k for k in ("--lag", "--horizon", "--tag") if k in str(err)), "--jump" if str(err).startswith("jump")
-                       else "RUN_DIR")
+            key = next((k for k in ("--lag", "--horizon", "--tag") if k in str(err)),
+                       "--jump" if str(err).startswith("jump") else "RUN_DIR")
             msg = str(err).removeprefix(f"{d / 'rcfd.h5'}: ")  # the error names the file already
             raise ConfigError(msg, str(d / "rcfd.h5"), key) from None
         c = s["cost"]
@@ -105,10 +106,8 @@ def _check_validate(args) -> None:
     if not (0 <= args.t0 < args.t1 < args.t2):
         bad = "--t0" if not args.t0 >= 0 else "--t2" if not args.t1 < args.t2 else "--t1"
         raise ConfigError(f"need 0 <= t0 < t1 < t2 (got {args.t0:g}, {args.t1:g}, {args.t2:g})", "", bad)
-    _check_seed_and_lag(args)
-    if args.paths < 1:  # 0 ran the database and the continuations, then stopped in a traceback (as did 0
-        raise ConfigError(f"--paths must be at least 1, got {args.paths}", "", "--paths")  # continuations)
-    if args.continuations < 1:
+    _check_counts(args)
+    if args.continuations < 1:  # 0 ran the database and its continuations, then stopped in a traceback
         raise ConfigError(f"--continuations must be at least 1 (full runs the paths are checked against), got "
                           f"{args.continuations}", "", "--continuations")
     from ..config import load
