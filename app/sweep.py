@@ -109,9 +109,16 @@ def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: i
         row["status"] = s.get("status", "")
         row.update({k: v for k, v in s.items() if isinstance(v, (int, float)) and not isinstance(v, bool)})
     else:
-        tail = (out / "log.txt").read_text().strip().splitlines()[-1:] or [""]
-        row["status"] = f"failed: {tail[0]}"
+        row["status"] = f"failed: {failure((out / 'log.txt').read_text())}"
     return row
+
+
+def failure(log: str) -> str:
+    """Why a case that wrote no summary failed, from its log: the last `fbed: error:` line (its hint follows it, and
+    was the status before: "failed:   hint: fewer grains ..."), else the log's last line (a traceback's exception)."""
+    lines = [ln.strip() for ln in log.strip().splitlines()]
+    errors = [ln.removeprefix("fbed: error:").strip() for ln in lines if ln.startswith("fbed: error:")]
+    return (errors or lines or [""])[-1]
 
 
 def number(v) -> float:
@@ -257,7 +264,7 @@ def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, p
     out_dir = sweep_folder(preset, out, overwrite)
     threads = 1 if jobs > 1 else 0
     where = f"on the Dask scheduler {scheduler}" if scheduler and scheduler != "local" else f"{jobs} at a time"
-    print(f"fbed sweep: {len(combos)} cases of {preset} over {', '.join(keys)}; {where}; output in {out_dir}",
+    print(f"fbed sweep: {len(combos)} case{'s' if len(combos) != 1 else ''} of {preset} over {', '.join(keys)}; {where}; output in {out_dir}",
           file=sys.stderr, flush=True)
     rows = [None] * len(combos)
 

@@ -298,6 +298,23 @@ def test_sweep_runs_every_case_and_records_a_failed_one(tmp_path):
     assert float(rows[0]["grains"]) == 300 and (out / "kinetic_energy.png").stat().st_size > 1000
 
 
+def test_sweep_records_why_a_case_that_wrote_no_summary_failed(tmp_path):
+    """A case refused as it starts (10^12 grains: the memory check needs the built scene, so the sweep's up-front
+    load passes it) wrote only its log. Its status in sweep.csv was the log's last line, the error's hint
+    ("failed:   hint: fewer grains ..."); it is now the error itself, and a log without one gives its last line."""
+    from app.sweep import run_case
+
+    row = run_case(str(ROOT / "presets" / "settle.toml"), ["particles.count"], ["1e12"], tmp_path / "case-000",
+                   "cpu", 0)
+    assert row["exit_code"] == 2 and not (tmp_path / "case-000" / "summary.json").exists()
+    assert row["status"].startswith("failed: ") and "particles.count" in row["status"], row["status"]
+    assert "grains need about" in row["status"] and "hint" not in row["status"], row["status"]
+    from app.sweep import failure
+
+    assert failure("Traceback (most recent call last):\n  ...\nMemoryError: out of memory\n") == \
+        "MemoryError: out of memory"
+
+
 def test_sweep_refuses_a_bad_value_before_running_anything(tmp_path):
     r = subprocess.run([sys.executable, "-m", "app", "sweep", ROOT / "presets" / "settle.toml",
                         "--set", "contact.restitution=0.5,1.5", "--out", tmp_path / "sw"],
