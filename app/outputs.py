@@ -242,9 +242,14 @@ def configure(preset, overrides, out, resume, overwrite):
     check_writable(out_dir, "--resume" if resume else "--out")
     if cfg.video.enabled:  # the video may be named outside the run's folder
         video = out_dir / (cfg.video.file or "video.mp4")
+        if not out_dir.exists():  # 'new/../v.mp4' is no path until 'new' is made: the '..' taken as written
+            video = pathlib.Path(os.path.normpath(video))
         if video.is_dir():
             raise ConfigError("is a folder, not a video file", str(video), "video.file",
                               hint="name an .mp4 file (relative to the output folder), or leave video.file out")
+        if video.is_file() and not resume and not overwrite:  # (one inside the folder is a run's: refused above)
+            raise ConfigError("already exists: a new run would write over it", str(video), "video.file",
+                              hint="pass --overwrite to replace it, or name another video file")
         check_writable(video.parent, "video.file")
     for note in window_notes(cfg):
         log(note)

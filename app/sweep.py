@@ -234,12 +234,17 @@ def sweep_outputs(d: pathlib.Path) -> list[pathlib.Path]:
     return found + sorted(d.glob("mri_compare.*")) + sorted(d.glob("umf_compare.*"))
 
 
+def planned_folder(preset: str, out: str | None) -> pathlib.Path:
+    """Where the sweep will write: ``out``, else a new runs/<preset>-sweep, -2, ..."""
+    return pathlib.Path(out) if out else fresh_folder(pathlib.Path("runs") / (pathlib.Path(preset).stem + "-sweep"))
+
+
 def sweep_folder(preset: str, out: str | None, overwrite: bool) -> pathlib.Path:
     """The sweep's folder: by default a new one (runs/<preset>-sweep, -2, ...); a given one that holds a run is
     refused, one that holds a sweep too unless ``overwrite`` (its files then go first). Before, each case ran with
     --overwrite into case-NNN: a second sweep into the same folder replaced the first's cases without a word."""
     if not out:
-        return out_folder(None, fresh_folder(pathlib.Path("runs") / (pathlib.Path(preset).stem + "-sweep")))
+        return out_folder(None, planned_folder(preset, out))
     d = pathlib.Path(out)
     if d.is_dir():
         if held := run_outputs(d):
@@ -256,8 +261,20 @@ def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, p
           arch: str = "auto", scheduler: str | None = None, overwrite: bool = False) -> int:
     load(preset)  # the preset itself must be valid before anything runs
     keys, combos = cases(sets)
+    videos, case = {}, planned_folder(preset, out) / "case-000"
     for values in combos:  # every case's overrides are validated up front: no half-run sweep on a typo
-        load(preset, [f"{k}={v}" for k, v in zip(keys, values)])
+        cfg = load(preset, [f"{k}={v}" for k, v in zip(keys, values)])
+        outside = pathlib.PurePath(cfg.video.file).is_absolute() or ".." in pathlib.PurePath(cfg.video.file).parts
+        if cfg.video.enabled and outside:  # each case runs with --overwrite: the last to end would keep its video
+            videos.setdefault(os.path.normpath(case / cfg.video.file), []).append(values)
+    for f, v in videos.items():
+        if len(v) > 1:
+            raise ConfigError(f"{f}: {len(v)} cases would write this one video, outside their folders", preset,
+                              "video.file", hint="leave video.file relative to the run's folder (e.g. 'video.mp4': "
+                              "one in each case's folder), or sweep it too")
+        if os.path.isfile(f) and not overwrite:  # (the cases run with --overwrite, for their own folders)
+            raise ConfigError(f"{f}: already exists: the sweep would write over it", preset, "video.file",
+                              hint="pass --overwrite to replace it, or name another video file")
     if plot_figure is not None and not plot_figure.replace("_", "").isalnum():
         raise ConfigError("not a summary figure's name (the plot is written as DIR/FIGURE.png)", "--plot",
                           plot_figure, hint="a key of the cases' summary.json, e.g. --plot mean_pressure_drop")

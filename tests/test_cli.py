@@ -453,6 +453,27 @@ def test_resume_refuses_out_and_overwrite_and_video_a_non_mp4(tmp_path, capsys):
     assert "cp -r" in cli_err(["run", "--resume", str(run), "--out", str(tmp_path / "b")], capsys)
 
 
+def test_a_video_named_outside_the_run_folder_is_not_written_over(tmp_path, capsys):
+    """A video named outside the output folder (`--video ../v.mp4`, an absolute path) that already held a file was
+    replaced by a new run without a word (--overwrite guards the folder only). A new folder's '../v.mp4' was also
+    no path until the folder was made, so its checks passed whatever lay there. A sweep whose cases all write one
+    video outside their folders kept the last case's only. Each is refused before anything runs."""
+    settle = str(ROOT / "presets" / "settle.toml")
+    old = tmp_path / "v.mp4"
+    old.write_bytes(b"an earlier video")
+    for video in ("../v.mp4", str(old)):
+        assert cli_main(["run", settle, "--video", video, "--out", str(tmp_path / "new")]) == 2
+        err = capsys.readouterr().err
+        assert "video.file: already exists" in err and "--overwrite" in err and "Traceback" not in err, err
+    for sets, said in ((["--set", "particles.count=100,200", "--set", f"video.file={tmp_path / 'w.mp4'}"],
+                        "2 cases would write this one video"),
+                       (["--set", "particles.count=100", "--set", "video.file=../../v.mp4"], "already exists")):
+        assert cli_main(["sweep", settle, *sets, "--set", "video.enabled=true", "--out", str(tmp_path / "sw")]) == 2
+        err = capsys.readouterr().err
+        assert said in err and "video.file" in err and "Traceback" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.mp4"] and old.read_bytes() == b"an earlier video"
+
+
 def cli_err(argv, capsys) -> str:
     cli_main(argv)
     return capsys.readouterr().err
