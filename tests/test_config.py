@@ -190,6 +190,25 @@ def test_a_recorded_window_that_does_not_fit_in_the_run_is_noted_at_the_start():
     assert window_notes(load(rcfd, ["run.duration=0.6", "probes.rcfd_from=0.585"])) == []  # 3 frames
 
 
+def test_a_video_of_fewer_than_two_frames_is_noted_at_the_start():
+    """`--video` on fluidize shortened to 4 ms with video.interval = 10 ms wrote no video and said "done" (with gas
+    the first frame waits for the first step's void fraction: frames at 10, 20 ms, ...); at 20 ms on settle (no gas:
+    a frame at t = 0) the video was one still frame. The run now says so at its start; two frames, no note."""
+    from app.callbacks.progress import window_notes
+    from app.config import load
+
+    presets = pathlib.Path(__file__).resolve().parents[1] / "presets"
+    on = ["video.enabled=true", "output.average_from=-1"]
+    for preset, duration, interval, said in (("fluidize", 0.004, 0.01, "no video will be written"),
+                                             ("fluidize", 0.01, 0.01, "one frame"),
+                                             ("settle", 0.01, 0.02, "one frame")):
+        notes = window_notes(load(presets / f"{preset}.toml", on + [f"run.duration={duration}",
+                                                                     f"video.interval={interval}"]))
+        assert len(notes) == 1 and said in notes[0] and "video.interval" in notes[0], notes
+    assert window_notes(load(presets / "fluidize.toml", on + ["run.duration=0.02", "video.interval=0.01"])) == []
+    assert window_notes(load(presets / "settle.toml", on + ["run.duration=0.01", "video.interval=0.01"])) == []
+
+
 def test_a_preset_saved_with_a_byte_order_mark_reads_as_without(tmp_path):
     """Windows editors may save UTF-8 with a byte-order mark: that preset was refused as "not valid TOML: Invalid
     statement (at line 1, column 1)", pointing at a character nobody can see. It now loads as the same file

@@ -150,7 +150,7 @@ def window_notes(cfg) -> list[str]:
     --set, say), which otherwise shows only at its end: run.duration not a whole number of run.step (the run ends at
     the next whole step, up to one step late); output.average_from not before run.duration (the time means, and the
     analysis that reads that window, would find nothing); probes.rcfd_from leaving fewer than the 3 frames that
-    `fbed rcfd` needs."""
+    `fbed rcfd` needs; a video of fewer than two frames."""
     notes, end = [], cfg.run.duration
     steps = run_steps(end, cfg.run.step)
     if abs(steps * cfg.run.step - end) > 1e-9 * max(end, cfg.run.step):
@@ -170,4 +170,11 @@ def window_notes(cfg) -> list[str]:
             notes.append(f"fbed: note: rCFD frames from probes.rcfd_from = {pr.rcfd_from:g} s to run.duration = "
                          f"{end:g} s: {frames} of probes.rcfd_interval = {pr.rcfd_interval:g} s, and `fbed rcfd` "
                          f"needs at least {RCFD_MIN_FRAMES} (record from earlier, or run longer)")
+    vid = cfg.video
+    if vid.enabled:  # with gas the first frame waits for the first step (before it no void fraction is deposited)
+        frames = rcfd_frames(end, vid.interval) + (cfg.gas is None)
+        if frames < 2:
+            what = "no video will be written" if frames == 0 else "the video will hold one frame, a still"
+            notes.append(f"fbed: note: video.interval = {vid.interval:g} s and run.duration = {end:g} s: {what} "
+                         "(lower video.interval)")
     return notes
