@@ -2,14 +2,11 @@
 
 The solvers come from ``app.scene.build_simulation``; what a run writes and checks while it steps are the
 callbacks of ``app.callbacks``; the config and the output folder, and their rules, are ``app.outputs``, going on
-from an earlier state ``app.resume``. Ctrl-C / SIGTERM stop cleanly with a checkpoint (a second one waits for it); a full disk stops
-with the last good checkpoint kept. Exit codes: 0 finished, 2 bad input, 3 stopped by the guard or a full
-disk, 130 interrupted."""
+from an earlier state ``app.resume``; how Ctrl-C and SIGTERM stop it ``app.stopping`` (cleanly, with a checkpoint;
+a third quits at once). A full disk stops with the last good checkpoint kept. Exit codes: 0 finished, 2 bad
+input, 3 stopped by the guard or a full disk, 130 interrupted."""
 from __future__ import annotations
 
-import os
-import signal
-import threading
 import time as wallclock
 
 from . import config as cfgmod, outputs
@@ -28,8 +25,9 @@ from .scene import Scene, build_simulation
 from .sim import runtime
 from .sim.dem import NeighborOverflow
 from .sim.simulation import Unstable
+from .stopping import EXIT_INTERRUPTED, StopOnSignals, watch_parent
 
-EXIT_OK, EXIT_INPUT, EXIT_UNSTABLE, EXIT_INTERRUPTED = 0, 2, 3, 130
+EXIT_OK, EXIT_INPUT, EXIT_UNSTABLE = 0, 2, 3
 
 
 def run(preset: str | None, overrides: list[str], out: str | None = None, arch: str = "auto",
@@ -76,38 +74,14 @@ def _attach(sim, scene, name, out_dir, runfile, config_text, renderer, viewer, r
     return final, series.bed, video
 
 
-def watch_parent(sim) -> None:
-    """With FBED_STOP_WITH_PARENT = the pid of the process that started this run (set by `fbed sweep` on a Dask
-    worker), stop cleanly, with a checkpoint, once that process is gone (a worker killed): the case is rerun
-    elsewhere, and this run must not go on writing into its folder."""
-    try:  # the pid of the process that started this one (read here, it may already be gone)
-        parent = int(os.environ.get("FBED_STOP_WITH_PARENT", ""))
-    except ValueError:
-        return
-
-    def watch():
-        while not sim.stop_requested:
-            if os.getppid() != parent:
-                log("fbed: the process that started this run is gone: stopping with a checkpoint")
-                sim.stop_requested = "parent gone"
-                return
-            wallclock.sleep(1.0)
-
-    threading.Thread(target=watch, daemon=True).start()
+def _step(sim, start, final, out_dir) -> tuple[str, str, float]:
+    """Run with Ctrl-C / SIGTERM stopping it (app.stopping), ``start()`` announcing it; (status, message, wall s)."""
+    with StopOnSignals(sim, out_dir):
+        watch_parent(sim)
+        return _stepped(sim, start, final)
 
 
-def _step(sim, start, final) -> tuple[str, str, float]:
-    """Run under the signal handlers, set before ``start()`` announces the run; (status, message, wall s)."""
-    def on_signal(signum, frame):
-        if sim.stop_requested:  # a second signal: the checkpoint is being written, and it must be finished
-            log("fbed: already stopping: the checkpoint is being written (kill -9 would lose the steps since "
-                "the last one)")
-            return
-        sim.stop_requested = signal.Signals(signum).name
-        log(f"fbed: {sim.stop_requested}: stopping after this step and writing a checkpoint")
-
-    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-    watch_parent(sim)
+def _stepped(sim, start, final) -> tuple[str, str, float]:
     t_start = wallclock.perf_counter()
     status, message = "finished", ""
     try:
@@ -118,9 +92,6 @@ def _step(sim, start, final) -> tuple[str, str, float]:
         final.disk_full.append(err)
     except store.FolderGone as err:  # nothing more can be written there: summary.json included
         status, message = "folder_gone", str(err)
-    finally:
-        for sig, h in old.items():
-            signal.signal(sig, h)
     if final.unstable:  # the end state failed the guard: it said "done", exit 0, with its final files unwritten
         status, message = "unstable", final.unstable
     if final.disk_full:
@@ -158,7 +129,7 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
         announce(sim, scene, name, used_arch, out_dir)
         return viewer(renderer, sim.inlets, out_dir) if viewer is not None else None
 
-    status, message, wall = _step(sim, start, final)
+    status, message, wall = _step(sim, start, final, out_dir)
     if status == "folder_gone":
         log(f"fbed: stopped at t = {sim.time:.6g} s: {message}; run it again (a folder that was moved holds the "
             "run up to its last checkpoint: resume it there)")

@@ -517,6 +517,43 @@ def test_a_second_signal_waits_for_the_checkpoint(tmp_path):
     assert not list(out.glob("*.tmp"))
 
 
+def test_a_third_signal_ends_the_run_at_once_mid_step_and_the_last_checkpoint_resumes(tmp_path):
+    """On one CPU thread a step's substeps are one kernel launch, which holds the interpreter: steps of 1 s here
+    (129,429 substeps, seconds each). Three Ctrl-C's during one were one, handled when the step ended, and the run
+    said nothing until then. Each is now seen as it arrives (app.stopping's watcher): the first and second are
+    answered at once, the third ends the run (killed, as kill -9) well before the step could end, and the
+    checkpoint it had written resumes."""
+    out, log = tmp_path / "run", tmp_path / "err.txt"
+    with open(log, "w") as errf:
+        p = subprocess.Popen([sys.executable, "-m", "app", "run", str(SETTLE), *TINY, "--set", "run.step=1",
+                              "--set", "run.duration=100", "--set", "output.checkpoint_interval=1",
+                              "--set", "output.particles_interval=1", "--set", "output.series_interval=1",
+                              "--out", str(out)], stderr=errf, text=True, env=ENV, cwd=ROOT)
+        try:
+            deadline = time.time() + 300
+            while time.time() < deadline and "kernels ready" not in log.read_text():
+                time.sleep(0.1)
+            t0 = time.time()
+            for _ in range(3):
+                p.send_signal(signal.SIGINT)
+                time.sleep(0.2)
+            p.wait(timeout=300)
+            quit_after = time.time() - t0
+        finally:
+            if p.poll() is None:
+                p.kill()
+    err = log.read_text()
+    assert p.returncode == -signal.SIGKILL and "Traceback" not in err, err[-2000:]
+    assert "SIGINT: stopping after this step" in err and "already stopping: the step under way ends first" in err
+    assert "ending at once: the last checkpoint is kept" in err and "stopped by SIGINT" not in err, err[-2000:]
+    assert quit_after < 2.0, quit_after  # a step here takes 3 s or more; the second signal came 0.2 s after the first
+    t = checkpoint_time(out / "checkpoint.h5")
+    r = fbed("run", "--resume", out, "--set", f"run.duration={t + 1}")
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr[-2000:]
+    with h5py.File(out / "run.h5") as f:
+        assert f["series/time"][-1] == pytest.approx(t + 1)
+
+
 def test_an_output_folder_removed_mid_run_stops_it_cleanly(tmp_path):
     """The run's folder moved away (then deleted) while it runs: its next checkpoint cannot be written. Before,
     that was a FileNotFoundError traceback (exit 1); now the run stops at once with exit 3 and says the folder is
