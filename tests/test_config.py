@@ -430,6 +430,22 @@ def test_gas_blown_in_with_no_pressure_outlet_is_refused():
     assert {b.kind for _, b in drawn.boundary} == {"velocity_inlet"}
 
 
+def test_an_inviscid_gas_with_grains_is_refused_and_alone_is_taken():
+    """gas.viscosity = 0 (its range was >= 0) ran: the grains' Reynolds number rho |w| d / mu is infinite, and four
+    of the eight drag laws gave NaN for every grain (the others a drag with no viscous part, Stokes' none). Refused
+    where grains feel the gas; a gas alone (the cavity) may be inviscid."""
+    from app.sim.drag import LAWS, beta
+
+    with np.errstate(all="ignore"):
+        nan = [law for law in LAWS if np.isnan(beta(law, np.array([0.5]), np.array([1.0]), 1e-3, 1.2, 0.0)).any()]
+    assert sorted(nan) == ["beetstra", "di_felice", "koch_hill", "tang"]  # the message's list, as it stands
+    presets = pathlib.Path(__file__).resolve().parents[1] / "presets"
+    with pytest.raises(ConfigError, match="Reynolds number .* infinite") as err:
+        load(presets / "fluidize.toml", ["gas.viscosity=0"])
+    assert err.value.key == "gas.viscosity" and "1.8e-5" in err.value.hint
+    assert load(presets / "validation" / "cavity.toml", ["gas.viscosity=0"]).gas.viscosity == 0.0
+
+
 def test_a_smoothing_width_of_more_than_a_thousand_passes_is_refused():
     """coupling.smoothing_width = 10 m on fluidize's 5 mm cells is 1.4e7 smoothing passes a fluid step: the run was
     still in its first step after 15 minutes, deaf to SIGTERM (which waits for the step). Passes are width^2 /

@@ -72,6 +72,10 @@ def _rcfd(cfg: Config, fail) -> None:
 def _gas_and_boundaries(cfg: Config, fail) -> None:
     d = cfg.domain
     g = cfg.gas
+    if g is not None and cfg.particles is not None and g.viscosity == 0:  # (a gas alone may be inviscid)
+        fail("gas", "viscosity", "0 Pa s makes the grains' Reynolds number rho |w| d / mu infinite, on which every "
+             "drag law is written (di_felice, beetstra, tang and koch_hill drag came out NaN; stokes gave none)",
+             "give the gas's viscosity, e.g. 1.8e-5 Pa s for air at 20 C")
     if g is not None:
         for a in range(3):
             n = (d.hi[a] - d.lo[a]) / g.cell_size

@@ -232,7 +232,8 @@ class GasConfig:
     cell_size: float = spec(unit="m", doc="gas cell size h (the domain must be a whole number of cells)",
                             lo=0.0, lo_open=True)
     density: float = spec(1.2, unit="kg/m^3", doc="gas density", lo=0.0, lo_open=True, hi=1.0e4)
-    viscosity: float = spec(1.8e-5, unit="Pa s", doc="gas dynamic viscosity", lo=0.0)
+    viscosity: float = spec(1.8e-5, unit="Pa s", doc="gas dynamic viscosity (0, inviscid, only "
+                            "without grains: the drag laws divide by it)", lo=0.0)
     pressure_form: str = spec("gas", doc="who carries the pressure gradient: 'gas' (Model B) or 'shared' "
                               "(Model A: grains feel -V grad p too)", choices=("gas", "shared"))
     convection: str = spec("maccormack", doc="convection scheme (semi-Lagrangian, with the MacCormack "
