@@ -265,7 +265,8 @@ def dem_model(cfg: Config, der: Derived, n: int, walls: list, coupled: bool = Fa
         e_star=pc.e_star, g_star=pc.g_star, kn=pc.kn, kt=pc.kt, damping=pc.damping, mu=pc.friction,
         mu_roll=pc.rolling_friction, w_e_star=wc.e_star, w_g_star=wc.g_star, w_damping=wc.damping, w_mu=wc.friction,
         w_mu_roll=wc.rolling_friction, walls=tuple(walls), gravity=tuple(d.gravity), dt=der.dt, skin=der.skin,
-        lo=lo, hi=hi, cell=cell, cells=cells, periodic=der.periodic, coupled=coupled, serial=serial,
+        lo=lo, hi=hi, cell=cell, cells=cells, periodic=der.periodic, sealed=geometry.sealed_faces(walls, lo, hi),
+        coupled=coupled, serial=serial,
         history_slots=history, roll_damping=pc.rolling_damping, w_roll_damping=wc.rolling_damping)
 
 

@@ -72,6 +72,8 @@ class DemModel:
     cells: tuple                # cell counts per axis
     periodic: tuple = (False, False, False)  # axes whose faces are periodic: grains leave by one face and enter by
     #                             the other, contacts and the list reach across (minimum image); >= 3 cells there
+    sealed: tuple = (False,) * 6  # faces x-, x+, y-, y+, z-, z+ the walls close (geometry.sealed_faces): a grain that
+    #                             leaves the domain there has passed through a wall, which the solver reports
     coupled: bool = False       # gas drag: per-grain drag coefficient, gas velocity and explicit force
     serial: bool = False        # one CPU thread: serial loops, atomics demoted to plain adds
     history_slots: int = 12     # springs per grain (contacts it owns); see ContactHistory
@@ -109,6 +111,11 @@ class DemModel:
     def sorts(self) -> bool:
         """Grains are re-ordered in memory (a grain-id array is kept, ownership ties go by id)."""
         return self.sort_interval > 0 and self.n >= self.sort_min_grains
+
+    @property
+    def seals(self) -> bool:
+        """Some face is sealed by the walls (kernels check the grains removed there only then)."""
+        return any(self.sealed)
 
     @property
     def wraps(self) -> bool:
@@ -203,7 +210,7 @@ class NeighborList:
             self.scan_tmp = ti.field(ti.i32, 2 * m.scan_threads)  # the block scan's two buffers
         # [rebuild flag, overflow (largest row asked for), grains removed, builds, history slots short]: the rebuild decision
         # lives here on the device; the host reads the counters once per DemSolver.advance
-        self.counters = ti.field(ti.i32, 6)  # [5]: dead grains placed by a sort
+        self.counters = ti.field(ti.i32, 7)  # [5]: dead grains placed by a sort; [6]: grains out through a wall
 
     @property
     def builds(self) -> int:

@@ -105,6 +105,25 @@ def box_walls(lo: Sequence[float], hi: Sequence[float], faces: Sequence[str] = (
     return walls
 
 
+def sealed_faces(walls: Sequence[Wall], lo: Sequence[float], hi: Sequence[float]) -> tuple[bool, ...]:
+    """Which faces of the domain box [lo, hi] (x-, x+, y-, y+, z-, z+) the walls close to grains: a grain can
+    leave the domain there only by passing through a wall. A plane normal to an axis closes the face behind it
+    where it lies inside the domain (the floor z-, a lid z+, a box's sides); a cylinder inside the domain the four
+    side faces. Tilted planes and sampled vessels close none (their openings are not known here)."""
+    sealed = [False] * 6
+    for w in walls:
+        if isinstance(w, PlaneWall):
+            n = np.asarray(w.normal, float) / np.linalg.norm(w.normal)
+            axis = int(np.argmax(np.abs(n)))
+            if abs(n[axis]) > 1 - 1e-12 and lo[axis] <= w.point[axis] <= hi[axis]:
+                sealed[2 * axis + (n[axis] < 0)] = True
+        elif isinstance(w, CylinderWall):
+            inside = all(lo[a] <= w.center[a] - w.radius and w.center[a] + w.radius <= hi[a] for a in range(2))
+            if inside:
+                sealed[:4] = [True] * 4
+    return tuple(sealed)
+
+
 class SampledWallField:
     """Device copy of a SampledWall's node values (created by the scene, read by kernels)."""
 

@@ -23,7 +23,7 @@ from ..fields import NO_SPRING
 from .grains import grain_id, grain_radius, min_image
 from .scan import block_scan
 
-REBUILD, OVERFLOW, REMOVED, BUILDS, SPRING_OVERFLOW, DEAD = 0, 1, 2, 3, 4, 5  # nlist.counters
+REBUILD, OVERFLOW, REMOVED, BUILDS, SPRING_OVERFLOW, DEAD, THROUGH_WALL = 0, 1, 2, 3, 4, 5, 6  # nlist.counters
 
 
 @ti.func

@@ -9,15 +9,23 @@ from ...config.derived import grain_mass
 from ..fields import NO_SPRING, ROLL_EPSD, ContactHistory, DemModel, GrainModel, GrainState, NeighborList, WallData
 from .. import runtime
 from . import scan
-from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW
+from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW, THROUGH_WALL
 from .sort import sort_by_cell
 from .cells import TAG_OPS, grain_cells
 from .slab import slab_volumes
 from .step import DIAG_COLUMNS, dem_build, dem_substep, dem_substeps, measure
 
 
-class NeighborOverflow(RuntimeError):
+class DemFailure(RuntimeError):
+    """The DEM cannot go on: the run must stop (its last checkpoint is good)."""
+
+
+class NeighborOverflow(DemFailure):
     pass
+
+
+class GrainsThroughWalls(DemFailure):
+    """Grains left the domain through a face the walls seal (``DemModel.sealed``)."""
 
 
 class DemSolver:
@@ -55,7 +63,8 @@ class DemSolver:
         return np.ascontiguousarray(a, dtype=np.float64 if self.state.v.dtype == ti.f64 else np.float32)
 
     def _read_counters(self) -> np.ndarray:
-        """The one host read of the device counters [rebuild flag, overflow, removed, builds, springs short, -]."""
+        """The one host read of the device counters [rebuild flag, overflow, removed, builds, springs short, -,
+        grains out through a wall]."""
         return self.nlist.counters.to_numpy()
 
     def _order(self):
@@ -142,7 +151,7 @@ class DemSolver:
             self.nlist.spring_slot.fill(NO_SPRING)
             self.nlist.springs_used.fill(0)
         builds = int(self.nlist.counters[BUILDS])
-        self.nlist.counters.from_numpy(np.array([1, 0, 0, builds, 0, 0], np.int32))  # rebuild at the next substep
+        self.nlist.counters.from_numpy(np.array([1, 0, 0, builds, 0, 0, 0], np.int32))  # rebuild at the next substep
         self._builds_seen = self._builds_at_sort = builds
         self._sort_due = self.m.sorts  # new grains: order them at the next advance
 
@@ -276,7 +285,7 @@ class DemSolver:
         # springs from zero at a fresh build; the wall springs, per wall then as now, are kept
         current = not self.m.has_history or "nl_spring_slot" in arrays
         need_build = int(arrays["need_build"]) if current else 1
-        nlist.counters.from_numpy(np.array([need_build, 0, int(arrays["removed"]), builds, 0, 0], np.int32))
+        nlist.counters.from_numpy(np.array([need_build, 0, int(arrays["removed"]), builds, 0, 0, 0], np.int32))
         if self.m.sorts and "grain_order" in arrays:
             self._sort_due = bool(int(arrays["sort_due"]))
             self._builds_at_sort = builds - int(arrays["sort_builds"])
@@ -353,6 +362,11 @@ class DemSolver:
             raise NeighborOverflow(f"a grain touches more than {self.m.history_slots} grains at least its size (they "
                                    "overlap by several per cent): stiffen the contacts (contact.youngs_modulus) or "
                                    "set dem.max_neighbors, which gives every neighbour slot its own springs")
+        if through := int(counters[THROUGH_WALL]):
+            raise GrainsThroughWalls(f"{through} grain{'s' * (through != 1)} passed through the vessel's walls (its "
+                                     "floor, sides or lid) and left the domain: the contacts are too soft for the "
+                                     "load, or the grains too fast for the DEM step: stiffen contact.youngs_modulus "
+                                     "(or contact.wall_youngs_modulus), or lower dem.dt")
         if over:
             raise NeighborOverflow(f"a grain has at least {over} neighbours within the skin but the list holds "
                                    f"{self.m.slots}: raise dem.max_neighbors (now {self.m.slots}) or lower dem.skin")

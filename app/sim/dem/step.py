@@ -23,7 +23,7 @@ from ..fields import NO_SPRING, ROLL_EPSD
 from ..geometry import wall_clearance_normal
 from .contact import contact
 from .grains import grain_mass, grain_radius, min_image, scatter_add, wrap_position
-from .neighbors import REBUILD, REMOVED, SPRING_OVERFLOW, clear_bins, clear_bins_of, rebuild_if_flagged
+from .neighbors import REBUILD, REMOVED, SPRING_OVERFLOW, THROUGH_WALL, clear_bins, clear_bins_of, rebuild_if_flagged
 from .scan import exclusive_scan
 from ..tasks import block_pass, one_block, one_task
 
@@ -210,6 +210,25 @@ def pair_forces(model: ti.template(), sizes: ti.template(), state: ti.template()
 
 
 @ti.func
+def left_through_wall(model: ti.template(), x0, x):
+    """A grain inside the domain at ``x0`` that is now at ``x``, outside, has crossed a face the walls seal
+    (``model.sealed``): it passed through a wall (one inside the domain at the start, ``x0``, is merely removed)."""
+    was_inside = True
+    crossed = False
+    for a in ti.static(range(3)):
+        if ti.static(not model.periodic[a]):
+            if not (model.lo[a] <= x0[a] <= model.hi[a]):
+                was_inside = False
+            if ti.static(model.sealed[2 * a]):
+                if x[a] < model.lo[a]:
+                    crossed = True
+            if ti.static(model.sealed[2 * a + 1]):
+                if x[a] > model.hi[a]:
+                    crossed = True
+    return was_inside and crossed
+
+
+@ti.func
 def integrate(model: ti.template(), sizes: ti.template(), state: ti.template(), nlist: ti.template()):
     """Symplectic Euler; zeroes the accumulators; removes grains outside the domain; flags a rebuild."""
     half_skin2 = (0.5 * model.skin) ** 2
@@ -225,7 +244,8 @@ def integrate(model: ti.template(), sizes: ti.template(), state: ti.template(), 
                 v = (v + (f / mass + ti.Vector(model.gravity)) * model.dt + kdt * state.gas_velocity[i]) / (1.0 + kdt)
             else:
                 v = v + (f / mass + ti.Vector(model.gravity)) * model.dt
-            x = state.x[i] + v * model.dt
+            x0 = state.x[i]
+            x = x0 + v * model.dt
             if ti.static(model.wraps):
                 x = wrap_position(model, x)
             state.v[i] = v
@@ -244,6 +264,9 @@ def integrate(model: ti.template(), sizes: ti.template(), state: ti.template(), 
                 state.alive[i] = ti.cast(0, ti.u8)
                 state.v[i] = ti.Vector([0.0, 0.0, 0.0])
                 ti.atomic_add(nlist.counters[REMOVED], 1)
+                if ti.static(model.seals):
+                    if left_through_wall(model, x0, x):
+                        ti.atomic_add(nlist.counters[THROUGH_WALL], 1)
             else:
                 d = x - nlist.x_ref[i]
                 if ti.static(model.wraps):
