@@ -26,7 +26,7 @@ import time
 import h5py
 import numpy as np
 
-from .config.derived import grain_volume
+from .config.derived import grain_volume, interval_steps
 from .io import store
 from .rcfd.database import parse_tag
 
@@ -122,10 +122,7 @@ class RcfdRecorder:
     # -- set-up
     def attach(self, sim, out_dir, guarded, resume_time, log) -> None:
         self.log = log
-        self.spf = max(1, int(round(self.interval / self.step)))
-        if abs(self.spf * self.step - self.interval) > 1e-9 * self.interval:
-            log(f"fbed: probes.rcfd_interval = {self.interval:g} s is not a whole number of run.step = "
-                f"{self.step:g} s: frames are {self.spf * self.step:g} s")
+        self.spf = interval_steps(self.interval, self.step)
         self.s0 = int(math.ceil(self.t0 / self.step - 1e-9))
         shape, h, origin, vol, aps = read_solvers(sim, "geometry")
         nz = shape[2]

@@ -474,6 +474,25 @@ def test_a_video_named_outside_the_run_folder_is_not_written_over(tmp_path, caps
     assert sorted(p.name for p in tmp_path.iterdir()) == ["v.mp4"] and old.read_bytes() == b"an earlier video"
 
 
+def test_a_record_interval_that_is_no_whole_number_of_steps_is_noted_as_recorded(tmp_path, capsys):
+    """Records come every whole number of run.step: boyce's probes.slab_interval = 2.5 ms in 1 ms steps recorded
+    the slab every 2 ms while its preset and notes said 2.5. Such an interval is now noted at the start with what
+    it is taken as, which is what run.h5 holds; whole multiples give no note (boyce's is now 2 ms)."""
+    out = tmp_path / "run"
+    assert cli_main(["run", str(ROOT / "presets" / "settle.toml"), *SMALL, "--set", "run.duration=0.012",
+                     "--set", "output.series_interval=0.0025", "--out", str(out)]) == 0  # 1 ms steps
+    err = capsys.readouterr().err
+    assert "output.series_interval = 0.0025 s is taken as 0.002 s (2 steps)" in err, err
+    with h5py.File(out / "run.h5") as f:
+        assert np.allclose(np.diff(f["series/time"][...]), 0.002)
+    from app.callbacks.progress import odd_intervals
+    from app.config import load
+
+    assert [k for k, _, _ in odd_intervals(load(ROOT / "presets" / "boyce.toml", ["probes.slab_interval=2.5e-3"]))] \
+        == ["probes.slab_interval"]
+    assert all(odd_intervals(load(p)) == [] for p in PRESETS)
+
+
 def cli_err(argv, capsys) -> str:
     cli_main(argv)
     return capsys.readouterr().err

@@ -8,7 +8,7 @@ import time as wallclock
 
 from rich.progress import BarColumn, Progress as RichProgress, TextColumn
 
-from ..config.derived import RCFD_MIN_FRAMES, rcfd_frames, run_steps
+from ..config.derived import RCFD_MIN_FRAMES, interval_steps, rcfd_frames, run_steps
 
 
 def log(msg: str) -> None:
@@ -145,12 +145,32 @@ def cpu_note(scene, preset_path: pathlib.Path, start_step: int, threads: int) ->
         log(note)
 
 
+def odd_intervals(cfg) -> list[tuple[str, float, int]]:
+    """The record intervals in use that are no whole number of run.step, each with the steps it is taken as
+    (``interval_steps``; at least a step: output.particles_interval and the probes' are refused below one): boyce's
+    probes.slab_interval = 2.5 ms in 1 ms steps recorded the slab every 2 ms, and its notes said 2.5."""
+    o, pr, step = cfg.output, cfg.probes, cfg.run.step
+    used = {"output.series_interval": o.series_interval, "output.particles_interval": o.particles_interval,
+            "output.checkpoint_interval": o.checkpoint_interval,
+            "video.interval": cfg.video.interval if cfg.video.enabled else 0.0,
+            **{f"probes.{k}": getattr(pr, k) for k in ("slab_interval", "planes_interval", "volume_interval",
+                                                       "mri_interval")},
+            "probes.rcfd_interval": pr.rcfd_interval if pr.rcfd_from >= 0 else 0.0,
+            "gas.fields_interval": cfg.gas.fields_interval if cfg.gas is not None else 0.0}
+    odd = []
+    for key, v in used.items():
+        n = interval_steps(v, step)
+        if v >= step * (1 - 1e-9) and abs(n * step - v) > 1e-9 * v:
+            odd.append((key, v, n))
+    return odd
+
+
 def window_notes(cfg) -> list[str]:
     """Notes at the start where the run or a recorded window does not fit what was asked (a preset shortened with
     --set, say), which otherwise shows only at its end: run.duration not a whole number of run.step (the run ends at
     the next whole step, up to one step late); output.average_from not before run.duration (the time means, and the
     analysis that reads that window, would find nothing); probes.rcfd_from leaving fewer than the 3 frames that
-    `fbed rcfd` needs; a video of fewer than two frames."""
+    `fbed rcfd` needs; a video of fewer than two frames; record intervals that are no whole number of steps."""
     notes, end = [], cfg.run.duration
     steps = run_steps(end, cfg.run.step)
     if abs(steps * cfg.run.step - end) > 1e-9 * max(end, cfg.run.step):
@@ -170,6 +190,10 @@ def window_notes(cfg) -> list[str]:
             notes.append(f"fbed: note: rCFD frames from probes.rcfd_from = {pr.rcfd_from:g} s to run.duration = "
                          f"{end:g} s: {frames} of probes.rcfd_interval = {pr.rcfd_interval:g} s, and `fbed rcfd` "
                          f"needs at least {RCFD_MIN_FRAMES} (record from earlier, or run longer)")
+    if odd := odd_intervals(cfg):
+        notes.append(f"fbed: note: records come every whole number of run.step = {cfg.run.step:g} s: "
+                     + ", ".join(f"{k} = {v:g} s is taken as {n * cfg.run.step:g} s ({n} step{'s' * (n != 1)})"
+                                 for k, v, n in odd) + " (make them multiples of run.step)")
     vid = cfg.video
     if vid.enabled:  # with gas the first frame waits for the first step (before it no void fraction is deposited)
         frames = rcfd_frames(end, vid.interval) + (cfg.gas is None)

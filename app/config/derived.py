@@ -34,6 +34,12 @@ def run_steps(duration: float, step: float) -> int:
     return int(math.ceil(duration / step - 1e-9))
 
 
+def interval_steps(interval: float, step: float) -> int:
+    """Steps between the records of an interval of simulated time [s] in steps of ``step`` [s]: the nearest whole
+    number, at least 1 (an interval that is no whole number of steps is taken as that many; `fbed run` says so)."""
+    return max(1, int(round(interval / step)))
+
+
 #: the fewest frames `fbed rcfd` works on (a recurrence needs a state, its successor and one more)
 RCFD_MIN_FRAMES = 3
 

@@ -28,7 +28,7 @@ import math
 import time as wallclock
 from typing import Callable
 
-from ..config.derived import run_steps
+from ..config.derived import interval_steps, run_steps
 
 
 DIAG_ROWS = 50  # steps of diagnostics held on the device between reads (Simulation.diag_rows)
@@ -112,7 +112,7 @@ class Simulation:
 
     def every(self, interval: float) -> int:
         """Steps between firings for an interval of simulated time [s] (at least 1)."""
-        return max(1, int(round(interval / self.step_dt)))
+        return interval_steps(interval, self.step_dt)
 
     def add(self, fn, interval: float = 0.0, wall: float = 0.0, at_start: bool = False, finish=None) -> Hook:
         h = Hook(fn, self.every(interval) if interval > 0 else 0, wall, at_start, finish)
