@@ -462,6 +462,23 @@ def test_gravity_that_drops_a_grain_past_the_guards_overlap_in_one_step_is_refus
         derive(load(settle, ["domain.gravity=[3e6, 0, 0]"]))
 
 
+def test_a_face_is_set_by_either_of_its_names():
+    """A resumed run's config.toml names the faces 'z-', 'z+': `--resume DIR --set boundary.bottom.velocity=...` (the
+    resume hint says [boundary] may change) was refused, "face z- given twice (through an alias)"; so was
+    `--set boundary.z-.velocity` on a preset that says 'bottom'. Either name now sets the face the preset has, and a
+    whole face given under one name replaces it under the other."""
+    from app.config import dump
+
+    fluidize = pathlib.Path(__file__).resolve().parents[1] / "presets" / "fluidize.toml"
+    written = dump(load(fluidize))  # as a run's config.toml
+    assert '"z-" = ' in written and "bottom" not in written
+    for text, name in ((written, "bottom"), (fluidize.read_text(), "z-")):
+        cfg = load_text(text, "config.toml", [f"boundary.{name}.velocity=[0, 0, 1.3]"])
+        assert dict(cfg.boundary)["z-"].velocity == (0.0, 0.0, 1.3) and dict(cfg.boundary)["z-"].start == 0.15
+        cfg = load_text(text, "config.toml", [f'boundary.{name}={{kind="velocity_inlet", velocity=[0, 0, 0.9]}}'])
+        assert dict(cfg.boundary)["z-"].velocity == (0.0, 0.0, 0.9) and dict(cfg.boundary)["z-"].start == 0.0
+
+
 def test_a_smoothing_width_of_more_than_a_thousand_passes_is_refused():
     """coupling.smoothing_width = 10 m on fluidize's 5 mm cells is 1.4e7 smoothing passes a fluid step: the run was
     still in its first step after 15 minutes, deaf to SIGTERM (which waits for the step). Passes are width^2 /

@@ -205,6 +205,17 @@ def load_text(text: str, file: str = "<preset>", overrides: list[str] | tuple = 
         parts, value = parse_override(item)
         overridden[".".join(parts[:2])] = item
         section, key = parts[0], parts[1]
+        if section == "boundary":  # the face as the table names it: 'bottom' is 'z-' (a resumed run's config.toml
+            faces = data.setdefault("boundary", {})  # says 'z-': --set boundary.bottom.velocity clashed with it)
+            if not isinstance(faces, dict):
+                raise ConfigError("[boundary] must be a table of faces", file, "boundary")
+            canon = FACE_ALIASES.get(key, key)
+            named = [k for k in faces if FACE_ALIASES.get(k, k) == canon]
+            if len(parts) == 2:  # a whole face: it replaces the face under any of its names
+                for k in named:
+                    del faces[k]
+            elif named:
+                key = named[0]
         if len(parts) == 3:  # boundary.<face>.<key>
             face = data.setdefault("boundary", {}).setdefault(key, {})
             if isinstance(face, str):
