@@ -116,6 +116,13 @@ RESUME_FREE = {"run": {"duration", "name", "threads", "precision", "start_from"}
                "guard": None, "probes": None, "boundary": None}
 
 
+def resume_free() -> str:
+    """What a resume may change, in words, from :data:`RESUME_FREE` (the hint named run.duration alone of [run])."""
+    keys = [f"{name}.{k}" for name, free in RESUME_FREE.items() if free for k in sorted(free) if k != "start_from"]
+    sections = [f"[{name}]" for name, free in RESUME_FREE.items() if free is None]
+    return ", ".join(keys + sections[:-1]) + f" and {sections[-1]}"
+
+
 def _flat(cfg) -> dict:
     out = {}
     for name, section in cfgmod.loader.sections_of(cfg).items():
@@ -147,7 +154,7 @@ def check_same_scene(cfg, run_cfg, preset_path: pathlib.Path, out_dir: pathlib.P
                            for k in diff[:3])
         raise ConfigError(f"this preset's scene differs from the run's in {names} ({values})", str(preset_path),
                           "--resume", hint=f"resume with the run's own settings (fbed run --resume {out_dir}); a "
-                          "resume may change only run.duration, [output], [video], [guard], [probes] and [boundary]")
+                          f"resume may change only {resume_free()}")
 
 
 #: what a resume does without each file, for the hint when one is damaged

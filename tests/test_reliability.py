@@ -694,3 +694,20 @@ def test_an_interrupted_preparation_resumes(tmp_path):
         t = f["series/time"][...]
     assert t[0] == 0 and (t[1:] > t[:-1]).all() and t[-1] == pytest.approx(0.3) and t_stop < 0.3
     assert json.loads((cache / "summary.json").read_text())["status"] == "finished"
+
+
+def test_the_resume_hint_names_every_key_a_resume_may_change():
+    """The refusal's hint said a resume may change "only run.duration, [output], ..." while run.precision, run.threads
+    and run.name were taken too. The hint is now written from the table the check uses; each [run] key it names is
+    taken, a key it does not name is refused."""
+    from app.config import ConfigError, load
+    from app.resume import check_same_scene, resume_free
+
+    run_cfg = load(SETTLE)
+    for key, value in (("run.duration", "1.0"), ("run.precision", '"float64"'), ("run.threads", "1"),
+                       ("run.name", '"other"')):
+        assert key in resume_free()
+        check_same_scene(load(SETTLE, [f"{key}={value}"]), run_cfg, SETTLE, ROOT)
+    with pytest.raises(ConfigError) as err:
+        check_same_scene(load(SETTLE, ["run.step=1e-3"]), run_cfg, SETTLE, ROOT)
+    assert "run.step" not in resume_free() and "run.precision, run.threads" in err.value.hint
