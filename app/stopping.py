@@ -1,8 +1,8 @@
 """How a run is stopped from outside: Ctrl-C or SIGTERM, and (a sweep's case on a Dask worker) its parent gone.
 
 The first Ctrl-C / SIGTERM stops the run after the step under way, with a checkpoint; a second says that again;
-a third ends it at once, as kill -9 would (exit 137, killed): the last checkpoint written is whole (each is written aside,
-then renamed) and a resume cuts run.h5 back to it.
+a third ends it at once, as kill -9 would (exit 137, killed): the last checkpoint written is whole (each is
+written aside, then renamed) and a resume cuts run.h5 back to it.
 
 A Python signal handler runs only between bytecodes, and a Taichi kernel holds the interpreter while it runs: on
 one CPU thread a step's substeps are one launch (seconds to minutes in a large scene), during which three Ctrl-C's

@@ -281,8 +281,8 @@ def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, p
     out_dir = sweep_folder(preset, out, overwrite)
     threads = 1 if jobs > 1 else 0
     where = f"on the Dask scheduler {scheduler}" if scheduler and scheduler != "local" else f"{jobs} at a time"
-    print(f"fbed sweep: {len(combos)} case{'s' if len(combos) != 1 else ''} of {preset} over {', '.join(keys)}; {where}; output in {out_dir}",
-          file=sys.stderr, flush=True)
+    print(f"fbed sweep: {len(combos)} case{'s' * (len(combos) != 1)} of {preset} over {', '.join(keys)}; {where}; "
+          f"output in {out_dir}", file=sys.stderr, flush=True)
     rows = [None] * len(combos)
 
     def done(i, row):

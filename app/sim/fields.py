@@ -208,9 +208,10 @@ class NeighborList:
         self.block_sum = ti.field(ti.i32, m.scan_blocks + 1)
         if m.scan_threads:
             self.scan_tmp = ti.field(ti.i32, 2 * m.scan_threads)  # the block scan's two buffers
-        # [rebuild flag, overflow (largest row asked for), grains removed, builds, history slots short]: the rebuild decision
-        # lives here on the device; the host reads the counters once per DemSolver.advance
-        self.counters = ti.field(ti.i32, 7)  # [5]: dead grains placed by a sort; [6]: grains out through a wall
+        # [rebuild flag, overflow (largest row asked for), grains removed, builds, history slots short, dead grains
+        # placed by a sort, grains out through a wall (DemModel.sealed)]: the rebuild decision lives here on the
+        # device; the host reads the counters once per DemSolver.advance
+        self.counters = ti.field(ti.i32, 7)
 
     @property
     def builds(self) -> int:
