@@ -446,22 +446,6 @@ def test_an_inviscid_gas_with_grains_is_refused_and_alone_is_taken():
     assert load(presets / "validation" / "cavity.toml", ["gas.viscosity=0"]).gas.viscosity == 0.0
 
 
-def test_gravity_that_drops_a_grain_past_the_guards_overlap_in_one_step_is_refused():
-    """domain.gravity = [0, 0, -1e6] on settle: a grain falling the domain's 0.12 m reaches 490 m/s, 3.8 mm a DEM
-    step, and all 300 grains left through the floor while the run said "done". A step in which such a fall moves a
-    grain further than the guard's overlap (guard.max_overlap x the smallest diameter: 0.4 mm) is refused, naming
-    domain.gravity; a step short enough is taken (the DEM then stops the grains that still pass a wall:
-    test_contact), and so is every preset (each moves at most 0.05 radii)."""
-    settle = pathlib.Path(__file__).resolve().parents[1] / "presets" / "settle.toml"
-    with pytest.raises(ConfigError, match="490 m/s: 3.78 mm a DEM step") as err:
-        derive(load(settle, ["domain.gravity=[0, 0, -1e6]"]))
-    assert err.value.key == "domain.gravity" and "dem.dt below 8.16e-07 s" in err.value.hint
-    assert derive(load(settle, ["domain.gravity=[0, 0, -1e6]", "dem.dt=8e-7"])).dt == pytest.approx(8e-7)
-    assert derive(load(settle, ["domain.gravity=[0, 0, -1e6]", "dem.force_dt=true"])).dt > 7e-6  # stress tests
-    with pytest.raises(ConfigError, match="domain's 0.032 m"):  # along gravity: the domain's width
-        derive(load(settle, ["domain.gravity=[3e6, 0, 0]"]))
-
-
 def test_a_face_is_set_by_either_of_its_names():
     """A resumed run's config.toml names the faces 'z-', 'z+': `--resume DIR --set boundary.bottom.velocity=...` (the
     resume hint says [boundary] may change) was refused, "face z- given twice (through an alias)"; so was

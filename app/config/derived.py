@@ -235,29 +235,6 @@ def _pair(model, e_star, g_star, kn, kt_ratio, e, mu, mu_r, eta_r) -> ContactPai
                        rolling_damping=eta_r)
 
 
-def _check_fall_per_step(cfg: Config, dt: float, rmin: float, file: str) -> None:
-    """Refuse a DEM step in which a grain falling the domain's height along gravity (speed sqrt(2 |g| H)) moves
-    further than the guard's overlap (guard.max_overlap x the smallest diameter): one step could then take it from
-    no contact past the guard, or through a contact or a wall. domain.gravity = [0, 0, -1e6] on settle (3.8 radii a
-    step) lost all 300 grains through the floor, and the run said "done". The presets move 0.05 radii at most, and
-    as the automatic step scales with the grain size, a grain moves about as many radii whatever its size: only a
-    domain 16 times taller than the tallest preset at Earth's gravity, at the largest step taken, comes near.
-    (dem.impact_speed is no way out: the Hertz step goes as its -1/5th power.)"""
-    g = math.sqrt(sum(x * x for x in cfg.domain.gravity))
-    if g == 0:
-        return
-    height = abs(sum((hi - lo) * x / g for lo, hi, x in zip(cfg.domain.lo, cfg.domain.hi, cfg.domain.gravity)))
-    speed = math.sqrt(2 * g * height)
-    allowed = cfg.guard.max_overlap * 2 * rmin
-    if speed * dt > allowed:
-        raise ConfigError(f"|g| = {g:.3g} m/s^2 over the domain's {height:.3g} m makes falling grains as fast as "
-                          f"{speed:.3g} m/s: {speed * dt * 1e3:.3g} mm a DEM step of {dt:.3g} s, more than the "
-                          f"{allowed * 1e3:.3g} mm overlap the guard allows (guard.max_overlap x the smallest "
-                          "diameter): grains would pass through contacts and walls", file, "domain.gravity",
-                          hint=f"check domain.gravity (m/s^2; Earth's is [0, 0, -9.81]), or set dem.dt below "
-                          f"{allowed / speed:.3g} s")
-
-
 def derive(cfg: Config, file: str = "<preset>") -> Derived:
     """All derived values of a validated Config (raises ConfigError for a refused DEM step)."""
     c, p = cfg.contact, cfg.particles
@@ -303,8 +280,6 @@ def derive(cfg: Config, file: str = "<preset>") -> Derived:
                           hint="dem.dt = 0: the automatic step, dem.dt_fraction x the collision time")
     substeps = max(1, math.ceil(cfg.run.step / dt - 1e-9))
     dt = cfg.run.step / substeps
-    if not cfg.dem.force_dt:
-        _check_fall_per_step(cfg, dt, rmin, file)
     skin = cfg.dem.skin if cfg.dem.skin > 0 else 0.15 * 2 * rmax
     friction = c.friction > 0 or wall_mu > 0
     periodic = periodic_axes(cfg)
