@@ -23,7 +23,7 @@ from .outputs import configure, remove_outputs, stop_disk_full
 from .resume import prepared_state, restore
 from .scene import Scene, build_simulation
 from .sim import runtime
-from .sim.dem import DemFailure
+from .sim.dem import NeighborOverflow
 from .sim.simulation import Unstable
 from .stopping import EXIT_INTERRUPTED, StopOnSignals, watch_parent
 
@@ -86,7 +86,7 @@ def _stepped(sim, start, final) -> tuple[str, str, float]:
     status, message = "finished", ""
     try:
         status = sim.run(start())
-    except (Unstable, DemFailure) as err:
+    except (Unstable, NeighborOverflow) as err:
         status, message = "unstable", str(err)
     except store.DiskFull as err:
         final.disk_full.append(err)

@@ -278,6 +278,18 @@ def test_energy_growth_stops_a_blow_up_the_other_limits_were_raised_for(tmp_path
         assert np.all(np.isfinite(energy)) and energy[-1] < 1e-2
 
 
+def test_grains_pushed_through_the_floor_stop_the_run(tmp_path):
+    """settle at domain.gravity = 1e6 m/s^2 (the DEM step cut to 0.8 us): its 300 grains went through the floor in
+    the first 2 ms step, between two guard checks, were removed as if by an outlet, and the run said "done". The
+    guard now reads the DEM's count of grains out through a wall: exit 3, its advice, the checkpoint kept."""
+    out = tmp_path / "sunk"
+    r = fbed("run", ROOT / "presets" / "settle.toml", "--set", "particles.count=300", "--set", "dem.dt=8e-7",
+             "--set", "domain.gravity=[0, 0, -1e6]", "--set", "run.duration=0.01", "--arch", "cpu", "--out", out)
+    assert r.returncode == 3 and "Traceback" not in r.stderr, r.stderr[-2000:]
+    assert "300 grains passed through the vessel's walls" in r.stderr and "contacts are too soft" in r.stderr
+    assert json.loads((out / "summary.json").read_text())["status"] == "unstable"
+
+
 def test_sweep_runs_every_case_and_records_a_failed_one(tmp_path):
     """Two cases of the settle preset, one forced to a DEM step of ~13 stable limits (it blows up on the
     first contacts, t ~ 6 ms): the sweep finishes the

@@ -132,6 +132,9 @@ class Guard:
             raise Unstable(f"a grain moves at {d['max_speed']:.3g} m/s at t = {t:.6g} s (guard.max_speed = "
                            f"{self.max_speed:g} m/s; raise it if such speeds are real): {self._advice()}")
         self._energy_check(d["kinetic_energy"], t)
+        if through := d.get("grains_through_walls", 0):  # counted by the DEM as they leave: never missed
+            raise Unstable(f"{through} grain{'s' * (through != 1)} passed through the vessel's walls (its floor, "
+                           f"sides or lid) and left the domain by t = {t:.6g} s: {self._advice()}")
         self.last_good_step = self._checked = d["step"]
 
     def _energy_check(self, energy: float, t: float) -> None:

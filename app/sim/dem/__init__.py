@@ -9,14 +9,12 @@
 - ``solver.py``    ``DemSolver``: the bundles, grains in and out by id, advance and checks
 - ``grains.py``    per-grain constants (radius, mass) and the partner scatter
 
-Public API: ``DemSolver``; ``DemFailure`` (``NeighborOverflow``, ``GrainsThroughWalls``: the run must stop);
-``bytes_per_grain``; ``grain_radius``,
+Public API: ``DemSolver``, ``NeighborOverflow``, ``bytes_per_grain``; ``grain_radius``,
 ``grain_mass`` and ``grain_id`` for kernels of other solvers that read the grains (coupling,
 rendering): grains sit in memory in cell order, re-sorted now and then, so a kernel that keys
 anything on a grain across steps uses ``grain_id``."""
 from ..fields import bytes_per_grain
 from .grains import grain_id, grain_mass, grain_radius
-from .solver import DemFailure, DemSolver, GrainsThroughWalls, NeighborOverflow
+from .solver import DemSolver, NeighborOverflow
 
-__all__ = ["DemFailure", "DemSolver", "GrainsThroughWalls", "NeighborOverflow", "bytes_per_grain", "grain_id",
-           "grain_mass", "grain_radius"]
+__all__ = ["DemSolver", "NeighborOverflow", "bytes_per_grain", "grain_id", "grain_mass", "grain_radius"]

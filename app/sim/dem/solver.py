@@ -9,23 +9,15 @@ from ...config.derived import grain_mass
 from ..fields import NO_SPRING, ROLL_EPSD, ContactHistory, DemModel, GrainModel, GrainState, NeighborList, WallData
 from .. import runtime
 from . import scan
-from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW, THROUGH_WALL
+from .neighbors import BUILDS, OVERFLOW, REBUILD, REMOVED, SPRING_OVERFLOW
 from .sort import sort_by_cell
 from .cells import TAG_OPS, grain_cells
 from .slab import slab_volumes
 from .step import DIAG_COLUMNS, dem_build, dem_substep, dem_substeps, measure
 
 
-class DemFailure(RuntimeError):
-    """The DEM cannot go on: the run must stop (its last checkpoint is good)."""
-
-
-class NeighborOverflow(DemFailure):
+class NeighborOverflow(RuntimeError):
     pass
-
-
-class GrainsThroughWalls(DemFailure):
-    """Grains left the domain through a face the walls seal (``DemModel.sealed``)."""
 
 
 class DemSolver:
@@ -362,11 +354,6 @@ class DemSolver:
             raise NeighborOverflow(f"a grain touches more than {self.m.history_slots} grains at least its size (they "
                                    "overlap by several per cent): stiffen the contacts (contact.youngs_modulus) or "
                                    "set dem.max_neighbors, which gives every neighbour slot its own springs")
-        if through := int(counters[THROUGH_WALL]):
-            raise GrainsThroughWalls(f"{through} grain{'s' * (through != 1)} passed through the vessel's walls (its "
-                                     "floor, sides or lid) and left the domain: the contacts are too soft for the "
-                                     "load, or the grains too fast for the DEM step: stiffen contact.youngs_modulus "
-                                     "(or contact.wall_youngs_modulus), or lower dem.dt")
         if over:
             raise NeighborOverflow(f"a grain has at least {over} neighbours within the skin but the list holds "
                                    f"{self.m.slots}: raise dem.max_neighbors (now {self.m.slots}) or lower dem.skin")
@@ -384,8 +371,9 @@ class DemSolver:
         return DIAG_COLUMNS + tuple(f"wall_force_z_{w.name}" for w in self.m.walls)
 
     def diagnostics_of(self, values: np.ndarray) -> dict:
-        """Kinetic energy [J], max overlap / diameter, max speed [m/s], grains alive and removed, non-finite
-        values, touching grain pairs, the bed height (95th percentile of grain heights) [m] and each wall's
+        """Kinetic energy [J], max overlap / diameter, max speed [m/s], grains alive and removed (and of those the
+        ones out through a wall), non-finite values, touching grain pairs, the bed height (95th percentile of grain
+        heights) [m] and each wall's
         vertical force on the grains [N], from one recorded row (``values``: its ``diag_columns``, host numpy)."""
         d = self._f(values[:4])  # the kernels' float type: the energies sum as they were reduced
         alive, bad, contacts, removed, b, below, in_bin = (int(v) for v in values[4:11])
@@ -396,7 +384,8 @@ class DemSolver:
             z95 = self.m.lo[2] + (b + frac) * width
         out = {"kinetic_energy": float(d[0] + d[1]), "kinetic_energy_rotational": float(d[1]),
                "max_overlap": float(max(d[2], 0.0)), "max_speed": float(d[3]), "grains_alive": alive,
-               "grains_removed": removed, "non_finite": bad, "contacts": contacts, "bed_height": z95}
+               "grains_removed": removed, "non_finite": bad, "contacts": contacts, "bed_height": z95,
+               "grains_through_walls": int(values[11])}
         n = len(DIAG_COLUMNS)
         out.update({name: float(v) for name, v in zip(self.diag_columns[n:], values[n:])})
         return out

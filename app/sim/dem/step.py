@@ -324,11 +324,12 @@ def substep_parts(model: ti.template(), sizes: ti.template(), state: ti.template
 #: the translational and rotational kinetic energy [J], the largest overlap over a diameter, the largest speed
 #: [m/s], then counts: grains alive, grains with a non-finite position or velocity, touching pairs, grains
 #: removed, and the bin of the grain-height histogram holding the 95th percentile, the grains below that bin
-#: and in it (the host interpolates the bed height from these, as from the histogram itself); then, one column
-#: per wall (``DemSolver.diag_columns``), the vertical force the wall exerts on the grains [N]
+#: and in it (the host interpolates the bed height from these, as from the histogram itself), the grains that left
+#: through a face the walls seal (``DemModel.sealed``: they passed through a wall; the guard stops the run); then,
+#: one column per wall (``DemSolver.diag_columns``), the vertical force the wall exerts on the grains [N]
 DIAG_COLUMNS = ("kinetic_energy_translational", "kinetic_energy_rotational", "max_overlap", "max_speed",
                 "grains_alive", "non_finite", "contacts", "grains_removed", "height_bin", "height_below",
-                "height_in_bin")
+                "height_in_bin", "grains_through_walls")
 
 
 @kernel
@@ -454,8 +455,9 @@ def _record_head(model: ti.template(), nlist: ti.template(), out: ti.template(),
     ring[row, col + 5] = ti.cast(out[5], ti.f64)
     ring[row, col + 6] = ti.cast(out[6], ti.f64)
     ring[row, col + 7] = ti.cast(nlist.counters[REMOVED], ti.f64)
+    ring[row, col + 11] = ti.cast(nlist.counters[THROUGH_WALL], ti.f64)
     for w in ti.static(range(len(model.walls))):
-        ring[row, col + 11 + w] = ti.cast(out[7 + w], ti.f64)
+        ring[row, col + 12 + w] = ti.cast(out[7 + w], ti.f64)
 
 
 @ti.func
