@@ -75,6 +75,8 @@ def _add_analyze(sub) -> None:
                                    "umf runs: the cases side by side (mri_compare.*, umf_compare.*).")
     a.add_argument("run_dir", help="output folder of a run, or of a sweep (mri, umf: its cases side by side)")
     a.add_argument("--kind", choices=("boyce", "verma", "mri", "umf"), help="override the run's probes.analysis")
+    a.add_argument("--plot", metavar="FIGURE", help="on a sweep folder: plot this summary figure against the swept "
+                   "keys from sweep.csv (DIR/FIGURE.png), the cases not run again")
 
 
 def _add_bench(sub) -> None:
@@ -257,7 +259,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "analyze":
             from .postprocess import analyze
 
-            return analyze(args.run_dir, args.kind)
+            return analyze(args.run_dir, args.kind, args.plot)
         if args.command == "rcfd":
             from .rcfd.cli import main as rcfd_main
 

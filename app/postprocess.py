@@ -30,10 +30,20 @@ def post_process(analysis: str, out_dir: pathlib.Path, at_run_end: bool = True) 
         return {"analysis_error": f"{type(err).__name__}: {err}"}
 
 
-def analyze(run_dir: str, kind: str | None = None) -> int:
-    """`fbed analyze RUN_DIR`: the run's analysis (probes.analysis, or ``kind``) into RUN_DIR/analysis."""
+def analyze(run_dir: str, kind: str | None = None, plot: str | None = None) -> int:
+    """`fbed analyze RUN_DIR`: the run's analysis (probes.analysis, or ``kind``) into RUN_DIR/analysis; with
+    ``plot`` on a sweep folder, that summary figure against the swept keys (SWEEP_DIR/FIGURE.png) alone."""
     d = pathlib.Path(run_dir)
-    if (d / "sweep.csv").exists() and not (d / "run.h5").exists():
+    sweep_dir = (d / "sweep.csv").exists() and not (d / "run.h5").exists()
+    if plot is not None:
+        if not sweep_dir:
+            raise ConfigError("--plot draws a sweep's figure: this folder holds no sweep.csv", str(d), "--plot",
+                              hint="give the folder `fbed sweep` wrote")
+        from .sweep import replot
+
+        print(replot(d, plot))
+        return EXIT_OK
+    if sweep_dir:
         return analyze_sweep(d, kind)
     if not (d / "run.h5").exists() or not (d / "config.toml").exists():
         raise ConfigError("not a run folder (no run.h5 / config.toml)", str(d), "RUN_DIR",

@@ -182,6 +182,38 @@ def plot(rows: list[dict], key: str, figure: str, path: pathlib.Path, group: str
     plt.close(fig)
 
 
+def check_figure_name(figure: str) -> None:
+    if not figure.replace("_", "").isalnum():
+        raise ConfigError("not a summary figure's name (the plot is written as DIR/FIGURE.png)", "--plot", figure,
+                          hint="a key of the cases' summary.json, e.g. --plot mean_pressure_drop")
+
+
+def plot_sweep(rows: list[dict], keys: list[str], figure: str, out_dir: pathlib.Path) -> pathlib.Path:
+    """DIR/FIGURE.png: ``figure`` against the first swept key, one line per value of the second. A figure no case
+    has is a ConfigError that names the figures there are, and how to plot one from the table."""
+    path = out_dir / f"{figure}.png"
+    try:
+        plot(rows, keys[0], figure, path, group=keys[1] if len(keys) > 1 else None)
+    except ConfigError as err:
+        raise ConfigError(err.message, err.file, err.key, hint=f"{err.hint}; plot one from sweep.csv, without "
+                          f"running the cases again: fbed analyze {out_dir} --plot FIGURE") from None
+    return path
+
+
+def replot(d: pathlib.Path, figure: str) -> pathlib.Path:
+    """`fbed analyze SWEEP_DIR --plot FIGURE`: a sweep's figure drawn from its sweep.csv (its swept keys are the
+    columns between 'case' and 'status'). A misspelt `fbed sweep --plot` was found out only after every case had
+    run, and redrawing needed the cases run again (or matplotlib by hand)."""
+    check_figure_name(figure)
+    with open(d / "sweep.csv", newline="") as f:
+        table = csv.DictReader(f)
+        rows, columns = list(table), list(table.fieldnames or [])
+    if "case" not in columns or "status" not in columns or columns.index("status") < 2:
+        raise ConfigError("sweep.csv names no swept key (its columns: case, the keys, status, ...)",
+                          str(d / "sweep.csv"), "--plot", hint="give the folder `fbed sweep` wrote")
+    return plot_sweep(rows, columns[1:columns.index("status")], figure, d)
+
+
 def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathlib.Path, arch: str, done) -> None:
     """Each case as one Dask task (an `fbed run` subprocess on a worker); ``done(i, row)`` as each ends.
 
@@ -275,9 +307,8 @@ def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, p
         if os.path.isfile(f) and not overwrite:  # (the cases run with --overwrite, for their own folders)
             raise ConfigError(f"{f}: already exists: the sweep would write over it", preset, "video.file",
                               hint="pass --overwrite to replace it, or name another video file")
-    if plot_figure is not None and not plot_figure.replace("_", "").isalnum():
-        raise ConfigError("not a summary figure's name (the plot is written as DIR/FIGURE.png)", "--plot",
-                          plot_figure, hint="a key of the cases' summary.json, e.g. --plot mean_pressure_drop")
+    if plot_figure is not None:
+        check_figure_name(plot_figure)
     out_dir = sweep_folder(preset, out, overwrite)
     threads = 1 if jobs > 1 else 0
     where = f"on the Dask scheduler {scheduler}" if scheduler and scheduler != "local" else f"{jobs} at a time"
@@ -306,5 +337,5 @@ def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, p
     print(f"fbed sweep: {len(rows) - failed} of {len(rows)} cases finished; table in {out_dir / 'sweep.csv'}",
           file=sys.stderr)
     if plot_figure:  # (a figure no case has: exit 2 after the table, which keeps every case's figures)
-        plot(rows, keys[0], plot_figure, out_dir / f"{plot_figure}.png", group=keys[1] if len(keys) > 1 else None)
+        plot_sweep(rows, keys, plot_figure, out_dir)
     return 0 if failed == 0 else 1

@@ -399,6 +399,31 @@ def test_sweep_plot_draws_named_values_and_names_a_missing_figure(tmp_path):
     assert not (tmp_path / "s").exists()
 
 
+def test_a_sweeps_figure_is_drawn_again_from_its_table(tmp_path, capsys):
+    """A misspelt `fbed sweep --plot` was found out after every case had run, and drawing another figure needed the
+    cases run again. `fbed analyze SWEEP_DIR --plot FIGURE` draws it from sweep.csv (the swept keys: the columns
+    between 'case' and 'status'); a figure no case has names the ones there are; a run folder is refused."""
+    d = tmp_path / "sw"
+    d.mkdir()
+    (d / "sweep.csv").write_text("case,coupling.drag,gas.cell_size,status,exit_code,mean_pressure_drop\n"
+                                 "case-000,wen_yu,0.005,finished,0,100.0\ncase-001,koch_hill,0.005,finished,0,110.0\n"
+                                 "case-002,wen_yu,0.0025,unstable,3,\n")
+    assert cli_main(["analyze", str(d), "--plot", "mean_pressure_drop"]) == 0
+    assert (d / "mean_pressure_drop.png").stat().st_size > 1000
+    from app.sweep import plotted
+
+    rows = [dict(r) for r in __import__("csv").DictReader(open(d / "sweep.csv"))]
+    series, categories = plotted(rows, "coupling.drag", "mean_pressure_drop", "gas.cell_size")
+    assert categories == ["wen_yu", "koch_hill"] and series["0.005"] == ([0, 1], [100.0, 110.0])
+    capsys.readouterr()
+    assert cli_main(["analyze", str(d), "--plot", "mean_presure_drop"]) == 2
+    err = capsys.readouterr().err
+    assert "figures of these cases: mean_pressure_drop" in err and f"fbed analyze {d} --plot" in err, err
+    (tmp_path / "run").mkdir()
+    assert cli_main(["analyze", str(tmp_path / "run"), "--plot", "x"]) == 2
+    assert "holds no sweep.csv" in capsys.readouterr().err
+
+
 def test_a_second_sweep_does_not_write_over_the_first(tmp_path, monkeypatch):
     """Each case runs with --overwrite into case-NNN, so a second sweep into the first's folder (its default one
     included) replaced the first's cases and sweep.csv without a word. Now: the default folder is a new one
