@@ -172,6 +172,10 @@ def plot(rows: list[dict], key: str, figure: str, path: pathlib.Path, group: str
         ax.plot(x, y, "o" if categories else "o-", label=f"{group} = {gval}" if group else None)
     if categories:
         ax.set_xticks(range(len(categories)), categories, rotation=20 if len(categories) > 3 else 0)
+    else:  # (matplotlib's default put nine labels like 0.00425 on a 6-inch axis, running into each other)
+        from matplotlib.ticker import MaxNLocator
+
+        ax.xaxis.set_major_locator(MaxNLocator(nbins=5))
     ax.set_xlabel(key)
     ax.set_ylabel(figure)
     if group:
