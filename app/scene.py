@@ -119,8 +119,10 @@ def load_bed(path: pathlib.Path) -> dict:
             raise KeyError("no /grains group")
         out = {k: grains[k] for k in ("position", "velocity", "radius", "omega") if k in grains}
         keep = grains["alive"].astype(bool) if "alive" in grains else np.ones(len(out["position"]), bool)
-    except (OSError, KeyError) as err:
-        raise ConfigError(f"cannot read grains from it: {err}", str(path), "particles.initial_state",
+    except (OSError, KeyError) as err:  # (HDF5's words for a file of another kind: "file signature not found")
+        why = err.args[0] if isinstance(err, KeyError) else \
+            "not an HDF5 file" if "signature not found" in str(err) else str(err)
+        raise ConfigError(f"cannot read grains from it: {why}", str(path), "particles.initial_state",
                           hint="give the bed.h5 or checkpoint.h5 written by an earlier fbed run") from None
     n = len(out["position"])
     for k, v in {**out, "alive": keep}.items():

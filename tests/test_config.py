@@ -545,3 +545,23 @@ def test_a_folder_given_as_the_initial_state_is_named_with_the_bed_file_in_it(tm
     with pytest.raises(ConfigError, match="is a folder, not a bed file") as err:
         Scene(load(settle, ["particles.count=0", f"particles.initial_state={run}"]))
     assert err.value.key == "particles.initial_state" and err.value.hint == f"give {run / 'bed.h5'}"
+
+
+def test_a_bed_file_of_another_kind_is_named_so(tmp_path):
+    """particles.initial_state naming a JSON file said "cannot read grains from it: Unable to synchronously open
+    file (file signature not found)", HDF5's words; a run.h5 (no grains) said "'no /grains group'" in quotes. Now
+    "not an HDF5 file" and "no /grains group", with the hint to give a bed.h5 or checkpoint.h5."""
+    import h5py
+
+    from app.scene import Scene
+
+    settle = pathlib.Path(__file__).resolve().parents[1] / "presets" / "settle.toml"
+    (tmp_path / "summary.json").write_text("{}")
+    with h5py.File(tmp_path / "run.h5", "w") as f:
+        f.create_group("series")
+    for name, said in (("summary.json", "cannot read grains from it: not an HDF5 file"),
+                       ("run.h5", "cannot read grains from it: no /grains group")):
+        cfg = load(settle, ["particles.count=0", f'particles.initial_state="{tmp_path / name}"'])
+        with pytest.raises(ConfigError) as err:
+            Scene(cfg, str(settle))
+        assert str(err.value.message) == said and "bed.h5 or checkpoint.h5" in err.value.hint, err.value.message
