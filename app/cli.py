@@ -112,7 +112,8 @@ def _add_sweep(sub) -> None:
     w.add_argument("--out", help="output folder (default: a new runs/<preset>-sweep, -2, ...)")
     w.add_argument("--overwrite", action="store_true", help="replace an earlier sweep in --out")
     w.add_argument("--plot", dest="plot_figure", metavar="FIGURE",
-                   help="plot this summary figure against the first swept key")
+                   help="plot this summary figure against the first swept key (another, later: fbed analyze "
+                   "OUT --plot FIGURE)")
     w.add_argument("--arch", choices=("auto", "cpu", "cuda"), default="auto")
     w.add_argument("--scheduler", metavar="ADDRESS",
                    help="submit each case to this Dask distributed scheduler (tcp://host:8786), or 'local' for a "
