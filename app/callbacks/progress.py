@@ -170,7 +170,8 @@ def window_notes(cfg) -> list[str]:
     --set, say), which otherwise shows only at its end: run.duration not a whole number of run.step (the run ends at
     the next whole step, up to one step late); output.average_from not before run.duration (the time means, and the
     analysis that reads that window, would find nothing); probes.rcfd_from leaving fewer than the 3 frames that
-    `fbed rcfd` needs; a video of fewer than two frames; record intervals that are no whole number of steps."""
+    `fbed rcfd` needs; an inlet or a jet that opens after the end; a video of fewer than two frames; record
+    intervals that are no whole number of steps."""
     notes, end = [], cfg.run.duration
     steps = run_steps(end, cfg.run.step)
     if abs(steps * cfg.run.step - end) > 1e-9 * max(end, cfg.run.step):
@@ -190,6 +191,15 @@ def window_notes(cfg) -> list[str]:
             notes.append(f"fbed: note: rCFD frames from probes.rcfd_from = {pr.rcfd_from:g} s to run.duration = "
                          f"{end:g} s: {frames} of probes.rcfd_interval = {pr.rcfd_interval:g} s, and `fbed rcfd` "
                          f"needs at least {RCFD_MIN_FRAMES} (record from earlier, or run longer)")
+    for face, b in cfg.boundary:  # an inlet or jet that opens after the end (a preset shortened with --set)
+        if b.kind != "velocity_inlet":
+            continue
+        if b.start >= end and not b.schedule and any(b.velocity):
+            notes.append(f"fbed: note: boundary.{face}.start = {b.start:g} s is not before run.duration = {end:g} s: "
+                         "the inlet blows nothing in this run")
+        if b.jet_radius > 0 and any(b.jet_velocity) and b.jet_start >= end:
+            notes.append(f"fbed: note: boundary.{face}.jet_start = {b.jet_start:g} s is not before run.duration = "
+                         f"{end:g} s: the jet never opens in this run")
     if odd := odd_intervals(cfg):
         notes.append(f"fbed: note: records come every whole number of run.step = {cfg.run.step:g} s: "
                      + ", ".join(f"{k} = {v:g} s is taken as {n * cfg.run.step:g} s ({n} step{'s' * (n != 1)})"
