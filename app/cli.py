@@ -111,6 +111,8 @@ def _add_sweep(sub) -> None:
     w.add_argument("--jobs", type=int, default=1, help="cases run at once (each on one CPU thread when > 1)")
     w.add_argument("--out", help="output folder (default: a new runs/<preset>-sweep, -2, ...)")
     w.add_argument("--overwrite", action="store_true", help="replace an earlier sweep in --out")
+    w.add_argument("--resume", action="store_true", help="go on with the sweep in --out (the same --set lists): "
+                   "its finished and unstable cases are kept, interrupted ones go on from their checkpoints")
     w.add_argument("--plot", dest="plot_figure", metavar="FIGURE",
                    help="plot this summary figure against the first swept key (another, later: fbed analyze "
                    "OUT --plot FIGURE)")
@@ -273,7 +275,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.jobs < 1:
                 raise ConfigError(f"--jobs must be at least 1, got {args.jobs}", "", "--jobs")
             return sweep(args.preset, args.sets, args.jobs, args.out, args.plot_figure, args.arch, args.scheduler,
-                         args.overwrite)
+                         args.overwrite, args.resume)
     except ConfigError as err:
         print(f"fbed: error: {err}", file=sys.stderr)
         return 2

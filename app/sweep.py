@@ -29,6 +29,10 @@ from .config import ConfigError, load
 from .outputs import fresh_folder, names, out_folder, remove_paths, run_outputs
 
 
+#: the exit code of a sweep stopped by Ctrl-C or SIGTERM (a run's: 128 + SIGINT)
+EXIT_STOPPED = 130
+
+
 def split_values(raw: str) -> list[str]:
     """Split 'a,b,[1,2],"x,y"' on the commas that are not inside brackets, braces or quotes."""
     out, depth, quote, cur = [], 0, None, ""
@@ -87,10 +91,16 @@ def failed_row(keys, values, out: pathlib.Path, why: str) -> dict:
 
 
 def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: int,
-             stop_with_parent: bool = False) -> dict:
-    args = [sys.executable, "-m", "app", "run", preset, "--out", str(out), "--overwrite", "--arch", arch]
-    for k, v in zip(keys, values):
-        args += ["--set", f"{k}={v}"]
+             stop_with_parent: bool = False, resume: bool = False, running: set | None = None) -> dict:
+    """One case as an `fbed run` subprocess into ``out`` (``resume``: from its checkpoint there); its row.
+    ``running``: the sweep's set of live case processes, this one's in it while it runs (a signal to the sweep is
+    passed on to them)."""
+    if resume:  # (its config.toml holds its values)
+        args = [sys.executable, "-m", "app", "run", "--resume", str(out), "--arch", arch]
+    else:
+        args = [sys.executable, "-m", "app", "run", preset, "--out", str(out), "--overwrite", "--arch", arch]
+        for k, v in zip(keys, values):
+            args += ["--set", f"{k}={v}"]
     if threads:
         args += ["--set", f"run.threads={threads}"]
     env = dict(os.environ)
@@ -99,8 +109,15 @@ def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: i
         env["FBED_STOP_WITH_PARENT"] = str(os.getpid())  # and that rerun waits until the orphan has let go of the
         env["FBED_LOCK_WAIT"] = "300"                     # folder, at its next step)
     out.mkdir(parents=True, exist_ok=True)
-    with open(out / "log.txt", "w") as logf:
-        rc = subprocess.run(args, stdout=logf, stderr=subprocess.STDOUT, env=env).returncode
+    with open(out / "log.txt", "a" if resume else "w") as logf:
+        proc = subprocess.Popen(args, stdout=logf, stderr=subprocess.STDOUT, env=env)
+        if running is not None:
+            running.add(proc)
+        try:
+            rc = proc.wait()
+        finally:
+            if running is not None:
+                running.discard(proc)
     row = {k: v for k, v in zip(keys, values)}
     row.update(case=out.name, exit_code=rc)
     summary = out / "summary.json"
@@ -218,8 +235,10 @@ def replot(d: pathlib.Path, figure: str) -> pathlib.Path:
     return plot_sweep(rows, columns[1:columns.index("status")], figure, d)
 
 
-def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathlib.Path, arch: str, done) -> None:
-    """Each case as one Dask task (an `fbed run` subprocess on a worker); ``done(i, row)`` as each ends.
+def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathlib.Path, arch: str, done,
+            todo: dict) -> None:
+    """Each case of ``todo`` ({index: resume it}) as one Dask task (an `fbed run` subprocess on a worker);
+    ``done(i, row)`` as each ends.
 
     A local cluster's own log is silenced (its workers inherit the setting): fbed says how each case ended, and a
     worker that a killed case's nanny restarts while the cluster closes logged a traceback on the sweep's terminal
@@ -248,8 +267,9 @@ def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathl
             out_abs = out_dir.resolve()
             threads = 1 if cluster is not None and jobs > 1 else 0
             tag = uuid.uuid4().hex[:8]
-            futs = {client.submit(run_case, preset_abs, keys, v, out_abs / f"case-{i:03d}", arch, threads, True,
-                                  key=f"fbed-case-{i:03d}-{tag}", pure=False): i for i, v in enumerate(combos)}
+            futs = {client.submit(run_case, preset_abs, keys, combos[i], out_abs / f"case-{i:03d}", arch, threads,
+                                  True, again, key=f"fbed-case-{i:03d}-{tag}", pure=False): i
+                    for i, again in todo.items()}
             for fut in as_completed(list(futs)):
                 i = futs[fut]
                 try:
@@ -293,12 +313,49 @@ def sweep_folder(preset: str, out: str | None, overwrite: bool) -> pathlib.Path:
     return out_folder(out, d)
 
 
-def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, plot_figure: str | None = None,
-          arch: str = "auto", scheduler: str | None = None, overwrite: bool = False) -> int:
-    load(preset)  # the preset itself must be valid before anything runs
-    keys, combos = cases(sets)
-    videos, case = {}, planned_folder(preset, out) / "case-000"
-    for values in combos:  # every case's overrides are validated up front: no half-run sweep on a typo
+def on_threads(jobs: int, preset: str, keys, combos, out_dir: pathlib.Path, arch: str, threads: int, done,
+               todo: dict) -> bool:
+    """The cases of ``todo`` ({index: resume it}), ``jobs`` at a time here; whether a signal stopped them. Ctrl-C or SIGTERM to the sweep stops it:
+    the running cases are passed the signal (they stop with a checkpoint), and no case starts after it (before,
+    the queued cases ran on to their ends after a Ctrl-C); the table says "not started" for those."""
+    import signal
+    import threading
+
+    stop, running = threading.Event(), set()
+
+    def on_signal(signum, frame):
+        if not stop.is_set():
+            print(f"fbed sweep: {signal.Signals(signum).name}: the running cases stop with a checkpoint, and no "
+                  "other starts; go on later with the same command and --resume", file=sys.stderr, flush=True)
+        stop.set()
+        for proc in list(running):
+            proc.send_signal(signum)
+
+    def case(i, again):
+        if stop.is_set():
+            row = failed_row(keys, combos[i], out_dir / f"case-{i:03d}", "")
+            row.update(status="not started (the sweep was stopped)", exit_code=130)
+            return row
+        return run_case(preset, keys, combos[i], out_dir / f"case-{i:03d}", arch, threads, resume=again,
+                        running=running)
+
+    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+            futs = {pool.submit(case, i, again): i for i, again in todo.items()}
+            for fut in concurrent.futures.as_completed(futs):
+                done(futs[fut], fut.result())
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+    return stop.is_set()
+
+
+def check_cases(preset: str, keys, combos, case: pathlib.Path, overwrite: bool) -> None:
+    """Every case's overrides validated up front (no half-run sweep on a typo), and the videos the cases would
+    write outside their folders (``case``: where case-000 goes): one each, none over an existing file."""
+    videos = {}
+    for values in combos:
         cfg = load(preset, [f"{k}={v}" for k, v in zip(keys, values)])
         outside = pathlib.PurePath(cfg.video.file).is_absolute() or ".." in pathlib.PurePath(cfg.video.file).parts
         if cfg.video.enabled and outside:  # each case runs with --overwrite: the last to end would keep its video
@@ -311,35 +368,72 @@ def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, p
         if os.path.isfile(f) and not overwrite:  # (the cases run with --overwrite, for their own folders)
             raise ConfigError(f"{f}: already exists: the sweep would write over it", preset, "video.file",
                               hint="pass --overwrite to replace it, or name another video file")
+
+
+def earlier_rows(d: pathlib.Path, keys, combos) -> tuple[list[dict], dict]:
+    """--resume: the rows of the sweep in ``d`` (it must have run these very cases) and what is left to do, {case
+    index: resume from its checkpoint}. Finished cases are kept, and so are unstable ones (they would fail again
+    as they did); an interrupted or killed case goes on from its checkpoint, one without a checkpoint runs anew."""
+    if not (d / "sweep.csv").is_file():
+        raise ConfigError("holds no sweep to resume (no sweep.csv)", str(d), "--out",
+                          hint="give the folder of the sweep to go on with, or leave out --resume")
+    with open(d / "sweep.csv", newline="") as f:
+        table = csv.DictReader(f)
+        rows, columns = list(table), list(table.fieldnames or [])
+    ran = (columns[1:columns.index("status")] if "status" in columns else [],
+           [tuple(r.get(k, "") for k in keys) for r in rows])
+    if ran != (list(keys), [tuple(v) for v in combos]):
+        raise ConfigError(f"the sweep there ran other cases ({', '.join(ran[0]) or 'none'}: {len(rows)} cases)",
+                          str(d), "--resume", hint="give the --set lists of that sweep (its sweep.csv lists them), "
+                          "or another --out")
+    todo = {i: (d / r["case"] / "checkpoint.h5").is_file() for i, r in enumerate(rows)
+            if r["status"] not in ("finished", "unstable")}
+    return rows, todo
+
+
+def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, plot_figure: str | None = None,
+          arch: str = "auto", scheduler: str | None = None, overwrite: bool = False, resume: bool = False) -> int:
+    load(preset)  # the preset itself must be valid before anything runs
+    keys, combos = cases(sets)
+    if resume and (overwrite or not out):
+        raise ConfigError("--resume goes on with the sweep in --out" if not out else "--resume keeps the earlier "
+                          "cases: --overwrite would remove them", "--resume", "", hint="fbed sweep PRESET --set ... "
+                          "--out DIR --resume (the same --set lists)")
+    check_cases(preset, keys, combos, planned_folder(preset, out) / "case-000", overwrite or resume)
     if plot_figure is not None:
         check_figure_name(plot_figure)
-    out_dir = sweep_folder(preset, out, overwrite)
+    rows, todo = [None] * len(combos), {i: False for i in range(len(combos))}
+    if resume:
+        out_dir = pathlib.Path(out)
+        rows, todo = earlier_rows(out_dir, keys, combos)
+    else:
+        out_dir = sweep_folder(preset, out, overwrite)
     threads = 1 if jobs > 1 else 0
     where = f"on the Dask scheduler {scheduler}" if scheduler and scheduler != "local" else f"{jobs} at a time"
-    print(f"fbed sweep: {len(combos)} case{'s' * (len(combos) != 1)} of {preset} over {', '.join(keys)}; {where}; "
-          f"output in {out_dir}", file=sys.stderr, flush=True)
-    rows = [None] * len(combos)
+    left = f" ({len(todo)} left to run)" if resume else ""
+    print(f"fbed sweep: {len(combos)} case{'s' * (len(combos) != 1)}{left} of {preset} over {', '.join(keys)}; "
+          f"{where}; output in {out_dir}", file=sys.stderr, flush=True)
 
     def done(i, row):
         rows[i] = row
         print(f"  case-{i:03d} {dict(zip(keys, combos[i]))}: {row['status']}", file=sys.stderr, flush=True)
 
+    stopped = False
     if scheduler:
-        on_dask(scheduler, jobs, preset, keys, combos, out_dir, arch, done)
+        on_dask(scheduler, jobs, preset, keys, combos, out_dir, arch, done, todo)
     else:
-        with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-            futs = {pool.submit(run_case, preset, keys, v, out_dir / f"case-{i:03d}", arch, threads): i
-                    for i, v in enumerate(combos)}
-            for fut in concurrent.futures.as_completed(futs):
-                done(futs[fut], fut.result())
+        stopped = on_threads(jobs, preset, keys, combos, out_dir, arch, threads, done, todo)
     columns = list(dict.fromkeys(["case", *keys, "status", "exit_code"] + [k for r in rows for k in r]))
     with open(out_dir / "sweep.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=columns)
         w.writeheader()
         w.writerows(rows)
-    failed = sum(1 for r in rows if r["exit_code"] != 0)
+    failed = sum(1 for r in rows if int(r["exit_code"]) != 0)  # (a kept row's figures are the table's text)
     print(f"fbed sweep: {len(rows) - failed} of {len(rows)} cases finished; table in {out_dir / 'sweep.csv'}",
           file=sys.stderr)
+    if failed and any(r["status"] != "unstable" for r in rows if int(r["exit_code"]) != 0):  # (not started too)
+        print("fbed sweep: to go on with the cases that did not finish: the same command with --resume",
+              file=sys.stderr)
     if plot_figure:  # (a figure no case has: exit 2 after the table, which keeps every case's figures)
         plot_sweep(rows, keys, plot_figure, out_dir)
-    return 0 if failed == 0 else 1
+    return EXIT_STOPPED if stopped else 0 if failed == 0 else 1

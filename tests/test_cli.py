@@ -424,6 +424,72 @@ def test_a_sweeps_figure_is_drawn_again_from_its_table(tmp_path, capsys):
     assert "holds no sweep.csv" in capsys.readouterr().err
 
 
+def test_a_sweep_goes_on_with_resume_keeping_what_finished(tmp_path, capsys):
+    """A stopped sweep could only be run again from the start (`--overwrite`) or by hand, case by case. With
+    `--resume` (the same --set lists, the same --out) the finished and unstable cases are kept, an interrupted
+    case goes on from its checkpoint (its log shows a second start), one without a checkpoint runs anew."""
+    import csv
+
+    settle, out = str(ROOT / "presets" / "settle.toml"), tmp_path / "sw"
+    sets = ["--set", "particles.count=100,150", "--set", "run.duration=0.004", "--arch", "cpu", "--out", str(out)]
+    assert cli_main(["sweep", settle, *sets, "--jobs", "2"]) == 0
+    rows = list(csv.DictReader(open(out / "sweep.csv")))
+    rows[0].update(status="interrupted", exit_code="130")  # as a Ctrl-C leaves it (its checkpoint kept)
+    rows[1].update(status="failed: killed", exit_code="-9")
+    (out / "case-001" / "checkpoint.h5").unlink()  # killed before its first checkpoint
+    with open(out / "sweep.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    capsys.readouterr()
+    assert cli_main(["sweep", settle, *sets, "--resume"]) == 0
+    err = capsys.readouterr().err
+    assert "(2 left to run)" in err and "2 of 2 cases finished" in err, err
+    assert [r["status"] for r in csv.DictReader(open(out / "sweep.csv"))] == ["finished", "finished"]
+    log0, log1 = ((out / c / "log.txt").read_text() for c in ("case-000", "case-001"))
+    assert log0.count("fbed: settle:") == 2 and log1.count("fbed: settle:") == 1  # went on; ran anew
+    assert cli_main(["sweep", settle, *sets, "--resume"]) == 0  # nothing left: nothing runs
+    assert "(0 left to run)" in capsys.readouterr().err
+    for argv, said in ((["--set", "particles.count=100,200", *sets[2:], "--resume"], "the sweep there ran other cases"),
+                       ([*sets, "--resume", "--overwrite"], "--overwrite would remove them")):
+        assert cli_main(["sweep", settle, *argv]) == 2
+        assert said in capsys.readouterr().err
+
+
+def test_a_signal_stops_a_sweep_and_starts_no_other_case(tmp_path, monkeypatch, capsys):
+    """Ctrl-C (or SIGTERM) on a sweep stopped the running cases, and then the queued ones started and ran to
+    their ends. Now the signal is passed to the running cases, no case starts after it ("not started" in the
+    table), and the sweep exits 130, saying how to go on."""
+    import csv
+    import signal
+    import threading
+    import time
+
+    from app import sweep as sweep_mod
+
+    started = []
+
+    def fake_case(preset, keys, values, out, arch, threads, stop_with_parent=False, resume=False, running=None):
+        started.append(out.name)
+        if len(started) == 1:  # the signal comes while the first case runs
+            threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGTERM)).start()
+        time.sleep(0.6)
+        row = dict(zip(keys, values))
+        row.update(case=out.name, exit_code=130, status="interrupted")
+        return row
+
+    monkeypatch.setattr(sweep_mod, "run_case", fake_case)
+    before = signal.getsignal(signal.SIGTERM)
+    rc = sweep_mod.sweep(str(ROOT / "presets" / "settle.toml"), ["particles.count=100,150,200"], jobs=1,
+                         out=str(tmp_path / "sw"), arch="cpu")
+    err = capsys.readouterr().err
+    assert rc == 130 and started == ["case-000"], (rc, started)
+    assert "SIGTERM: the running cases stop with a checkpoint" in err and "--resume" in err, err
+    assert [r["status"] for r in csv.DictReader(open(tmp_path / "sw" / "sweep.csv"))] == \
+        ["interrupted", "not started (the sweep was stopped)", "not started (the sweep was stopped)"]
+    assert signal.getsignal(signal.SIGTERM) == before  # the sweep's handler is gone again
+
+
 def test_a_second_sweep_does_not_write_over_the_first(tmp_path, monkeypatch):
     """Each case runs with --overwrite into case-NNN, so a second sweep into the first's folder (its default one
     included) replaced the first's cases and sweep.csv without a word. Now: the default folder is a new one
