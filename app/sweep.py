@@ -1,7 +1,7 @@
 """`fbed sweep`: run a preset over the Cartesian product of lists of values.
 
     fbed sweep PRESET --set key=v1,v2,... [--set key2=...] [--jobs N] [--out DIR] [--plot FIGURE]
-               [--scheduler ADDRESS|local]
+               [--overwrite | --resume] [--scheduler ADDRESS|local]
 
 Each case is an ordinary `fbed run` in its own folder (DIR/case-000, ...), in its own
 process, so a failed case is recorded in sweep.csv and does not stop the others.
@@ -11,7 +11,9 @@ tcp://head:8786, or `local`: a LocalCluster of --jobs workers on this machine); 
 sees); a worker that dies is recorded as that case's failure and the others go on.
 sweep.csv has one row per case: its swept values, its status and exit code, and every
 number of its summary.json. With --plot, FIGURE (a summary key, e.g. mean_pressure_drop)
-is plotted against the first swept key into DIR/FIGURE.png.
+is plotted against the first swept key into DIR/FIGURE.png (`fbed analyze DIR --plot FIGURE`: later, from
+sweep.csv). Ctrl-C or SIGTERM stops the running cases with their checkpoints and starts no other; --resume
+goes on with the sweep in DIR (the same lists): finished and unstable cases kept, interrupted ones resumed.
 """
 from __future__ import annotations
 
