@@ -238,9 +238,9 @@ def replot(d: pathlib.Path, figure: str) -> pathlib.Path:
 
 
 def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathlib.Path, arch: str, done,
-            todo: dict) -> None:
+            todo: dict) -> bool:
     """Each case of ``todo`` ({index: resume it}) as one Dask task (an `fbed run` subprocess on a worker);
-    ``done(i, row)`` as each ends.
+    ``done(i, row)`` as each ends; whether Ctrl-C or SIGTERM stopped them (the cases not done are cancelled).
 
     A local cluster's own log is silenced (its workers inherit the setting): fbed says how each case ended, and a
     worker that a killed case's nanny restarts while the cluster closes logged a traceback on the sweep's terminal
@@ -254,7 +254,9 @@ def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathl
                           hint="python3 -m pip install -e '.[cluster]' (or pip install 'dask[distributed]')") from None
     import uuid
 
-    cluster = None
+    import signal
+
+    cluster, stopped = None, []
     if scheduler == "local":
         cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True, dashboard_address=None)
     try:
@@ -272,17 +274,34 @@ def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathl
             futs = {client.submit(run_case, preset_abs, keys, combos[i], out_abs / f"case-{i:03d}", arch, threads,
                                   True, again, key=f"fbed-case-{i:03d}-{tag}", pure=False): i
                     for i, again in todo.items()}
-            for fut in as_completed(list(futs)):
-                i = futs[fut]
-                try:
-                    row = fut.result()
-                except Exception as err:  # noqa: BLE001 - a lost worker (KilledWorker) or a task error
-                    row = failed_row(keys, combos[i], out_dir / f"case-{i:03d}",
-                                     f"{type(err).__name__}: {str(err).splitlines()[0][:120] if str(err) else ''}")
-                done(i, row)
+
+            def on_signal(signum, frame):  # (Ctrl-C was not seen here while the cases ran; SIGTERM lost the table)
+                if not stopped:
+                    print(f"fbed sweep: {signal.Signals(signum).name}: no other case starts (a running case stops "
+                          "with a checkpoint when its worker goes: with --scheduler local, now); go on later with "
+                          "the same command and --resume", file=sys.stderr, flush=True)
+                stopped.append(signum)
+                client.cancel([f for f in futs if not f.done()])
+
+            old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+            try:
+                for fut in as_completed(list(futs)):
+                    i = futs[fut]
+                    try:
+                        row = fut.result()
+                    except Exception as err:  # noqa: BLE001 - a lost worker (KilledWorker), a task error, cancelled
+                        why = f"{type(err).__name__}: {str(err).splitlines()[0][:120] if str(err) else ''}"
+                        row = failed_row(keys, combos[i], out_dir / f"case-{i:03d}", why)
+                        if stopped:
+                            row.update(status="not finished (the sweep was stopped)", exit_code=EXIT_STOPPED)
+                    done(i, row)
+            finally:
+                for sig, handler in old.items():
+                    signal.signal(sig, handler)
     finally:
         if cluster is not None:
             cluster.close()
+    return bool(stopped)
 
 
 def sweep_outputs(d: pathlib.Path) -> list[pathlib.Path]:
@@ -422,7 +441,7 @@ def sweep(preset: str, sets: list[str], jobs: int = 1, out: str | None = None, p
 
     stopped = False
     if scheduler:
-        on_dask(scheduler, jobs, preset, keys, combos, out_dir, arch, done, todo)
+        stopped = on_dask(scheduler, jobs, preset, keys, combos, out_dir, arch, done, todo)
     else:
         stopped = on_threads(jobs, preset, keys, combos, out_dir, arch, threads, done, todo)
     columns = list(dict.fromkeys(["case", *keys, "status", "exit_code"] + [k for r in rows for k in r]))

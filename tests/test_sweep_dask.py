@@ -82,3 +82,39 @@ def test_a_dead_worker_is_recorded_and_the_other_cases_finish(tmp_path):
     rows = list(csv.DictReader(open(out / "sweep.csv")))
     assert rows[0]["status"].startswith("failed: KilledWorker") and rows[0]["exit_code"] == "-1", rows[0]
     assert rows[1]["status"] == "finished" and rows[1]["exit_code"] == "0"
+
+
+def test_a_signal_stops_a_dask_sweep_and_keeps_its_table(tmp_path):
+    """On a Dask cluster, Ctrl-C on the sweep was not seen while the cases ran (they ran on, and the queued ones
+    after them), and SIGTERM killed it without writing sweep.csv. Now the cases not done are cancelled (none
+    starts after the signal), the running ones stop with a checkpoint as their workers go, the table says so,
+    exit 130; --resume goes on from there (tested on threads: test_cli)."""
+    import signal
+    import time
+
+    out = tmp_path / "sweep"
+    p = subprocess.Popen([sys.executable, "-m", "app", "sweep", str(ROOT / "presets" / "settle.toml"),
+                          "--scheduler", "local", "--jobs", "2", "--arch", "cpu", "--out", str(out),
+                          "--set", "particles.count=200,300,400", "--set", "run.duration=100"],
+                         stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    try:
+        deadline = time.time() + 300
+        while time.time() < deadline and not all((out / c / "run.h5").exists() for c in ("case-000", "case-001")):
+            time.sleep(0.5)
+        time.sleep(1.0)
+        p.send_signal(signal.SIGINT)
+        _, err = p.communicate(timeout=300)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 130 and "Traceback" not in err, err[-3000:]
+    assert "SIGINT: no other case starts" in err and "--resume" in err, err[-3000:]
+    rows = list(csv.DictReader(open(out / "sweep.csv")))
+    assert [r["status"] for r in rows] == ["not finished (the sweep was stopped)"] * 3
+    assert not (out / "case-002" / "run.h5").exists()  # never started
+    deadline = time.time() + 60  # the running cases stop themselves, with a checkpoint, once their worker is gone
+    while time.time() < deadline and not all((out / c / "summary.json").exists() for c in ("case-000", "case-001")):
+        time.sleep(0.5)
+    for c in ("case-000", "case-001"):
+        assert json.loads((out / c / "summary.json").read_text())["status"] == "interrupted"
+        assert (out / c / "checkpoint.h5").exists()
