@@ -211,6 +211,10 @@ def test_a_video_of_fewer_than_two_frames_is_noted_at_the_start():
     assert [n for n in window_notes(load(presets / "fluidize.toml", on + ["run.duration=0.02", "video.interval=0.01"]))
             if "the inlet blows nothing" not in n] == []
     assert window_notes(load(presets / "settle.toml", on + ["run.duration=0.01", "video.interval=0.01"])) == []
+    # counted as the frames are fired: 2.5 ms in 1 ms steps is every 2 steps, two frames in 4 ms (the raw interval
+    # gave one, a still, that the run would not have made)
+    notes = window_notes(load(presets / "fluidize.toml", on + ["run.duration=0.004", "video.interval=0.0025"]))
+    assert not [n for n in notes if "video.interval" in n and "frame" in n], notes
 
 
 def test_an_inlet_or_a_jet_that_opens_after_the_end_is_noted():

@@ -205,8 +205,9 @@ def window_notes(cfg) -> list[str]:
                      + ", ".join(f"{k} = {v:g} s is taken as {n * cfg.run.step:g} s ({n} step{'s' * (n != 1)})"
                                  for k, v, n in odd) + " (make them multiples of run.step)")
     vid = cfg.video
-    if vid.enabled:  # with gas the first frame waits for the first step (before it no void fraction is deposited)
-        frames = rcfd_frames(end, vid.interval) + (cfg.gas is None)
+    if vid.enabled:  # frames as the Simulation fires them: every interval_steps steps, and at t = 0 only without
+        # gas (with gas the first frame waits for the first step: before it no void fraction is deposited)
+        frames = steps // interval_steps(vid.interval, cfg.run.step) + (cfg.gas is None)
         if frames < 2:
             what = "no video will be written" if frames == 0 else "the video will hold one frame, a still"
             notes.append(f"fbed: note: video.interval = {vid.interval:g} s and run.duration = {end:g} s: {what} "
