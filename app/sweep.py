@@ -18,21 +18,21 @@ goes on with the sweep in DIR (the same lists): finished and unstable cases kept
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import csv
 import itertools
 import json
 import math
 import os
 import pathlib
+import signal
 import subprocess
 import sys
+import threading
 
 from .config import ConfigError, load
 from .outputs import fresh_folder, names, out_folder, remove_paths, run_outputs
-
-
-#: the exit code of a sweep stopped by Ctrl-C or SIGTERM (a run's: 128 + SIGINT)
-EXIT_STOPPED = 130
+from .stopping import EXIT_INTERRUPTED as EXIT_STOPPED, SIGNALS
 
 
 def split_values(raw: str) -> list[str]:
@@ -254,8 +254,6 @@ def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathl
                           hint="python3 -m pip install -e '.[cluster]' (or pip install 'dask[distributed]')") from None
     import uuid
 
-    import signal
-
     cluster, stopped = None, []
     if scheduler == "local":
         cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True, dashboard_address=None)
@@ -283,8 +281,7 @@ def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathl
                 stopped.append(signum)
                 client.cancel([f for f in futs if not f.done()])
 
-            old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-            try:
+            with signals_handled(on_signal):
                 for fut in as_completed(list(futs)):
                     i = futs[fut]
                     try:
@@ -295,9 +292,6 @@ def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathl
                         if stopped:
                             row.update(status="not finished (the sweep was stopped)", exit_code=EXIT_STOPPED)
                     done(i, row)
-            finally:
-                for sig, handler in old.items():
-                    signal.signal(sig, handler)
     finally:
         if cluster is not None:
             cluster.close()
@@ -336,12 +330,10 @@ def sweep_folder(preset: str, out: str | None, overwrite: bool) -> pathlib.Path:
 
 def on_threads(jobs: int, preset: str, keys, combos, out_dir: pathlib.Path, arch: str, threads: int, done,
                todo: dict) -> bool:
-    """The cases of ``todo`` ({index: resume it}), ``jobs`` at a time here; whether a signal stopped them. Ctrl-C or SIGTERM to the sweep stops it:
-    the running cases are passed the signal (they stop with a checkpoint), and no case starts after it (before,
-    the queued cases ran on to their ends after a Ctrl-C); the table says "not started" for those."""
-    import signal
-    import threading
-
+    """The cases of ``todo`` ({index: resume it}), ``jobs`` at a time here; whether a signal stopped them. Ctrl-C
+    or SIGTERM to the sweep stops it: the running cases are passed the signal (they stop with a checkpoint), and no
+    case starts after it (before, the queued cases ran on to their ends after a Ctrl-C); the table says "not
+    started" for those."""
     stop, running = threading.Event(), set()
 
     def on_signal(signum, frame):
@@ -355,21 +347,27 @@ def on_threads(jobs: int, preset: str, keys, combos, out_dir: pathlib.Path, arch
     def case(i, again):
         if stop.is_set():
             row = failed_row(keys, combos[i], out_dir / f"case-{i:03d}", "")
-            row.update(status="not started (the sweep was stopped)", exit_code=130)
+            row.update(status="not started (the sweep was stopped)", exit_code=EXIT_STOPPED)
             return row
         return run_case(preset, keys, combos[i], out_dir / f"case-{i:03d}", arch, threads, resume=again,
                         running=running)
 
-    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-            futs = {pool.submit(case, i, again): i for i, again in todo.items()}
-            for fut in concurrent.futures.as_completed(futs):
-                done(futs[fut], fut.result())
-    finally:
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
+    with signals_handled(on_signal), concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+        futs = {pool.submit(case, i, again): i for i, again in todo.items()}
+        for fut in concurrent.futures.as_completed(futs):
+            done(futs[fut], fut.result())
     return stop.is_set()
+
+
+@contextlib.contextmanager
+def signals_handled(handler):
+    """``handler`` for Ctrl-C and SIGTERM while open, the handlers before it again after."""
+    old = {sig: signal.signal(sig, handler) for sig in SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, before in old.items():
+            signal.signal(sig, before)
 
 
 def check_cases(preset: str, keys, combos, case: pathlib.Path, overwrite: bool) -> None:
