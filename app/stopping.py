@@ -14,6 +14,7 @@ Simulation stops before its next step). Without the watcher (it could not start)
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import pathlib
 import signal
@@ -120,3 +121,14 @@ def watch_parent(sim) -> None:
             wallclock.sleep(1.0)
 
     threading.Thread(target=watch, daemon=True).start()
+
+
+@contextlib.contextmanager
+def signals_handled(handler):
+    """``handler`` for Ctrl-C and SIGTERM while open, the handlers before it again after."""
+    old = {sig: signal.signal(sig, handler) for sig in SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, before in old.items():
+            signal.signal(sig, before)

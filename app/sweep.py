@@ -18,7 +18,6 @@ goes on with the sweep in DIR (the same lists): finished and unstable cases kept
 from __future__ import annotations
 
 import concurrent.futures
-import contextlib
 import csv
 import itertools
 import json
@@ -32,7 +31,7 @@ import threading
 
 from .config import ConfigError, load
 from .outputs import fresh_folder, names, out_folder, remove_paths, run_outputs
-from .stopping import EXIT_INTERRUPTED as EXIT_STOPPED, SIGNALS
+from .stopping import EXIT_INTERRUPTED as EXIT_STOPPED, signals_handled
 
 
 def split_values(raw: str) -> list[str]:
@@ -92,11 +91,53 @@ def failed_row(keys, values, out: pathlib.Path, why: str) -> dict:
     return row
 
 
+class LiveCases:
+    """The case processes a sweep runs here, and the signal that stopped it. A signal is passed on to every
+    running case, and no case starts after it. Starting a case and stopping the sweep exclude each other (a
+    re-entrant lock: the handler runs in the main thread, and may interrupt itself), so a case that starts as the
+    signal comes is either passed it or not started: before, one started after the handler's check and before it
+    was listed, and ran to its end."""
+
+    def __init__(self):
+        self._procs, self._lock, self.signum = set(), threading.RLock(), None
+
+    def stop(self, signum: int) -> bool:
+        """Pass ``signum`` to the running cases; whether it is the first to stop the sweep."""
+        with self._lock:
+            first, self.signum = self.signum is None, signum
+            procs = list(self._procs)
+        for proc in procs:
+            proc.send_signal(signum)
+        return first
+
+    def start(self, popen):
+        """``popen()``'s process, listed; None (nothing started) once the sweep is stopped."""
+        with self._lock:
+            if self.signum is not None:
+                return None
+            proc = popen()
+            self._procs.add(proc)
+            signum = self.signum  # (set while popen ran, by a handler that interrupted it)
+        if signum is not None:
+            proc.send_signal(signum)
+        return proc
+
+    def end(self, proc) -> None:
+        with self._lock:
+            self._procs.discard(proc)
+
+
+def not_started(keys, values, out: pathlib.Path) -> dict:
+    row = failed_row(keys, values, out, "")
+    row.update(status="not started (the sweep was stopped)", exit_code=EXIT_STOPPED)
+    return row
+
+
 def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: int,
-             stop_with_parent: bool = False, resume: bool = False, running: set | None = None) -> dict:
+             stop_with_parent: bool = False, resume: bool = False, live: LiveCases | None = None) -> dict:
     """One case as an `fbed run` subprocess into ``out`` (``resume``: from its checkpoint there); its row.
-    ``running``: the sweep's set of live case processes, this one's in it while it runs (a signal to the sweep is
-    passed on to them)."""
+    ``live``: the sweep's running cases, this one among them while it runs (a signal to the sweep is passed on
+    to them; once it came, the case does not start)."""
     if resume:  # (its config.toml holds its values)
         args = [sys.executable, "-m", "app", "run", "--resume", str(out), "--arch", arch]
     else:
@@ -112,14 +153,17 @@ def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: i
         env["FBED_LOCK_WAIT"] = "300"                     # folder, at its next step)
     out.mkdir(parents=True, exist_ok=True)
     with open(out / "log.txt", "a" if resume else "w") as logf:
-        proc = subprocess.Popen(args, stdout=logf, stderr=subprocess.STDOUT, env=env)
-        if running is not None:
-            running.add(proc)
+        def popen():
+            return subprocess.Popen(args, stdout=logf, stderr=subprocess.STDOUT, env=env)
+
+        proc = popen() if live is None else live.start(popen)
+        if proc is None:
+            return not_started(keys, values, out)
         try:
             rc = proc.wait()
         finally:
-            if running is not None:
-                running.discard(proc)
+            if live is not None:
+                live.end(proc)
     row = {k: v for k, v in zip(keys, values)}
     row.update(case=out.name, exit_code=rc)
     summary = out / "summary.json"
@@ -127,6 +171,8 @@ def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: i
         s = json.loads(summary.read_text())
         row["status"] = s.get("status", "")
         row.update({k: v for k, v in s.items() if isinstance(v, (int, float)) and not isinstance(v, bool)})
+    elif rc != 0 and live is not None and live.signum is not None:  # (one signalled as it started dies before
+        row["status"] = "not finished (the sweep was stopped)"        # its run can write anything)
     else:
         row["status"] = f"failed: {failure((out / 'log.txt').read_text())}"
     return row
@@ -334,40 +380,23 @@ def on_threads(jobs: int, preset: str, keys, combos, out_dir: pathlib.Path, arch
     or SIGTERM to the sweep stops it: the running cases are passed the signal (they stop with a checkpoint), and no
     case starts after it (before, the queued cases ran on to their ends after a Ctrl-C); the table says "not
     started" for those."""
-    stop, running = threading.Event(), set()
+    live = LiveCases()
 
     def on_signal(signum, frame):
-        if not stop.is_set():
+        if live.stop(signum):
             print(f"fbed sweep: {signal.Signals(signum).name}: the running cases stop with a checkpoint, and no "
                   "other starts; go on later with the same command and --resume", file=sys.stderr, flush=True)
-        stop.set()
-        for proc in list(running):
-            proc.send_signal(signum)
 
     def case(i, again):
-        if stop.is_set():
-            row = failed_row(keys, combos[i], out_dir / f"case-{i:03d}", "")
-            row.update(status="not started (the sweep was stopped)", exit_code=EXIT_STOPPED)
-            return row
-        return run_case(preset, keys, combos[i], out_dir / f"case-{i:03d}", arch, threads, resume=again,
-                        running=running)
+        if live.signum is not None:  # (run_case checks again as it starts the process)
+            return not_started(keys, combos[i], out_dir / f"case-{i:03d}")
+        return run_case(preset, keys, combos[i], out_dir / f"case-{i:03d}", arch, threads, resume=again, live=live)
 
     with signals_handled(on_signal), concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
         futs = {pool.submit(case, i, again): i for i, again in todo.items()}
         for fut in concurrent.futures.as_completed(futs):
             done(futs[fut], fut.result())
-    return stop.is_set()
-
-
-@contextlib.contextmanager
-def signals_handled(handler):
-    """``handler`` for Ctrl-C and SIGTERM while open, the handlers before it again after."""
-    old = {sig: signal.signal(sig, handler) for sig in SIGNALS}
-    try:
-        yield
-    finally:
-        for sig, before in old.items():
-            signal.signal(sig, before)
+    return live.signum is not None
 
 
 def check_cases(preset: str, keys, combos, case: pathlib.Path, overwrite: bool) -> None:

@@ -469,7 +469,7 @@ def test_a_signal_stops_a_sweep_and_starts_no_other_case(tmp_path, monkeypatch, 
 
     started = []
 
-    def fake_case(preset, keys, values, out, arch, threads, stop_with_parent=False, resume=False, running=None):
+    def fake_case(preset, keys, values, out, arch, threads, stop_with_parent=False, resume=False, live=None):
         started.append(out.name)
         if len(started) == 1:  # the signal comes while the first case runs
             threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGTERM)).start()
@@ -488,6 +488,46 @@ def test_a_signal_stops_a_sweep_and_starts_no_other_case(tmp_path, monkeypatch, 
     assert [r["status"] for r in csv.DictReader(open(tmp_path / "sw" / "sweep.csv"))] == \
         ["interrupted", "not started (the sweep was stopped)", "not started (the sweep was stopped)"]
     assert signal.getsignal(signal.SIGTERM) == before  # the sweep's handler is gone again
+
+
+def test_a_signal_as_a_sweep_case_starts_reaches_that_case(tmp_path, monkeypatch, capsys):
+    """A signal that came after the sweep had checked that it was not stopped, and before the case it then
+    started was listed, reached no process: that case ran to its end. Here the signal comes while the process is
+    being started (the handler called from inside Popen); the case must be passed it, and no other start."""
+    import csv
+    import signal
+    import subprocess
+    import threading
+
+    from app import sweep as sweep_mod
+
+    class Proc:  # a case process: ends at once when signalled (as a run stopping), else after 5 s (ran to its end)
+        def __init__(self):
+            self.signalled = threading.Event()
+
+        def send_signal(self, signum):
+            self.signalled.set()
+
+        def wait(self):
+            return 130 if self.signalled.wait(5.0) else 0
+
+    started = []
+
+    def popen(args, **kw):
+        started.append(Proc())
+        if len(started) == 1:
+            signal.getsignal(signal.SIGTERM)(signal.SIGTERM, None)  # the signal, as the first process starts
+        return started[-1]
+
+    monkeypatch.setattr(subprocess, "Popen", popen)
+    rc = sweep_mod.sweep(str(ROOT / "presets" / "settle.toml"), ["particles.count=100,150"], jobs=1,
+                         out=str(tmp_path / "sw"), arch="cpu")
+    assert len(started) == 1 and started[0].signalled.is_set(), "the case that started as the signal came ran on"
+    assert rc == 130
+    rows = list(csv.DictReader(open(tmp_path / "sw" / "sweep.csv")))
+    assert [r["exit_code"] for r in rows] == ["130", "130"]
+    # the first wrote nothing (a run signalled as it starts dies before it can): not a failure of its own
+    assert [r["status"] for r in rows] == ["not finished (the sweep was stopped)", "not started (the sweep was stopped)"]
 
 
 def test_a_second_sweep_does_not_write_over_the_first(tmp_path, monkeypatch):
