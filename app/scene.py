@@ -51,7 +51,7 @@ def build_walls(cfg: Config) -> list:
                                                              if not p for s in "-+"))
     elif v.shape == "sampled":
         walls.append(sampled_wall(resolve_path(cfg, v.sdf_file)))
-        return walls  # a sampled vessel carries its own floor
+        return walls  # a sampled vessel carries its own floor (the faces it seals: geometry.sealed_faces)
     if cfg.particles is not None or v.floor is not None:
         walls.append(geometry.PlaneWall((0.0, 0.0, floor), (0.0, 0.0, 1.0), name="floor"))
     if v.lid is not None:

@@ -172,6 +172,27 @@ def test_a_grain_driven_through_a_wall_is_counted_apart_from_one_leaving_by_an_o
     assert d["grains_removed"] == 1 and d["grains_through_walls"] == (1 if through else 0), (through, d)
 
 
+@pytest.mark.parametrize("start, velocity, through", [
+    ([0, 0, -0.05 + 1.5 * R], [0, 0, -2000.0], True),  # the cup's floor
+    ([0.05 - 1.5 * R, 0, 0], [2000.0, 0, 0], True),  # its side
+    ([0, 0, 0.05 - 1.5 * R], [0, 0, 2000.0], False),  # its open top
+])
+def test_a_grain_driven_through_a_sampled_vessel_is_counted(tmp_path, start, velocity, through):
+    """A sampled vessel sealed no face (its openings were not read off its clearance): a grain driven through its
+    floor or side was removed as if it had left by an outlet, uncounted. A face on which the clearance is nowhere
+    positive is sealed now; the cup's open top is not."""
+    h = 2.5e-3
+    ax = np.arange(-0.05, 0.05 + h / 2, h)
+    X, Y, Z = np.meshgrid(ax, ax, ax, indexing="ij")
+    np.savez(tmp_path / "cup.npz", values=np.minimum(np.minimum(0.05 - abs(X), 0.05 - abs(Y)), Z + 0.05),
+             origin=[ax[0]] * 3, spacing=h)
+    _, dem = make(positions=[start], velocities=[velocity], particles={"count": 1},
+                  vessel={"shape": "sampled", "sdf_file": str(tmp_path / "cup.npz")})
+    dem.advance(20)
+    d = dem.diagnostics()
+    assert d["grains_removed"] == 1 and d["grains_through_walls"] == (1 if through else 0), (through, d)
+
+
 def test_the_faces_a_vessel_seals():
     """geometry.sealed_faces: which of x-, x+, y-, y+, z-, z+ a grain can leave only through a wall."""
     from app.sim import geometry
@@ -187,3 +208,11 @@ def test_the_faces_a_vessel_seals():
     tilted = geometry.PlaneWall((0.0, 0.0, 0.5), (0.0, 0.6, 0.8))
     assert geometry.sealed_faces([tilted, geometry.PlaneWall((0.0, 0.0, 3.0), (0.0, 0.0, -1.0))], lo, hi) == \
         (False,) * 6  # tilted, and a lid above the domain
+    # a sampled cylinder with a floor at z = 0.5 (nodes every 0.25): its side lies inside this domain, outside a
+    # narrower one; its clearance is largest between nodes nowhere, so the nodes' lines give the faces' largest
+    ax, zs = np.arange(-1.0, 1.01, 0.25), np.arange(0.0, 2.01, 0.25)
+    X, Y, Z = np.meshgrid(ax, ax, zs, indexing="ij")
+    cyl = geometry.SampledWall(np.minimum(0.9 - np.hypot(X, Y), Z - 0.5), (-1.0, -1.0, 0.0), 0.25)
+    assert geometry.sealed_faces([cyl], lo, hi) == (True,) * 4 + (True, False)
+    assert geometry.sealed_faces([cyl], (-0.5, -0.5, 0.0), (0.5, 0.5, 2.0)) == (False,) * 4 + (True, False)
+    assert geometry.sampled_face_max(cyl, lo, hi, 5) == pytest.approx(0.9)  # the top: open over the axis

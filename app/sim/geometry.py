@@ -109,9 +109,13 @@ def sealed_faces(walls: Sequence[Wall], lo: Sequence[float], hi: Sequence[float]
     """Which faces of the domain box [lo, hi] (x-, x+, y-, y+, z-, z+) the walls close to grains: a grain can
     leave the domain there only by passing through a wall. A plane normal to an axis closes the face behind it
     where it lies inside the domain (the floor z-, a lid z+, a box's sides); a cylinder inside the domain the four
-    side faces. Tilted planes and sampled vessels close none (their openings are not known here)."""
+    side faces; a sampled vessel each face on which its clearance is nowhere positive (outside the vessel all
+    over). Tilted planes close none."""
     sealed = [False] * 6
     for w in walls:
+        if isinstance(w, SampledWall):
+            for face in range(6):
+                sealed[face] |= bool(sampled_face_max(w, lo, hi, face) <= 0.0)
         if isinstance(w, PlaneWall):
             n = np.asarray(w.normal, float) / np.linalg.norm(w.normal)
             axis = int(np.argmax(np.abs(n)))
@@ -122,6 +126,21 @@ def sealed_faces(walls: Sequence[Wall], lo: Sequence[float], hi: Sequence[float]
             if inside:
                 sealed[:4] = [True] * 4
     return tuple(sealed)
+
+
+def sampled_face_max(w: SampledWall, lo: Sequence[float], hi: Sequence[float], face: int) -> float:
+    """The largest clearance of ``w`` on face ``face`` (x-, x+, y-, y+, z-, z+) of the box [lo, hi] [m], exactly:
+    on a face the trilinear interpolant (constant beyond the sampled box) is bilinear between the nodes' lines,
+    so its largest value lies where those lines or the face's edges cross."""
+    axis = face // 2
+    marks = []
+    for a in range(3):
+        if a == axis:
+            marks.append(np.array([hi[a] if face % 2 else lo[a]], float))
+        else:
+            nodes = w.origin[a] + w.spacing * np.arange(w.values.shape[a])
+            marks.append(np.concatenate([[lo[a], hi[a]], nodes[(nodes > lo[a]) & (nodes < hi[a])]]))
+    return float(w.clearance(np.stack(np.meshgrid(*marks, indexing="ij"), axis=-1)).max())
 
 
 class SampledWallField:
