@@ -20,18 +20,16 @@ from __future__ import annotations
 import concurrent.futures
 import csv
 import itertools
-import json
 import math
 import os
 import pathlib
 import signal
-import subprocess
 import sys
-import threading
 
 from .config import ConfigError, load
 from .outputs import fresh_folder, names, out_folder, remove_paths, run_outputs
 from .stopping import EXIT_INTERRUPTED as EXIT_STOPPED, signals_handled
+from .sweep_case import LiveCases, failed_row, failure, not_started, run_case  # noqa: F401 (failure: tests)
 
 
 def split_values(raw: str) -> list[str]:
@@ -83,107 +81,6 @@ def cases(sets: list[str]) -> tuple[list[str], list[tuple[str, ...]]]:
         keys.append(key)
         lists.append(values)
     return keys, list(itertools.product(*lists))
-
-
-def failed_row(keys, values, out: pathlib.Path, why: str) -> dict:
-    row = {k: v for k, v in zip(keys, values)}
-    row.update(case=out.name, exit_code=-1, status=f"failed: {why}")
-    return row
-
-
-class LiveCases:
-    """The case processes a sweep runs here, and the signal that stopped it. A signal is passed on to every
-    running case, and no case starts after it. Starting a case and stopping the sweep exclude each other (a
-    re-entrant lock: the handler runs in the main thread, and may interrupt itself), so a case that starts as the
-    signal comes is either passed it or not started: before, one started after the handler's check and before it
-    was listed, and ran to its end."""
-
-    def __init__(self):
-        self._procs, self._lock, self.signum = set(), threading.RLock(), None
-
-    def stop(self, signum: int) -> bool:
-        """Pass ``signum`` to the running cases; whether it is the first to stop the sweep."""
-        with self._lock:
-            first, self.signum = self.signum is None, signum
-            procs = list(self._procs)
-        for proc in procs:
-            proc.send_signal(signum)
-        return first
-
-    def start(self, popen):
-        """``popen()``'s process, listed; None (nothing started) once the sweep is stopped."""
-        with self._lock:
-            if self.signum is not None:
-                return None
-            proc = popen()
-            self._procs.add(proc)
-            signum = self.signum  # (set while popen ran, by a handler that interrupted it)
-        if signum is not None:
-            proc.send_signal(signum)
-        return proc
-
-    def end(self, proc) -> None:
-        with self._lock:
-            self._procs.discard(proc)
-
-
-def not_started(keys, values, out: pathlib.Path) -> dict:
-    row = failed_row(keys, values, out, "")
-    row.update(status="not started (the sweep was stopped)", exit_code=EXIT_STOPPED)
-    return row
-
-
-def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: int,
-             stop_with_parent: bool = False, resume: bool = False, live: LiveCases | None = None) -> dict:
-    """One case as an `fbed run` subprocess into ``out`` (``resume``: from its checkpoint there); its row.
-    ``live``: the sweep's running cases, this one among them while it runs (a signal to the sweep is passed on
-    to them; once it came, the case does not start)."""
-    if resume:  # (its config.toml holds its values)
-        args = [sys.executable, "-m", "app", "run", "--resume", str(out), "--arch", arch]
-    else:
-        args = [sys.executable, "-m", "app", "run", preset, "--out", str(out), "--overwrite", "--arch", arch]
-        for k, v in zip(keys, values):
-            args += ["--set", f"{k}={v}"]
-    if threads:
-        args += ["--set", f"run.threads={threads}"]
-    env = dict(os.environ)
-    env["PYTHONPATH"] = str(pathlib.Path(__file__).resolve().parents[1]) + os.pathsep + env.get("PYTHONPATH", "")
-    if stop_with_parent:  # on a Dask worker: the run stops itself if the worker dies (the case is rerun elsewhere,
-        env["FBED_STOP_WITH_PARENT"] = str(os.getpid())  # and that rerun waits until the orphan has let go of the
-        env["FBED_LOCK_WAIT"] = "300"                     # folder, at its next step)
-    out.mkdir(parents=True, exist_ok=True)
-    with open(out / "log.txt", "a" if resume else "w") as logf:
-        def popen():
-            return subprocess.Popen(args, stdout=logf, stderr=subprocess.STDOUT, env=env)
-
-        proc = popen() if live is None else live.start(popen)
-        if proc is None:
-            return not_started(keys, values, out)
-        try:
-            rc = proc.wait()
-        finally:
-            if live is not None:
-                live.end(proc)
-    row = {k: v for k, v in zip(keys, values)}
-    row.update(case=out.name, exit_code=rc)
-    summary = out / "summary.json"
-    if summary.exists():
-        s = json.loads(summary.read_text())
-        row["status"] = s.get("status", "")
-        row.update({k: v for k, v in s.items() if isinstance(v, (int, float)) and not isinstance(v, bool)})
-    elif rc != 0 and live is not None and live.signum is not None:  # (one signalled as it started dies before
-        row["status"] = "not finished (the sweep was stopped)"        # its run can write anything)
-    else:
-        row["status"] = f"failed: {failure((out / 'log.txt').read_text())}"
-    return row
-
-
-def failure(log: str) -> str:
-    """Why a case that wrote no summary failed, from its log: the last `fbed: error:` line (its hint follows it, and
-    was the status before: "failed:   hint: fewer grains ..."), else the log's last line (a traceback's exception)."""
-    lines = [ln.strip() for ln in log.strip().splitlines()]
-    errors = [ln.removeprefix("fbed: error:").strip() for ln in lines if ln.startswith("fbed: error:")]
-    return (errors or lines or [""])[-1]
 
 
 def number(v) -> float:
@@ -294,7 +191,7 @@ def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathl
     if scheduler == "local":
         os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "critical")  # read when distributed is first imported
     try:
-        from distributed import Client, LocalCluster, as_completed
+        from distributed import Client, Event, LocalCluster, as_completed
     except ImportError:
         raise ConfigError("--scheduler needs Dask's distributed scheduler", "--scheduler", scheduler,
                           hint="python3 -m pip install -e '.[cluster]' (or pip install 'dask[distributed]')") from None
@@ -315,16 +212,18 @@ def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathl
             out_abs = out_dir.resolve()
             threads = 1 if cluster is not None and jobs > 1 else 0
             tag = uuid.uuid4().hex[:8]
+            stop_event = Event(f"fbed-stop-{tag}", client=client)  # (the running cases poll it: see wait)
             futs = {client.submit(run_case, preset_abs, keys, combos[i], out_abs / f"case-{i:03d}", arch, threads,
-                                  True, again, key=f"fbed-case-{i:03d}-{tag}", pure=False): i
+                                  True, again, stop_event=stop_event.name, key=f"fbed-case-{i:03d}-{tag}",
+                                  pure=False): i
                     for i, again in todo.items()}
 
             def on_signal(signum, frame):  # (Ctrl-C was not seen here while the cases ran; SIGTERM lost the table)
                 if not stopped:
-                    print(f"fbed sweep: {signal.Signals(signum).name}: no other case starts (a running case stops "
-                          "with a checkpoint when its worker goes: with --scheduler local, now); go on later with "
-                          "the same command and --resume", file=sys.stderr, flush=True)
+                    print(f"fbed sweep: {signal.Signals(signum).name}: no other case starts, and the running ones "
+                          "stop with a checkpoint; go on later with the same command and --resume", file=sys.stderr, flush=True)
                 stopped.append(signum)
+                stop_event.set()
                 client.cancel([f for f in futs if not f.done()])
 
             with signals_handled(on_signal):

@@ -530,6 +530,35 @@ def test_a_signal_as_a_sweep_case_starts_reaches_that_case(tmp_path, monkeypatch
     assert [r["status"] for r in rows] == ["not finished (the sweep was stopped)", "not started (the sweep was stopped)"]
 
 
+def test_a_case_on_a_cluster_stops_when_its_sweep_is_stopped(tmp_path, monkeypatch):
+    """On a remote Dask cluster the workers live on after a sweep is stopped, and cancelling a running task does
+    not end the `fbed run` it started: those runs ran on to their ends. A case now polls the sweep's stop event
+    while its run goes, and passes the run SIGINT (it stops at its next step, with a checkpoint); a case whose
+    task starts after the event was set starts nothing."""
+    import threading
+    import time
+
+    from app import sweep_case
+
+    proc = subprocess.Popen([sys.executable, "-c", "import signal, sys, time; signal.signal(signal.SIGINT, lambda *a: "
+                             "sys.exit(130)); print('ready', flush=True); time.sleep(60)"],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        flag = []
+        threading.Timer(0.3, flag.append, (1,)).start()  # the sweep stopped while the run goes
+        t0 = time.time()
+        assert sweep_case.wait(proc, lambda: bool(flag), poll=0.05) == 130
+        assert time.time() - t0 < 20  # not the 60 s of its sleep
+    finally:
+        proc.kill()
+        proc.wait()
+    monkeypatch.setattr(sweep_case, "cluster_stopped", lambda name: (lambda: name == "stop-1"))
+    row = sweep_case.run_case(str(ROOT / "presets" / "settle.toml"), ["particles.count"], ["100"],
+                              tmp_path / "case-000", "cpu", 0, True, stop_event="stop-1")
+    assert row["status"] == "not started (the sweep was stopped)" and not (tmp_path / "case-000").exists()
+
+
 def test_a_second_sweep_does_not_write_over_the_first(tmp_path, monkeypatch):
     """Each case runs with --overwrite into case-NNN, so a second sweep into the first's folder (its default one
     included) replaced the first's cases and sweep.csv without a word. Now: the default folder is a new one

@@ -108,7 +108,7 @@ def test_a_signal_stops_a_dask_sweep_and_keeps_its_table(tmp_path):
         if p.poll() is None:
             p.kill()
     assert p.returncode == 130 and "Traceback" not in err, err[-3000:]
-    assert "SIGINT: no other case starts" in err and "--resume" in err, err[-3000:]
+    assert "SIGINT: no other case starts, and the running ones stop with a checkpoint" in err and "--resume" in err, err[-3000:]
     rows = list(csv.DictReader(open(out / "sweep.csv")))
     assert [r["status"] for r in rows] == ["not finished (the sweep was stopped)"] * 3
     assert not (out / "case-002" / "run.h5").exists()  # never started
