@@ -20,6 +20,7 @@ def post_process(analysis: str, out_dir: pathlib.Path, at_run_end: bool = True) 
     """Run the preset's analysis on the finished run's files; its key figures go into summary.json.
     ``at_run_end``: a failure says how to rerun it (at the end of `fbed run`; `fbed analyze` is that rerun)."""
     try:
+        ended_early(analysis, out_dir)
         mod = importlib.import_module(f".analysis.{analysis}", "app")
         figures = mod.summarize(out_dir)
         log(f"fbed: {analysis} analysis written to {out_dir / 'analysis'}")
@@ -28,6 +29,29 @@ def post_process(analysis: str, out_dir: pathlib.Path, at_run_end: bool = True) 
         again = f"; rerun it with `fbed analyze {out_dir}`" if at_run_end else ""
         log(f"fbed: the {analysis} analysis failed ({type(err).__name__}: {err}){again}")
         return {"analysis_error": f"{type(err).__name__}: {err}"}
+
+
+#: the run.h5 groups each analysis reads (any one), and the probes' intervals that record them
+RECORDS = {"boyce": {"slab": "slab_interval"}, "mri": {"mri": "mri_interval", "slab": "slab_interval"},
+           "verma": {"planes": "planes_interval", "porosity3d": "volume_interval"}}
+
+
+def ended_early(analysis: str, out_dir: pathlib.Path) -> None:
+    """ValueError where the records an analysis reads are all missing although the preset asks for them: the run
+    ended before their first (a 0.1 ms run of mri_poppy was told "set probes.mri_interval", which it had)."""
+    import h5py
+
+    groups = RECORDS.get(analysis, {})
+    with h5py.File(out_dir / "run.h5", "r") as f:
+        if any(g in f for g in groups):
+            return
+        t = f["series/time"][-1] if "series/time" in f and f["series/time"].shape[0] else 0.0
+    probes = cfgmod.load(out_dir / "config.toml").probes
+    asked = {k: getattr(probes, k) for k in groups.values() if getattr(probes, k) > 0}
+    if asked:
+        first = min(asked.values())
+        raise ValueError(f"the run ended at t = {t:.6g} s, before the first record of "
+                         f"{' or '.join(f'probes.{k} = {v:g} s' for k, v in asked.items())}: run longer than {first:g} s")
 
 
 def analyze(run_dir: str, kind: str | None = None, plot: str | None = None) -> int:

@@ -440,3 +440,25 @@ def test_analyze_a_run_without_planes_or_volume_is_refused(tmp_path):
     (run_dir / verma.SUMMARY_FILE).write_text(json.dumps({verma.BED_WEIGHT_KEY: 1500.0}))
     with pytest.raises(ValueError, match="neither /planes nor /porosity3d.*probes.planes.*probes.volume_interval"):
         verma.analyze(run_dir, reference=None)
+
+
+@pytest.mark.parametrize("analysis, probes, said", [
+    ("mri", "mri_interval = 0.004\nslab_interval = 0.004", "probes.mri_interval = 0.004 s or probes.slab_interval"),
+    ("boyce", "slab_interval = 0.002", "probes.slab_interval = 0.002 s: run longer than 0.002 s"),
+    ("verma", "planes = [0.05]\nplanes_interval = 0.003", "probes.planes_interval = 0.003 s: run longer"),
+])
+def test_an_analysis_of_a_run_that_ended_before_its_first_record_says_so(tmp_path, analysis, probes, said):
+    """A run shorter than its probes' interval records nothing, and its analysis told it to set the interval it
+    had set ("run.h5 holds neither /mri nor /slab: set probes.mri_interval", on a 0.1 ms run of mri_poppy). It
+    now says when the run ended, and how long it must run."""
+    import pathlib
+
+    from app.postprocess import post_process
+
+    text = (pathlib.Path(__file__).parents[1] / "presets" / "fluidize.toml").read_text()
+    (tmp_path / "config.toml").write_text(text.replace("[output]", f"[probes]\n{probes}\nanalysis = \"{analysis}\"\n\n"
+                                                       "[output]", 1))
+    with h5py.File(tmp_path / "run.h5", "w") as f:
+        f["series/time"] = [0.0, 0.001]
+    why = post_process(analysis, tmp_path)["analysis_error"]
+    assert why.startswith("ValueError: the run ended at t = 0.001 s, before the first record of") and said in why, why
