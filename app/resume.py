@@ -13,6 +13,7 @@ import h5py
 from . import config as cfgmod
 from .callbacks.progress import log
 from .config import ConfigError
+from .io.store import SPLIT_KEY
 
 
 def prepared_state(cfg, preset_path: pathlib.Path, arch: str, runner, chain: tuple = ()) -> pathlib.Path:
@@ -88,6 +89,8 @@ def restore(sim, scene, arrays, gas_arrays, meta, prepared: bool, resume_dir) ->
             raise ConfigError("the checkpoint holds no gas state", str(ckpt), "--resume",
                               hint="resume with the run's own config.toml")
         restore_gas(sim.flow, sim.coupler, gas_arrays)
+        if SPLIT_KEY in gas_arrays:  # (a checkpoint from before it was kept: the steps start whole, as they did)
+            sim.gas_split, sim.gas_split_peak, sim.gas_split_changes = map(int, gas_arrays[SPLIT_KEY])
     sim.step_count = int(meta["step"])
     sim.fresh = False  # its start was recorded by the run it continues (even one stopped at step 0)
     if sim.step_count >= sim.total_steps:

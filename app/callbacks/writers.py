@@ -13,7 +13,10 @@ from __future__ import annotations
 import pathlib
 import time as wallclock
 
+import numpy as np
+
 from ..io import store, xdmf
+from ..io.store import SPLIT_KEY
 from ..sim.simulation import Unstable
 from .progress import log
 
@@ -118,12 +121,14 @@ class Checkpoints:
 
     @staticmethod
     def state(sim) -> tuple[dict | None, dict | None]:
-        """(grains, gas) arrays of the simulation: the DEM's, and the gas's with the coupler's under coupling_."""
+        """(grains, gas) arrays of the simulation: the DEM's, and the gas's with the coupler's under coupling_ and
+        the adaptive fluid step's state (pieces, peak, changes: a resumed run splits its steps as the run did)."""
         gas = None
         if sim.flow is not None:
             gas = sim.flow.state_arrays()
             if sim.coupler is not None:
                 gas.update({"coupling_" + k: v for k, v in sim.coupler.state_arrays().items()})
+            gas[SPLIT_KEY] = np.array([sim.gas_split, sim.gas_split_peak, sim.gas_split_changes], np.int64)
         return (sim.dem.state_arrays() if sim.dem is not None else None, gas)
 
     def __call__(self, sim) -> dict | None:

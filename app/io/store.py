@@ -35,6 +35,8 @@ import h5py
 import numpy as np
 
 VERSION = "0.1.0"
+#: a checkpoint's gas-group array of the adaptive fluid step: [pieces, peak, changes] (Simulation.gas_split ...)
+SPLIT_KEY = "adaptive_split"
 
 SERIES_UNITS = {
     "time": "s", "kinetic_energy": "J", "kinetic_energy_rotational": "J", "max_overlap": "1 (of diameter)",
