@@ -117,9 +117,11 @@ class DemSolver:
                 raise ValueError(f"this DEM is single-size (radius {self.m.radius:g} m) but grains of radius "
                                  f"{r.min():g} to {r.max():g} m were given: build it from a polydisperse scene")
         if self.m.polydisperse:
-            r = np.asarray(radius, float)
-            self.fixed.radius.from_numpy(mem(self._f(r)))
-            self.fixed.mass.from_numpy(mem(self._f(grain_mass(r, self.m.density))))
+            # the mass from the radius as stored: a checkpoint holds that one, so a resumed run has the same masses
+            # (from float64 radii, float32 runs' masses differed in the last bit after a resume, and the runs parted)
+            r = self._f(radius)
+            self.fixed.radius.from_numpy(mem(r))
+            self.fixed.mass.from_numpy(mem(self._f(grain_mass(r.astype(float), self.m.density))))
         if self.m.sorts:
             ids = np.arange(n, dtype=np.int32) if order is None else np.asarray(order, np.int32)
             self.fixed.grain_id.from_numpy(ids)
