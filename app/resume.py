@@ -91,6 +91,7 @@ def restore(sim, scene, arrays, gas_arrays, meta, prepared: bool, resume_dir) ->
         restore_gas(sim.flow, sim.coupler, gas_arrays)
         if SPLIT_KEY in gas_arrays:  # (a checkpoint from before it was kept: the steps start whole, as they did)
             sim.gas_split, sim.gas_split_peak, sim.gas_split_changes = map(int, gas_arrays[SPLIT_KEY])
+            sim.gas_split = min(sim.gas_split, sim.max_gas_split)  # (gas.max_split may be lowered on a resume)
     sim.step_count = int(meta["step"])
     sim.fresh = False  # its start was recorded by the run it continues (even one stopped at step 0)
     if sim.step_count >= sim.total_steps:
@@ -113,10 +114,14 @@ def load_prepared(cfg, sim, flow, coupler, gas_arrays, meta) -> None:
                           cfg.source or "", "run.duration", hint="run.duration is the end time: raise it")
 
 
-# what a resumed run may change: its end, its outputs, its checks and its machine; everything else (the vessel,
-# the grains, the contact model, the gas grid, the step) must be the run's own, or the checkpoint means nothing
-RESUME_FREE = {"run": {"duration", "name", "threads", "precision", "start_from"}, "output": None, "video": None,
-               "guard": None, "probes": None, "boundary": None}
+# what a resumed run may change: its end, its outputs, its checks, its machine, and the knobs the guard names when
+# it stops a run (the DEM step's settings, the pressure solve's and the adaptive fluid step's: no state depends on
+# them, so a run stopped unstable goes on from its last good checkpoint with them turned); everything else (the
+# vessel, the grains, the contact model, the gas grid, run.step) must be the run's own, or the checkpoint means nothing
+RESUME_FREE = {"run": {"duration", "name", "threads", "precision", "start_from"},
+               "dem": {"dt", "dt_fraction", "max_dt_fraction", "force_dt", "impact_speed"},
+               "gas": {"tolerance", "max_iterations", "max_viscous_sweeps", "max_cfl", "max_split"},
+               "output": None, "video": None, "guard": None, "probes": None, "boundary": None}
 
 
 def resume_free() -> str:

@@ -145,8 +145,11 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
 def _exit(sim, status, message, wall, out_dir, removed: int) -> int:
     if status == "unstable":
         log(f"fbed: stopped at t = {sim.time:.6g} s: {message}")
-        log(f"fbed: outputs kept in {out_dir}" + (" (last good checkpoint: checkpoint.h5)"
-                                                  if (out_dir / 'checkpoint.h5').exists() else ""))
+        kept = (out_dir / "checkpoint.h5").exists()
+        log(f"fbed: outputs kept in {out_dir}" + (" (last good checkpoint: checkpoint.h5); go on from it with the "
+                                                  f"knob turned: fbed run --resume {out_dir} --set KEY=VALUE (a "
+                                                  "resume may change the dem.* step, gas.* solve and guard.* "
+                                                  "settings; others need a new run)" if kept else ""))
         return EXIT_UNSTABLE
     if status == "interrupted":
         log(f"fbed: stopped by {sim.stop_requested} at t = {sim.time:.6g} s; checkpoint written.\n"

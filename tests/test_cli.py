@@ -227,8 +227,20 @@ def test_guard_stops_an_unstable_run_and_keeps_readable_outputs(tmp_path):
         for name in f["series"]:
             assert np.all(np.isfinite(f["series"][name][...])), name
     with h5py.File(out / "checkpoint.h5") as f:  # the last good checkpoint is finite and earlier
-        assert f.attrs["time"] < s["time"]
+        t_good = f.attrs["time"]
+        assert t_good < s["time"]
         assert np.all(np.isfinite(f["grains/position"][...]))
+    # the knob the guard names is turned, and the run goes on from that checkpoint (a resume refused dem.dt before:
+    # the checkpoint it kept could not be used with the step it advised)
+    assert f"fbed run --resume {out} --set KEY=VALUE" in r.stderr
+    r = fbed("run", "--resume", out, "--set", "dem.dt=0", "--set", "dem.force_dt=false", "--set", "run.duration=0.06")
+    assert r.returncode == 0, r.stderr
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "finished" and s["time"] == pytest.approx(0.06)
+    with h5py.File(out / "run.h5") as f:  # the series goes on from the checkpoint, the unstable rows cut off
+        t = f["series/time"][...]
+        assert np.all(np.diff(t) > 0) and np.isfinite(f["series/max_overlap"][...]).all()
+        assert f["series/max_overlap"][...][t > t_good].max() < 0.2
 
 
 INLETS = ("--set", 'boundary.bottom={kind="velocity_inlet",velocity=[0,0,1.1]}', "--set", "particles.count=300")

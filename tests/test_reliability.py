@@ -705,9 +705,11 @@ def test_the_resume_hint_names_every_key_a_resume_may_change():
 
     run_cfg = load(SETTLE)
     for key, value in (("run.duration", "1.0"), ("run.precision", '"float64"'), ("run.threads", "1"),
-                       ("run.name", '"other"')):
+                       ("run.name", '"other"'), ("dem.dt", "1e-6"), ("dem.dt_fraction", "0.02")):
         assert key in resume_free()
         check_same_scene(load(SETTLE, [f"{key}={value}"]), run_cfg, SETTLE, ROOT)
     with pytest.raises(ConfigError) as err:
         check_same_scene(load(SETTLE, ["run.step=1e-3"]), run_cfg, SETTLE, ROOT)
+    with pytest.raises(ConfigError):  # the guard's other knob, the contact stiffness, changes the material
+        check_same_scene(load(SETTLE, ["contact.youngs_modulus=4e7"]), run_cfg, SETTLE, ROOT)
     assert "run.step" not in resume_free() and "run.precision, run.threads" in err.value.hint
