@@ -20,7 +20,7 @@ from .callbacks.writers import (Checkpoints, FinalOutputs, GasFields, GrainSnaps
                                 open_run_file)
 from .io import store
 from .outputs import configure, remove_outputs, stop_disk_full
-from .resume import prepared_state, restore
+from .resume import prepared_state, restore, resume_free
 from .scene import Scene, build_simulation
 from .sim import runtime
 from .sim.dem import NeighborOverflow
@@ -147,9 +147,9 @@ def _exit(sim, status, message, wall, out_dir, removed: int) -> int:
         log(f"fbed: stopped at t = {sim.time:.6g} s: {message}")
         kept = (out_dir / "checkpoint.h5").exists()
         log(f"fbed: outputs kept in {out_dir}" + (" (last good checkpoint: checkpoint.h5); go on from it with the "
-                                                  f"knob turned: fbed run --resume {out_dir} --set KEY=VALUE (a "
-                                                  "resume may change the dem.* step, gas.* solve and guard.* "
-                                                  "settings; others need a new run)" if kept else ""))
+                                                  f"knob turned: fbed run --resume {out_dir} --set KEY=VALUE, for "
+                                                  f"a KEY a resume may change ({resume_free()}); others need a new "
+                                                  "run" if kept else ""))
         return EXIT_UNSTABLE
     if status == "interrupted":
         log(f"fbed: stopped by {sim.stop_requested} at t = {sim.time:.6g} s; checkpoint written.\n"

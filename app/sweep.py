@@ -29,7 +29,7 @@ import sys
 from .config import ConfigError, load
 from .outputs import fresh_folder, names, out_folder, remove_paths, run_outputs
 from .stopping import EXIT_INTERRUPTED as EXIT_STOPPED, signals_handled
-from .sweep_case import LiveCases, failed_row, failure, not_started, run_case  # noqa: F401 (failure: tests)
+from .sweep_case import NOT_FINISHED, LiveCases, failed_row, failure, not_started, run_case  # noqa: F401 (failure: tests)
 
 
 def split_values(raw: str) -> list[str]:
@@ -235,7 +235,7 @@ def on_dask(scheduler: str, jobs: int, preset: str, keys, combos, out_dir: pathl
                         why = f"{type(err).__name__}: {str(err).splitlines()[0][:120] if str(err) else ''}"
                         row = failed_row(keys, combos[i], out_dir / f"case-{i:03d}", why)
                         if stopped:
-                            row.update(status="not finished (the sweep was stopped)", exit_code=EXIT_STOPPED)
+                            row.update(status=NOT_FINISHED, exit_code=EXIT_STOPPED)
                     done(i, row)
     finally:
         if cluster is not None:

@@ -16,6 +16,9 @@ import threading
 
 from .stopping import EXIT_INTERRUPTED as EXIT_STOPPED
 
+#: the status of a case the sweep's stop ended (on threads: one killed as it started; on Dask: one cancelled)
+NOT_FINISHED = "not finished (the sweep was stopped)"
+
 
 def failed_row(keys, values, out: pathlib.Path, why: str) -> dict:
     row = {k: v for k, v in zip(keys, values)}
@@ -139,7 +142,7 @@ def run_case(preset: str, keys, values, out: pathlib.Path, arch: str, threads: i
         row["status"] = s.get("status", "")
         row.update({k: v for k, v in s.items() if isinstance(v, (int, float)) and not isinstance(v, bool)})
     elif rc != 0 and live is not None and live.signum is not None:  # (one signalled as it started dies before
-        row["status"] = "not finished (the sweep was stopped)"        # its run can write anything)
+        row["status"] = NOT_FINISHED  # its run can write anything)
     else:
         row["status"] = f"failed: {failure((out / 'log.txt').read_text())}"
     return row
