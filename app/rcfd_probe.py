@@ -45,6 +45,7 @@ def read_solvers(sim, what: str):
     'geometry' -> (shape, h [m], origin [m], open volume fraction, apertures (3 face arrays));
     'eps' -> the gas void fraction (nx, ny, nz); 'add_flux' -> adds a step's face fluxes to the gas solver's
     device sums (returns a function of dt [s]); 'flux_sum' -> those sums [m^3] (3 face arrays), then cleared;
+    'flux_peek' -> the same, not cleared; 'load_flux' -> sets them (a function of the 3 arrays);
     'alive' -> (n,) bool; 'track' -> the DEM's ``track(ids)``; 'cells' -> its ``tracked_cells(origin, h, shape,
     tag)`` (the tracked grains' cells, octants, alive and tag flags, computed on the device); 'radii' -> [m] (n,);
     'bed_height' -> [m]."""
@@ -58,6 +59,10 @@ def read_solvers(sim, what: str):
         return flow.add_face_flux
     if what == "flux_sum":
         return flow.face_flux_sum()
+    if what == "flux_peek":
+        return flow.face_flux_sum(clear=False)
+    if what == "load_flux":
+        return flow.load_face_flux_sum
     if what == "alive":
         return dem.read("alive").astype(bool)
     if what == "track":
@@ -101,7 +106,12 @@ def face_eps(eps: np.ndarray, axis: int) -> np.ndarray:
 
 
 class RcfdRecorder:
-    """Writes the frames; ``attach(sim, out_dir, guarded, resume_time, log)``."""
+    """Writes the frames; ``attach(sim, out_dir, guarded, resume_time, log, saved)``. ``saved(sim)`` is its part of a
+    checkpoint: the frame open then and the time scale's sums, from which a resumed run goes on as the run did."""
+
+    PART = "rcfd"  # the checkpoint's part (store.write_checkpoint's parts) that holds :meth:`saved`
+    _SUMS = ("rate_sq", "rate_sq_frame", "flux_time")  # saved: the float sums [s^-2, s^-2, s], then the counts
+    _COUNTS = ("samples", "rate_samples", "rate_samples_frame")
 
     def __init__(self, cfg, axis_xy):
         p = cfg.probes
@@ -120,7 +130,7 @@ class RcfdRecorder:
         self._pending = None
 
     # -- set-up
-    def attach(self, sim, out_dir, guarded, resume_time, log) -> None:
+    def attach(self, sim, out_dir, guarded, resume_time, log, saved: dict | None = None) -> None:
         self.log = log
         self.spf = interval_steps(self.interval, self.step)
         self.s0 = int(math.ceil(self.t0 / self.step - 1e-9))
@@ -148,7 +158,9 @@ class RcfdRecorder:
         self.prev_eps = None
         self.prev_boundary_eps = None
         self._flushed = time.perf_counter()
-        if sim.step_count >= self.s0:  # resumed, or continued from a checkpoint, past the start
+        if sim.step_count >= self.s0 and saved is not None and self._restore(saved, sim):
+            pass  # resumed: the frame open at the checkpoint goes on, its sums and the time scale's as saved
+        elif sim.step_count >= self.s0:  # resumed (from a checkpoint without the part), or continued, past the start
             times = self.f["boundary/time"][...]
             if times.size and abs(times[-1] - sim.time) < 1e-9 * max(1.0, sim.time) and self.counted is not None:
                 # resumed on a frame boundary: its grains are the checkpoint's, so the frame goes on
@@ -161,6 +173,54 @@ class RcfdRecorder:
             else:
                 self(sim)
         sim.add(guarded(self), self.step, finish=self.finish)
+
+    def _key(self, sim) -> np.ndarray:
+        """What a saved part must match to be restored: the frames' start step and length, the recorded cells, the
+        fluxes recorded or not, the boundaries and shifts in rcfd.h5 and the step (the checkpoint's)."""
+        return np.array([self.s0, self.spf, *self.shape, int(self.fluxes), self._boundaries, self._shifts,
+                         sim.step_count], np.int64)
+
+    def saved(self, sim) -> dict:
+        """This recorder's part of a checkpoint written now (after this step's call): rcfd.h5 written up to here (the
+        writer thread drained, the file flushed), the open frame (its start boundary, the counted grains' cells and
+        octants then, the flux sums so far on the device and their time), the time scale's sums, the void fraction
+        the next rate sample differences from. Empty before the first frame."""
+        if self.f is None or sim.step_count < self.s0:
+            return {}
+        self._drain()
+        self.f.flush()
+        out = {"key": self._key(sim), "sums": np.array([getattr(self, k) for k in self._SUMS], np.float64),
+               "counts": np.array([getattr(self, k) for k in self._COUNTS], np.int64),
+               "eps_sum": self.eps_sum, "eps_sq": self.eps_sq}
+        for k in ("prev_eps", "prev_boundary_eps"):
+            if getattr(self, k) is not None:
+                out[k] = getattr(self, k)
+        if self.open_frame is not None:
+            out.update(open_boundary=np.int64(self.open_frame[0]), open_cells=self.open_frame[1],
+                       last_octant=self.last_octant)
+            if self.fluxes:
+                out.update({f"flux_{'xyz'[a]}": q for a, q in enumerate(read_solvers(sim, "flux_peek"))})
+        return out
+
+    def _restore(self, saved: dict, sim) -> bool:
+        """Go on from a checkpoint's part (:meth:`saved`) if it is this recording's at this step with rcfd.h5 as it
+        was then; False (nothing changed) otherwise: then the frame open at the checkpoint is lost, as before."""
+        if not np.array_equal(saved.get("key"), self._key(sim)):
+            return False
+        if "open_cells" in saved and (self.counted is None or saved["open_cells"].size != self.counted.size):
+            return False
+        for k, v in zip(self._SUMS, saved["sums"]):
+            setattr(self, k, float(v))
+        for k, v in zip(self._COUNTS, saved["counts"]):
+            setattr(self, k, int(v))
+        self.eps_sum, self.eps_sq = saved["eps_sum"], saved["eps_sq"]
+        self.prev_eps, self.prev_boundary_eps = saved.get("prev_eps"), saved.get("prev_boundary_eps")
+        if "open_cells" in saved:
+            self.open_frame = (int(saved["open_boundary"]), saved["open_cells"])
+            self.last_cells, self.last_octant = saved["open_cells"], saved["last_octant"]
+            if self.fluxes:
+                read_solvers(sim, "load_flux")(tuple(saved[f"flux_{a}"] for a in "xyz"))
+        return True
 
     def _open(self, vol, resume_time) -> None:
         resume = resume_time is not None and self.path.exists()
@@ -206,8 +266,9 @@ class RcfdRecorder:
         self.last_cells = None
 
     def _truncate(self, t: float) -> None:
-        """Drop what was written after the checkpoint the run resumes from; the frame open then is lost, the
-        next one starts at the next frame boundary (its b0 then differs from the last frame's b1)."""
+        """Drop what was written after the checkpoint the run resumes from. The frame open then goes on from the
+        checkpoint's part (:meth:`saved`); from a checkpoint without it that frame is lost, and the next one starts
+        at the next frame boundary (its b0 then differs from the last frame's b1)."""
         f = self.f
         nb = int(np.searchsorted(f["boundary/time"][...], t + 1e-9, side="right"))
         for k in ("time", "eps", "bed_height", "solid", "tag_now", "tagged", "cells", "octant"):

@@ -62,7 +62,8 @@ def _attach(sim, scene, name, out_dir, runfile, config_text, renderer, viewer, r
     series.attach(sim, o.series_interval, finish=final.finish)
     for writer, interval in writers:  # interval 0: at the start and the end only
         sim.add(guard.guarded(writer), interval, at_start=True)
-    attach_probes(sim, cfg, runfile, out_dir, guard, sim.time if resume else None, log)
+    attach_probes(sim, cfg, runfile, out_dir, guard, sim.time if resume else None, log, checkpoints,
+                  store.read_parts(out_dir / "checkpoint.h5") if resume else {})
     # the video before the checkpoints: a checkpoint's flush of run.h5 then holds the record of its step's frame
     video = VideoFrames.attach(sim, cfg, renderer, out_dir, runfile, guard, close_renderer=viewer is None)
     if o.checkpoint_interval:

@@ -220,9 +220,9 @@ def test_disk_full_mid_run_injected(tmp_path):
 
 def test_disk_full_in_the_rcfd_probes_writer_thread_injected(tmp_path):
     """The rCFD probe hands its appends to rcfd.h5 to a writer thread: a full disk there (injected at its first
-    boundary, 20 ms) stops the run cleanly at the next boundary with the run's disk-full message and exit code,
-    keeps the last checkpoint, and leaves rcfd.h5 readable (before the probe's writes turned ENOSPC into the
-    run's stop, it ended with a traceback)."""
+    boundary, 20 ms) stops the run cleanly at the next checkpoint or boundary with the run's disk-full message and
+    exit code, keeps the last checkpoint, and leaves rcfd.h5 readable (before the probe's writes turned ENOSPC into
+    the run's stop, it ended with a traceback)."""
     out = tmp_path / "run"
     r = fbed("run", ROOT / "presets" / "rcfd_small.toml", "--arch", "cpu", "--set", "run.duration=0.04",
              "--set", "probes.rcfd_from=0.02", "--set", "output.checkpoint_interval=0.01",
@@ -230,10 +230,12 @@ def test_disk_full_in_the_rcfd_probes_writer_thread_injected(tmp_path):
              "--set", "output.checkpoint_wall_interval=0", "--out", out,
              inject=("rcfd.h5", "grains_counted", 1))
     assert_clean_stop(r, out, 3, "the disk is full: writing rcfd.h5 needed", "the last good checkpoint")
-    # the checkpoint of 20 ms is written in the step whose boundary failed (the failure shows at 25 ms); a resume
-    # from it records that boundary again (rcfd.h5 holds none)
+    # a checkpoint waits for rcfd.h5's appends (it saves the probe's open frame with rcfd.h5 as it stands): the
+    # failure shows at the 20 ms checkpoint, which is not written, and the 10 ms one is kept; a resume from it
+    # records from 20 ms anew (rcfd.h5 holds no boundary). (Before, the 20 ms checkpoint was written over a
+    # boundary rcfd.h5 did not hold, and the failure showed at 25 ms.)
     with h5py.File(out / "checkpoint.h5", "r") as f:
-        assert float(f.attrs["time"]) == pytest.approx(0.02, abs=1e-9)
+        assert float(f.attrs["time"]) == pytest.approx(0.01, abs=1e-9)
     with h5py.File(out / "rcfd.h5", "r") as f:
         assert "grains_counted" not in f and f["boundary/time"].shape[0] == 0
 

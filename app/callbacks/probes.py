@@ -5,9 +5,10 @@ from ..probes import Probes
 from ..rcfd_probe import RcfdRecorder
 
 
-def attach_probes(sim, cfg, runfile, out_dir, guard, resume_time, notify) -> None:
+def attach_probes(sim, cfg, runfile, out_dir, guard, resume_time, notify, checkpoints=None, parts=None) -> None:
     """Attach what [probes] asks for, each record behind the guard. ``resume_time``: the time a resumed run
-    continues from (None for a fresh run), for the rCFD recorder's file."""
+    continues from (None for a fresh run), for the rCFD recorder's file; ``checkpoints``: the run's checkpoint
+    writer, which saves the recorder's open frame (its part), and ``parts``: the parts of the checkpoint resumed."""
     pr = cfg.probes
     flow = sim.flow
     if flow is not None and (pr.slab_interval or pr.planes_interval or pr.volume_interval or pr.mri_interval):
@@ -16,4 +17,7 @@ def attach_probes(sim, cfg, runfile, out_dir, guard, resume_time, notify) -> Non
         v = cfg.vessel
         axis = v.center if v.shape == "cylinder" else tuple(0.5 * (a + b) for a, b in zip(cfg.domain.lo[:2],
                                                                                          cfg.domain.hi[:2]))
-        RcfdRecorder(cfg, axis).attach(sim, out_dir, guard.guarded, resume_time, notify)
+        rec = RcfdRecorder(cfg, axis)
+        rec.attach(sim, out_dir, guard.guarded, resume_time, notify, (parts or {}).get(rec.PART))
+        if checkpoints is not None:
+            checkpoints.parts[rec.PART] = rec.saved

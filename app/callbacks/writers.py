@@ -118,6 +118,7 @@ class Checkpoints:
 
     def __init__(self, out_dir: pathlib.Path, runfile, config_text: str):
         self.out_dir, self.runfile, self.config_text = out_dir, runfile, config_text
+        self.parts: dict = {}  # name -> saved(sim): a recorder's own state, written under /parts/<name>
 
     @staticmethod
     def state(sim) -> tuple[dict | None, dict | None]:
@@ -136,8 +137,9 @@ class Checkpoints:
         sim.flush_diagnostics()  # the rows recorded on the device, through the guard into the series
         self.runfile.flush()  # every row up to the checkpoint is on disk: a resumed run continues the series
         grains, gas = self.state(sim)
+        parts = {name: saved(sim) for name, saved in self.parts.items()}
         store.write_checkpoint(self.out_dir / "checkpoint.h5", grains, gas, sim.time, sim.step_count,
-                               self.config_text)
+                               self.config_text, {k: v for k, v in parts.items() if v})
         write_xdmf(self.out_dir, self.runfile)  # a run killed later still opens in ParaView up to here
         return grains
 

@@ -13,6 +13,8 @@ checkpoint.h5 / bed.h5
   /grains/<array>               every changing DEM array (see DemSolver.state_arrays)
   /gas/<array>                  the gas solver's whole state (see FlowSolver.state_arrays)
   /particle_id                  each grain's index, for checkpoint.xdmf / bed.xdmf
+  /parts/<name>/<array>         a recorder's own state at the checkpoint (checkpoint.h5 only; the rCFD probe's
+                                open frame: RcfdRecorder.saved), so a resumed run records what the run would have
   attrs: time [s], step, config (the resolved TOML), fbed_version
   /grid/{points,hexahedra,open_volume}  the gas grid for run.xdmf (written once): cell corners [m],
                                 cells as 8 corner indices (VTK order), open volume fraction of each cell [-]
@@ -158,11 +160,14 @@ def _atomic_write(path: pathlib.Path, fill, needed: int = 0) -> None:
 
 
 def write_checkpoint(path: pathlib.Path, grains: dict | None, gas: dict | None, time: float, step: int,
-                     config_text: str) -> None:
-    """A checkpoint (or bed.h5): every array of the grains and/or the gas, time [s], step, resolved config."""
+                     config_text: str, parts: dict[str, dict] | None = None) -> None:
+    """A checkpoint (or bed.h5): every array of the grains and/or the gas, time [s], step, resolved config, and
+    ``parts``: name -> arrays of a recorder's own state (read back by :func:`read_parts`)."""
+    parts = parts or {}
 
     def fill(f):
-        for group, arrays in (("grains", grains), ("gas", gas)):
+        named = [("grains", grains), ("gas", gas)] + [(f"parts/{k}", v) for k, v in parts.items()]
+        for group, arrays in named:
             if arrays is None:
                 continue
             g = f.create_group(group)
@@ -172,7 +177,7 @@ def write_checkpoint(path: pathlib.Path, grains: dict | None, gas: dict | None, 
             f.create_dataset("particle_id", data=grain_ids(len(grains["position"])))
         f.attrs.update(time=time, step=step, config=config_text, fbed_version=VERSION)
 
-    _atomic_write(pathlib.Path(path), fill, _nbytes(grains, gas) + len(config_text))
+    _atomic_write(pathlib.Path(path), fill, _nbytes(grains, gas, *parts.values()) + len(config_text))
 
 
 def read_checkpoint(path: pathlib.Path) -> tuple[dict | None, dict | None, dict]:
@@ -182,6 +187,13 @@ def read_checkpoint(path: pathlib.Path) -> tuple[dict | None, dict | None, dict]
         gas = {k: f["gas"][k][...] for k in f["gas"]} if "gas" in f else None
         meta = dict(f.attrs)
     return grains, gas, meta
+
+
+def read_parts(path: pathlib.Path) -> dict[str, dict]:
+    """The recorders' parts of a checkpoint (name -> arrays; empty for one without them)."""
+    with h5py.File(path, "r") as f:
+        g = f.get("parts")
+        return {} if g is None else {name: {k: g[name][k][...] for k in g[name]} for name in g}
 
 
 def read_state(path: pathlib.Path) -> tuple[dict, dict]:

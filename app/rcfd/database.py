@@ -16,7 +16,8 @@ c = (i * ny + j) * nz + k):
                                       built from it (load(..., lag))
   /boundary/octant (B, grains) u1     the eighth of its cell each grain is in (bits x, y, z: 4, 2, 1): the
                                       grain tracer's jumps stitch on this half-cell grid
-  /frame/b0, /frame/b1 (N,) i4        the boundaries a frame starts and ends at (b1 = b0 + 1 unless resumed)
+  /frame/b0, /frame/b1 (N,) i4        the boundaries a frame starts and ends at (b1 = b0 + 1; a resume from a checkpoint
+                                      without the probe's part loses the frame open then: a gap)
   /frame/offset (N+1,) i8             frame k's shift triplets are shift/*[offset[k]:offset[k+1]]
   /shift/c0, /shift/c1 i4, /shift/w f8   grain volume [m^3] that went from cell c0 to cell c1 in the frame
   /frame/flux_x|y|z (N, faces...) f4  gas volume flux through each face, eps_f u_f a_f h^2, averaged over the

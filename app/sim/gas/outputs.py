@@ -54,15 +54,26 @@ class SolverOutputs:
             self._flux_sum.fill(0.0)
         _k_add_face_flux(self._aperture, self._st["eps_f"], self._st["vel"], float(dt) * self.h ** 2, self._flux_sum)
 
-    def face_flux_sum(self) -> tuple:
-        """The sums of add_face_flux since the last call [m^3], one array per axis (face_shape(axis)), then clears
-        them (zeros when nothing was added)."""
+    def face_flux_sum(self, clear: bool = True) -> tuple:
+        """The sums of add_face_flux since they were last cleared [m^3], one array per axis (face_shape(axis)),
+        then clears them unless ``clear`` is False (zeros when nothing was added)."""
         if self._flux_sum is None:
             return tuple(np.zeros(s) for s in self._fshapes)
         flat = self._flux_sum.to_numpy()
-        self._flux_sum.fill(0.0)
+        if clear:
+            self._flux_sum.fill(0.0)
         off = self._face_off
         return tuple(flat[off[a]:off[a] + int(np.prod(self._fshapes[a]))].reshape(self._fshapes[a]) for a in range(3))
+
+    def load_face_flux_sum(self, sums) -> None:
+        """Set the sums of add_face_flux [m^3] to ``sums`` (face_flux_sum's form: a resumed run's, as saved)."""
+        flat = np.zeros(self._nf)
+        for a in range(3):
+            n = int(np.prod(self._fshapes[a]))
+            flat[self._face_off[a]:self._face_off[a] + n] = np.asarray(sums[a], np.float64).reshape(n)
+        if self._flux_sum is None:
+            self._flux_sum = ti.ndarray(ti.f64, shape=(self._nf,))
+        self._flux_sum.from_numpy(flat)
 
     def void_fraction(self) -> np.ndarray:
         """Gas volume fraction eps [-] on the cells (nx, ny, nz), as the coupling last wrote it (the
