@@ -23,7 +23,7 @@ from . import config as cfgmod
 from .callbacks.progress import log, window_notes
 from .config import ConfigError
 from .io import store
-from .resume import check_readable, check_same_scene
+from .resume import check_readable, check_recording, check_same_scene
 
 EXIT_DISK_FULL = 3
 
@@ -232,6 +232,7 @@ def configure(preset, overrides, out, resume, overwrite):
                 "checkpoint.h5 (and config.toml written again)")
         if (out_dir / "config.toml").exists():
             check_same_scene(cfg, cfgmod.load(out_dir / "config.toml"), preset_path, out_dir)
+        check_recording(cfg, out_dir)
     else:
         if not preset:
             raise ConfigError("no preset given", "", "PRESET", hint="fbed run presets/settle.toml")

@@ -19,6 +19,7 @@ solvers are read through ``read_solvers`` only.
 from __future__ import annotations
 
 import concurrent.futures
+import json
 import math
 import pathlib
 import time
@@ -28,7 +29,7 @@ import numpy as np
 
 from .config.derived import grain_volume, interval_steps
 from .io import store
-from .rcfd.database import parse_tag
+from .rcfd.database import parse_tag, recording_settings
 
 
 #: HDF5 filters of the probe's compressed datasets: gzip at level 1 after the byte shuffle, as run.h5's fields
@@ -122,6 +123,7 @@ class RcfdRecorder:
         self.fluxes = p.rcfd_fluxes
         self.grain_cells = p.rcfd_grain_cells
         self.step = cfg.run.step
+        self.settings = recording_settings(cfg)
         self.axis = np.asarray(axis_xy, float)
         self.f = None
         self.log = None
@@ -235,7 +237,8 @@ class RcfdRecorder:
             self.last_cells = None
             return
         f.attrs.update(h=self.h, origin=self.origin, shape=self.shape, frame_interval=self.spf * self.step,
-                       step=self.step, axis=self.axis, tag=self.tag, rcfd_from=self.t0)
+                       step=self.step, axis=self.axis, tag=self.tag, rcfd_from=self.t0,
+                       settings=json.dumps(self.settings))
         f.create_dataset("geometry/open_volume", data=vol.astype(np.float32))
         n, sh = self.n, self.shape
 

@@ -165,6 +165,36 @@ def check_same_scene(cfg, run_cfg, preset_path: pathlib.Path, out_dir: pathlib.P
                           f"resume may change only {resume_free()}")
 
 
+def check_recording(cfg, out_dir: pathlib.Path) -> None:
+    """Refuse a resume whose rCFD recording settings ([probes] rcfd_*) differ from those rcfd.h5 was recorded with:
+    its frames would be appended to the file as if they were of one kind (a changed probes.rcfd_interval gave
+    10 ms frames in a file that says 5 ms). A file from before the settings were kept is checked on what it says:
+    its start, frame interval, tag and whether it holds fluxes."""
+    path = out_dir / "rcfd.h5"
+    if cfg.probes.rcfd_from < 0 or not path.exists():
+        return
+    from .config.derived import interval_steps
+    from .rcfd.database import recording_settings
+
+    now = recording_settings(cfg)
+    with h5py.File(path, "r") as f:
+        a = f.attrs
+        if "settings" in a:
+            was = json.loads(a["settings"])
+        else:
+            was = {"rcfd_from": float(a["rcfd_from"]), "rcfd_tag": str(a["tag"]), "rcfd_fluxes": "frame/flux_x" in f}
+            now["rcfd_interval"] = interval_steps(now["rcfd_interval"], cfg.run.step) * cfg.run.step
+            was["rcfd_interval"] = float(a["frame_interval"])
+    diff = [k for k in now if k in was and (abs(now[k] - was[k]) > 1e-12 * abs(was[k])
+                                            if isinstance(was[k], float) else now[k] != was[k])]
+    if diff:
+        k, here, there = diff[0], json.dumps(now[diff[0]]), json.dumps(was[diff[0]])  # as TOML writes them
+        raise ConfigError(f"probes.{k} = {here} here, {there} in the recording this run appends to",
+                          str(path), f"probes.{k}", hint=f"resume with probes.{k} = {there} (drop the --set), "
+                          "or move rcfd.h5 aside to record anew from the next frame boundary, or set "
+                          "probes.rcfd_from = -1 to stop recording")
+
+
 #: what a resume does without each file, for the hint when one is damaged
 _WITHOUT = {"checkpoint.h5": "nothing to resume", "run.h5": "its series restart",
             "rcfd.h5": "the rCFD frames start anew at the next frame boundary"}

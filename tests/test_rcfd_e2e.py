@@ -269,6 +269,25 @@ def test_a_full_disk_in_a_figure_is_a_clean_error_naming_it(recorded, tmp_path, 
 
 
 @pytest.mark.restart
+@pytest.mark.parametrize("key, value", [("rcfd_interval", "0.01"), ("rcfd_tag", "'y<0'"), ("rcfd_fluxes", "false")])
+def test_a_resume_that_changes_the_recording_is_refused_and_loses_nothing(recorded, tmp_path, key, value):
+    """rcfd.h5 holds frames of one kind (its attributes say which): a resume with another probes.rcfd_interval appended
+    10 ms frames to a file of 5 ms ones, silently. It is refused before anything is written, naming the key, the
+    file and both values (exit 2, no traceback), with the ways on."""
+    import hashlib
+    import shutil
+
+    d = tmp_path / "bed"
+    shutil.copytree(recorded, d, ignore=shutil.ignore_patterns("rcfd"))
+    before = {p.name: hashlib.sha1(p.read_bytes()).hexdigest() for p in d.iterdir() if p.is_file()}
+    r = fbed("run", "--resume", d, "--set", "run.duration=0.45", "--set", f"probes.{key}={value}", "--arch", "cpu")
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-3000:]
+    assert f"rcfd.h5: probes.{key}:" in r.stderr and "in the recording this run appends to" in r.stderr, r.stderr
+    assert "move rcfd.h5 aside" in r.stderr and "probes.rcfd_from = -1" in r.stderr, r.stderr
+    assert {p.name: hashlib.sha1(p.read_bytes()).hexdigest() for p in d.iterdir() if p.is_file()} == before
+
+
+@pytest.mark.restart
 def test_a_damaged_rcfd_h5_is_refused_at_resume_and_left_as_it_was(recorded, tmp_path):
     """A process killed while it wrote can leave rcfd.h5 unreadable: a resume refuses it before anything is written,
     names it and says what moving it aside costs (exit 2, no traceback), as for run.h5 and checkpoint.h5."""

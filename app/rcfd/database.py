@@ -24,7 +24,8 @@ c = (i * ny + j) * nz + k):
                                       frame [m^3/s] (x faces (nx+1, ny, nz), y (nx, ny+1, nz), z (nx, ny, nz+1))
   attrs: h [m], origin [m] (x0, y0, z0), shape, frame_interval [s], step [s], axis [m] (x, y of the vessel axis),
          tag, grains, taylor_time [s] (sqrt(<g^2>/<dg/dt^2>) at the fluid step), taylor_time_frame [s]
-         (the same differenced at the frame interval), taylor_samples, frame_check ('ok' or a warning)
+         (the same differenced at the frame interval), taylor_samples, frame_check ('ok' or a warning),
+         settings (JSON: the [probes] rcfd_* values it was recorded with, RECORDING_KEYS)
 Grains count from the first boundary on, all of them to the end: a grain that leaves the domain stays in
 the cell it was last seen in, so every frame's shift conserves the grain volume exactly.
 """
@@ -39,6 +40,15 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..config.derived import RCFD_MIN_FRAMES
+
+#: the [probes] keys a recording is made with, kept in rcfd.h5's ``settings`` attribute: a resume that changed one
+#: would append frames of another kind to the file (app/resume.check_recording refuses that)
+RECORDING_KEYS = ("rcfd_from", "rcfd_interval", "rcfd_z_max", "rcfd_tag", "rcfd_grain_cells", "rcfd_fluxes")
+
+
+def recording_settings(cfg) -> dict:
+    """The values of :data:`RECORDING_KEYS` in a config (SI units, as in the preset)."""
+    return {k: getattr(cfg.probes, k) for k in RECORDING_KEYS}
 
 _TAG = re.compile(r"^\s*([xyz])\s*(<=|>=|<|>)\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*$")
 
