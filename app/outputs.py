@@ -23,7 +23,7 @@ from . import config as cfgmod
 from .callbacks.progress import log, window_notes
 from .config import ConfigError
 from .io import store
-from .resume import check_readable, check_recording, check_same_scene
+from .resume import check_readable, check_records, check_recording, check_same_scene
 
 EXIT_DISK_FULL = 3
 
@@ -230,8 +230,10 @@ def configure(preset, overrides, out, resume, overwrite):
             cfg = cfgmod.load_text(checkpoint_config(out_dir), str(preset_path), overrides)
             log(f"fbed: note: {out_dir / 'config.toml'} is missing: the run's configuration is read from its "
                 "checkpoint.h5 (and config.toml written again)")
-        if (out_dir / "config.toml").exists():
-            check_same_scene(cfg, cfgmod.load(out_dir / "config.toml"), preset_path, out_dir)
+        run_cfg = cfgmod.load(out_dir / "config.toml") if (out_dir / "config.toml").exists() else None
+        if run_cfg is not None:
+            check_same_scene(cfg, run_cfg, preset_path, out_dir)
+            check_records(cfg, run_cfg, out_dir)
         check_recording(cfg, out_dir)
     else:
         if not preset:

@@ -165,6 +165,28 @@ def check_same_scene(cfg, run_cfg, preset_path: pathlib.Path, out_dir: pathlib.P
                           f"resume may change only {resume_free()}")
 
 
+#: run.h5's frame records and the [probes] keys that shape their frames: a resume that changed one would append
+#: frames of another layout (a changed probes.mri_pixel had HDF5 cut the earlier MRI frames to the new pixel count)
+RECORD_KEYS = {"mri": ("mri_pixel", "slab_width"), "slab": ("slab_width",)}
+
+
+def check_records(cfg, run_cfg, out_dir: pathlib.Path) -> None:
+    """Refuse a resume that changes a key of :data:`RECORD_KEYS` from the run's (``run_cfg``) while run.h5 holds
+    frames of that record."""
+    path = out_dir / "run.h5"
+    if not path.exists():
+        return
+    with h5py.File(path, "r") as f:
+        held = [g for g in RECORD_KEYS if g in f and "time" in f[g] and f[g]["time"].shape[0]]
+    for g in held:
+        for k in RECORD_KEYS[g]:
+            here, there = json.dumps(getattr(cfg.probes, k)), json.dumps(getattr(run_cfg.probes, k))
+            if here != there:
+                raise ConfigError(f"probes.{k} = {here} here, {there} in the run, whose /{g} frames are made with it",
+                                  str(path), f"probes.{k}", hint=f"resume with probes.{k} = {there} (drop the --set); "
+                                  "frames of another layout need a new run (--out)")
+
+
 def check_recording(cfg, out_dir: pathlib.Path) -> None:
     """Refuse a resume whose rCFD recording settings ([probes] rcfd_*) differ from those rcfd.h5 was recorded with:
     its frames would be appended to the file as if they were of one kind (a changed probes.rcfd_interval gave

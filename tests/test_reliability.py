@@ -271,6 +271,45 @@ def test_resume_with_another_scene_is_refused_and_touches_nothing(done_run, tmp_
     assert digest(done_run) == before
 
 
+@pytest.mark.parametrize("record, key, value", [("mri", "mri_pixel", "[0.004, 0.008]"), ("mri", "slab_width", "0.012"),
+                                                ("slab", "slab_width", "0.012")])
+def test_a_resume_that_changes_a_records_layout_is_refused_and_touches_nothing(tmp_path, record, key, value):
+    """run.h5's /mri and /slab frames have the layout their [probes] keys gave: a resume with another probes.mri_pixel
+    had HDF5 cut the first leg's 12 x 24 MRI frames to 6 x 12 and append the new ones, silently (mri_small). Now it
+    is refused before anything is written, naming the key, run.h5 and both values (a run folder made here: the
+    run's config.toml, a checkpoint's attributes and one frame of the record)."""
+    from app import config as cfgmod
+
+    d = tmp_path / "run"
+    d.mkdir()
+    (d / "config.toml").write_text(cfgmod.dump(cfgmod.load(ROOT / "presets" / "mri_small.toml")))
+    with h5py.File(d / "checkpoint.h5", "w") as f:
+        f.attrs.update(time=0.004, step=4)
+    with h5py.File(d / "run.h5", "w") as f:
+        f.create_dataset(f"{record}/time", data=[0.004])
+        f.create_dataset(f"{record}/porosity", data=np.ones((1, 12, 24), np.float32))
+    before = digest(d)
+    r = fbed("run", "--resume", d, "--set", f"probes.{key}={value}", "--arch", "cpu")
+    assert_clean_stop(r, d, 2, f"run.h5: probes.{key}: probes.{key} = {value} here", f"whose /{record} frames",
+                      "drop the --set")
+    assert digest(d) == before
+
+
+def test_a_frame_of_another_shape_is_not_appended_to_a_record(tmp_path):
+    """The store's own guard under the resume check: h5py resizes a dataset to any shape within its maximum, so a
+    frame of another shape would cut the record's earlier frames; it is refused, naming the record and both shapes."""
+    from app.io import store
+
+    rf = store.RunFile(tmp_path / "run.h5", "t")
+    rf.frame("mri", 0.004, np.ones((12, 24)))
+    rf.flush()
+    rf.frame("mri", 0.008, np.ones((6, 12)))
+    with pytest.raises(ValueError, match=r"/mri/porosity holds frames of shape \(12, 24\), not \(6, 12\)"):
+        rf.flush()
+    with h5py.File(tmp_path / "run.h5", "r") as f:
+        assert f["mri/porosity"].shape == (1, 12, 24)
+
+
 def test_a_run_whose_config_toml_was_deleted_resumes_from_its_checkpoints_config(done_run, tmp_path):
     """config.toml gone (deleted by hand, or a copy of the folder without it): the checkpoint holds the resolved
     config it was written with, so `--resume DIR` goes on from it, says so and writes config.toml again; the

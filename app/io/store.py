@@ -377,6 +377,9 @@ class RunFile:
                              compression_opts=1 if data.size > 4096 else None)
             for k, v in (items[0][2] or {}).items():
                 g.attrs[k] = v
+        if g[name].shape[1:] != data.shape:  # h5py would cut (or pad) the frames there to the new shape, silently
+            raise ValueError(f"{self.path}: /{group}/{name} holds frames of shape {g[name].shape[1:]}, not "
+                             f"{data.shape}: a record's layout cannot change within a run")
         n, k = g["time"].shape[0], len(items)
         g["time"].resize((n + k,))
         g["time"][n:] = [item[0] for item in items]
