@@ -23,7 +23,8 @@
 # Before a call that runs the cavity or the Verma analysis: `mkdir -p runs && cp -r ../shared/reference runs/`
 # here, and carry [".devkit", "runs/reference"] (../shared is not copied to the device).
 # MRI poppy-seed bed (issue 19; validation/mri/README.md): mri_prepare (fill and settle the 1e6 grains, then pack
-# the bed into $OUT/mri_bed.h5, ~12 MB, for later sessions to carry as runs/mri_bed.h5), mri_law (one drag law,
+# the bed with `fbed pack --resolution 5e-7` into $OUT/mri_bed.h5, ~4.4 MB, for later sessions to carry as
+# runs/mri_bed.h5: carry [".devkit", "runs/mri_bed.h5"], validation/ moved aside, ~62 of the 64 MiB), mri_law (one drag law,
 # MRI_LAW=koch_hill|di_felice|gidaspow|beetstra, from runs/mri_bed.h5 when present; MRI_SET adds --set overrides,
 # e.g. "--set run.duration=0.6" for a cost measurement), mri_sweep_start (the four laws in the background, like
 # verma_start; poll with mri_wait), mri_compare (fbed analyze of the sweep: the laws side by side), mri_umf (the
@@ -155,7 +156,7 @@ for stage in "$@"; do
       $T python3 -m app bench stiffness --size full --arch cuda --out runs/stiffness_full --resume ;;
     mri_prepare)
       $T python3 -m app run presets/mri_poppy_prepare.toml --arch cuda --out runs/mri_prepare --overwrite \
-        && python3 validation/mri/pack_bed.py runs/mri_prepare/bed.h5 runs/mri_bed.h5 && cp runs/mri_bed.h5 "$OUT/" ;;
+        && python3 -m app pack runs/mri_prepare/bed.h5 runs/mri_bed.h5 --resolution 5e-7 && cp runs/mri_bed.h5 "$OUT/" ;;
     mri_law|mri_sweep_start)
       # from a carried bed: no preparation stage, the clock starts at 0 (inlet ramp 0-0.1 s, steady from 1.1 s,
       # 2 s recorded); else mri_poppy.toml's own start_from (prepared here, cached in runs/prepared)

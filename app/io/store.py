@@ -36,6 +36,8 @@ import time as wallclock
 import h5py
 import numpy as np
 
+from . import bedpack
+
 VERSION = "0.1.0"
 #: a checkpoint's gas-group array of the adaptive fluid step: [pieces, peak, changes] (Simulation.gas_split ...)
 SPLIT_KEY = "adaptive_split"
@@ -181,12 +183,26 @@ def write_checkpoint(path: pathlib.Path, grains: dict | None, gas: dict | None, 
 
 
 def read_checkpoint(path: pathlib.Path) -> tuple[dict | None, dict | None, dict]:
-    """(grain arrays or None, gas arrays or None, attributes) of a checkpoint."""
+    """(grain arrays or None, gas arrays or None, attributes) of a checkpoint (or a bed, packed or not)."""
     with h5py.File(path, "r") as f:
+        if bedpack.is_packed(f):
+            grains, meta = bedpack.read(f)
+            return grains, None, meta
         grains = {k: f["grains"][k][...] for k in f["grains"]} if "grains" in f else None
         gas = {k: f["gas"][k][...] for k in f["gas"]} if "gas" in f else None
         meta = dict(f.attrs)
     return grains, gas, meta
+
+
+def write_packed_bed(path: pathlib.Path, position, radius, time: float = 0.0, resolution: float = bedpack.RESOLUTION,
+                     source: str = "") -> dict:
+    """A packed bed (app/io/bedpack.py: positions to the resolution [m], sizes exact), whole or not at all; returns
+    its attrs (resolution, origin, grains) and ``bytes``, the file's size."""
+    arrays, attrs = bedpack.pack(position, radius, resolution)
+    attrs.update(time=time, source=source)
+    path = pathlib.Path(path)
+    _atomic_write(path, lambda f: bedpack.fill(f, arrays, attrs), sum(v.nbytes for v in arrays.values()))
+    return {**attrs, "bytes": path.stat().st_size}
 
 
 def read_parts(path: pathlib.Path) -> dict[str, dict]:

@@ -1,0 +1,123 @@
+"""The packed bed (`fbed pack`, app/io/bedpack.py): bytes a grain against resolution, and what a restart from it costs.
+
+Part 1 (always): a million-grain bed of the poppy study's three classes, grains uniform in its 96 mm x 130 mm
+column (a packing's gaps are no smaller: the code space per grain is the same), packed at each --resolutions:
+bytes a grain and MB for --grains grains, the largest position error, pack and unpack time. Float32 positions
+under gzip (the earlier packer's form) beside them.
+
+Part 2 (--bed BED.h5 --preset PRESET [--set ...]): a settled bed restarted DEM-only from itself (every grain's
+state: position, velocity, spin, radius), from float32 positions and radii, and from each packed resolution; each
+restart runs --duration s (`fbed run PRESET --set particles.initial_state=...`), and its series give the
+kinetic-energy peak [J] and end, the largest speed [m/s] and the bed height's change [m].
+
+    python benchmarks/bed_pack.py
+    python benchmarks/bed_pack.py --bed runs/prep/bed.h5 --preset presets/mri_poppy_prepare.toml \\
+        --set vessel.radius=0.012 --set "domain.lo=[-0.012,-0.012,0.0]" --set "domain.hi=[0.012,0.012,0.15]"
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import pathlib
+import subprocess
+import sys
+import tempfile
+import time
+
+import h5py
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from app.bench.common import append_results  # noqa: E402
+from app.io import store  # noqa: E402
+
+CLASSES = np.array([0.919e-3, 1.050e-3, 1.269e-3]) / 2  # m: the poppy seeds' radii
+
+
+def sizes(n: int, resolutions, d: pathlib.Path) -> list[dict]:
+    rng = np.random.default_rng(1)
+    r = np.sqrt(rng.random(n)) * 0.048
+    th = rng.random(n) * 2 * np.pi
+    x = np.stack([r * np.cos(th), r * np.sin(th), rng.random(n) * 0.13], 1).astype(np.float32)
+    rad = rng.choice(CLASSES.astype(np.float32), n)
+    rows = []
+    with h5py.File(d / "f32.h5", "w") as f:
+        f.create_dataset("position", data=x, compression="gzip", compression_opts=6, shuffle=True)
+        f.create_dataset("radius", data=rad, compression="gzip", compression_opts=6, shuffle=True)
+    b = (d / "f32.h5").stat().st_size
+    rows.append({"form": "float32 positions, gzip 6 + shuffle", "resolution [m]": "-",
+                 "B a grain": f"{b / n:.2f}", f"MB for {n} grains": f"{b / 1e6:.2f}", "largest error [m]": "-",
+                 "pack [s]": "-", "unpack [s]": "-"})
+    for res in resolutions:
+        t0 = time.perf_counter()
+        info = store.write_packed_bed(d / "p.h5", x, rad, resolution=res)
+        t1 = time.perf_counter()
+        back, _, meta = store.read_checkpoint(d / "p.h5")
+        t2 = time.perf_counter()
+        q = np.rint((x - meta["origin"]) / meta["resolution"]).astype(np.int64)
+        qb = np.rint((back["position"] - meta["origin"]) / meta["resolution"]).astype(np.int64)
+        i = np.lexsort((*q.T[::-1], rad))
+        j = np.lexsort((*qb.T[::-1], back["radius"].astype(np.float32)))
+        err = float(np.abs(x[i].astype(np.float64) - back["position"][j]).max())
+        rows.append({"form": "fbed pack", "resolution [m]": f"{info['resolution']:.3g}",
+                     "B a grain": f"{info['bytes'] / n:.2f}", f"MB for {n} grains": f"{info['bytes'] / 1e6:.2f}",
+                     "largest error [m]": f"{err:.3g}", "pack [s]": f"{t1 - t0:.2f}", "unpack [s]": f"{t2 - t1:.2f}"})
+    return rows
+
+
+def restarts(bed: pathlib.Path, preset: str, sets: list[str], duration: float, resolutions,
+             d: pathlib.Path) -> list[dict]:
+    grains, _, _ = store.read_checkpoint(bed)
+    alive = grains["alive"].astype(bool) if "alive" in grains else np.ones(len(grains["radius"]), bool)
+    with h5py.File(d / "f32.h5", "w") as f:
+        f.create_dataset("grains/position", data=grains["position"][alive].astype(np.float32))
+        f.create_dataset("grains/radius", data=grains["radius"][alive].astype(np.float32))
+    starts = [("every grain's state", bed), ("float32 positions and radii", d / "f32.h5")]
+    for res in resolutions:
+        store.write_packed_bed(d / f"p{res:g}.h5", grains["position"][alive], grains["radius"][alive], resolution=res)
+        starts.append((f"fbed pack, {res:g} m", d / f"p{res:g}.h5"))
+    rows = []
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    for name, path in starts:
+        out = d / f"run{len(rows)}"
+        cmd = [sys.executable, "-m", "app", "run", preset, "--arch", "cpu", "--out", str(out),
+               "--set", f'particles.initial_state="{path}"', "--set", "particles.bed_height=0.0",
+               "--set", f"run.duration={duration}", "--set", "output.series_interval=1e-3",
+               "--set", "guard.interval=1e-3"] + [a for s in sets for a in ("--set", s)]
+        r = subprocess.run(cmd, capture_output=True, text=True, env=env)
+        if r.returncode:
+            sys.exit(f"{name}: {r.stderr[-2000:]}")
+        s = store.read_series(out / "run.h5")
+        rows.append({"restart from": name, "kinetic energy peak [J]": f"{s['kinetic_energy'].max():.3g}",
+                     "at the end [J]": f"{s['kinetic_energy'][-1]:.3g}", "largest speed [m/s]":
+                     f"{s['max_speed'].max():.3g}", "bed height change [m]":
+                     f"{s['bed_height'][-1] - s['bed_height'][0]:.2g}"})
+    return rows
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--grains", type=int, default=958000)
+    ap.add_argument("--resolutions", type=float, nargs="+", default=[1e-7, 5e-7, 1e-6, 2e-6])
+    ap.add_argument("--bed", type=pathlib.Path, help="a settled bed.h5 for the restarts (part 2)")
+    ap.add_argument("--preset", help="the preset the restarts run (DEM only: its gas off)")
+    ap.add_argument("--set", dest="sets", action="append", default=[], help="an override of the restarts' preset")
+    ap.add_argument("--duration", type=float, default=0.03, help="each restart's simulated time [s]")
+    ap.add_argument("--dry", action="store_true", help="print, do not append to RESULTS.md")
+    a = ap.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        d = pathlib.Path(tmp)
+        append_results(f"Packed bed: size against resolution ({a.grains} grains of the poppy study's classes, uniform "
+                       "in its 96 mm x 130 mm column; numpy and h5py)", sizes(a.grains, a.resolutions, d), "cpu",
+                       a.dry)
+        if a.bed:
+            append_results(f"Packed bed: a settled bed restarted from it ({a.bed.name}, {a.preset} with "
+                           f"{' '.join(a.sets) or 'no overrides'}; {a.duration:g} s DEM only, cpu)",
+                           restarts(a.bed, a.preset, a.sets, a.duration, a.resolutions, d), "cpu", a.dry)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
