@@ -22,6 +22,9 @@ def pack_command(src: str, dst: str, resolution: float) -> int:
                           hint="give the bed.h5 or checkpoint.h5 written by an earlier fbed run")
     if dst_p.exists() and dst_p.resolve() == src_p.resolve():
         raise ConfigError("OUT is BED itself: packing would replace it", str(dst_p), "OUT", hint="name another file")
+    if dst_p.is_dir():
+        raise ConfigError("is a folder, not a file", str(dst_p), "OUT",
+                          hint=f"name a file in it, e.g. {dst_p / 'bed.h5'}")
     if not dst_p.parent.is_dir():
         raise ConfigError("no such folder", str(dst_p.parent), "OUT", hint="make it first, or name a file in a "
                           "folder that exists")
@@ -38,8 +41,12 @@ def pack_command(src: str, dst: str, resolution: float) -> int:
     x = np.asarray(grains["position"])[alive]
     if not np.all(np.isfinite(x)):
         raise ConfigError("a grain's position is not finite", str(src_p), "BED", hint="pack a bed from a good run")
-    info = store.write_packed_bed(dst_p, x, np.asarray(grains["radius"])[alive], float(meta.get("time", 0.0)),
-                                  resolution, str(src_p))
+    try:
+        info = store.write_packed_bed(dst_p, x, np.asarray(grains["radius"])[alive], float(meta.get("time", 0.0)),
+                                      resolution, str(src_p))
+    except PermissionError as err:  # (a full disk is the CLI's exit 3, as for every writer)
+        raise ConfigError(f"cannot write there ({err.strerror})", str(dst_p), "OUT",
+                          hint="name a file in a folder you may write to") from None
     speed = float(np.sqrt((np.asarray(grains["velocity"])[alive] ** 2).sum(1)).max()) if "velocity" in grains \
         and alive.any() else 0.0
     n = max(int(info["grains"]), 1)

@@ -114,9 +114,28 @@ def test_fbed_pack_writes_a_bed_and_refuses_bad_input_naming_it(tmp_path):
     for args, needles in [(("nope.h5", "o.h5"), ("nope.h5", "no such file")),
                           ((tmp_path / "packed.h5", tmp_path / "no" / "o.h5"), ("no such folder",)),
                           ((tmp_path / "bed.h5", tmp_path / "bed.h5"), ("OUT is BED itself",)),
+                          ((tmp_path / "bed.h5", tmp_path), ("is a folder, not a file", "bed.h5")),
                           ((tmp_path / "bed.h5", tmp_path / "o.h5", "--resolution", "-1"), ("--resolution",)),
                           ((ROOT / "README.md", tmp_path / "o.h5"), ("README.md", "not an HDF5 file"))]:
         r = fbed("pack", *args)
         assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
         assert all(s in r.stderr for s in needles), (args, r.stderr)
     assert (tmp_path / "bed.h5").read_bytes() == before and not (tmp_path / "o.h5").exists()
+
+
+@pytest.mark.unit
+def test_fbed_pack_where_it_may_not_write_is_an_error_naming_out(tmp_path, monkeypatch, capsys):
+    """A folder it may not write to (injected: this test may run as root, whom no mode stops): exit 2, OUT named."""
+    import errno
+
+    from app.cli import main as cli_main
+
+    def denied(path, *args, **kwargs):
+        raise PermissionError(errno.EACCES, "Permission denied", str(path))
+
+    store.write_checkpoint(tmp_path / "bed.h5", {"position": np.zeros((1, 3)), "radius": np.ones(1) * 1e-3}, None,
+                           0.0, 0, "")
+    monkeypatch.setattr(store, "write_packed_bed", denied)
+    assert cli_main(["pack", str(tmp_path / "bed.h5"), str(tmp_path / "o.h5")]) == 2
+    err = capsys.readouterr().err
+    assert "o.h5: OUT: cannot write there (Permission denied)" in err and "Traceback" not in err
