@@ -20,6 +20,8 @@
 # gas step with the cycle from 0, 4096 and 16384 cells down), series (issue 21: verma_small on the GPU, its summary.json wall_split with the callbacks' share, then the host
 # reads per fluid step of its first 0.1 s, the step's and the callbacks', by benchmarks/series_reads.py), mri_frame and
 # rcfd_frame (a 1e6-grain frame of the synthetic MRI and of the rCFD probe's grain cells: host against device).
+# Before any call: `python3 benchmarks/device_carry.py --carry .devkit [more carried paths]` says whether what the
+# call takes (the tree with validation/ moved aside, and the carried paths) fits its 64 MiB (exit 1 if not).
 # Before a call that runs the cavity or the Verma analysis: `mkdir -p runs && cp -r ../shared/reference runs/`
 # here, and carry [".devkit", "runs/reference"] (../shared is not copied to the device).
 # MRI poppy-seed bed (issue 19; validation/mri/README.md): mri_prepare (fill and settle the 1e6 grains, then pack

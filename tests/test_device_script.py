@@ -155,3 +155,17 @@ def test_a_renamed_flag_or_key_is_caught(monkeypatch):
     with pytest.raises(Exception, match="drag"):
         check_all([["-m", "app", "sweep", "presets/mri_poppy.toml", "--set", "coupling.drag=koch_hill,koch_hil"]],
                   monkeypatch)
+
+
+def test_a_device_call_has_room_for_the_kit_the_tree_and_the_packed_poppy_bed():
+    """A call carries 64 MiB: the kit (56.8 MB), the tree with validation/ moved aside, and the MRI bed packed at
+    0.5 um (958,000 grains x 4.58 B, benchmarks/RESULTS.md). A figure or a run committed outside validation/ that
+    ate the room would have the GPU session's call refused; benchmarks/device_carry.py says what takes it."""
+    spec = importlib.util.spec_from_file_location("device_carry", ROOT / "benchmarks" / "device_carry.py")
+    device_carry = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(device_carry)
+    total, items = device_carry.carry_bytes(["validation"], [".devkit"])
+    if (ROOT / ".devkit").exists():  # this checkout's own kit: its size, not the measured one
+        total += device_carry.KIT - device_carry.size(ROOT / ".devkit")
+    bed = 958000 * 4.58
+    assert total + bed <= device_carry.LIMIT, items[:6]
