@@ -229,6 +229,44 @@ def bed_checks(conts: list, summ: dict, horizon: float, dt: float) -> dict:
             "radial_void_profile_rms": {"tests": rep, "rms_difference": rms, "tolerance": 0.02, "pass": rms <= 0.02}}
 
 
+def block_stats(h: np.ndarray, block: int) -> dict:
+    """Mean and std of a series [its unit] with their standard errors from ``block``-sample blocks (each about two
+    integral times, so the blocks are near independent): the mean's from the block means, the std's from the blocks'
+    mean squared deviation (its variance's error, halved by the square root). NaN errors under two blocks."""
+    h = np.asarray(h, np.float64)
+    nb = h.size // max(1, block)
+    m, sd = float(h.mean()), float(h.std())
+    if nb < 2:
+        return {"mean": m, "mean_se": float("nan"), "std": sd, "std_se": float("nan"), "blocks": nb}
+    b = h[:nb * block].reshape(nb, block)
+    sq = ((b - m) ** 2).mean(1)
+    return {"mean": m, "mean_se": float(b.mean(1).std(ddof=1) / np.sqrt(nb)), "std": sd,
+            "std_se": float(sq.std(ddof=1) / np.sqrt(nb) / (2 * max(sd, 1e-300))), "blocks": nb}
+
+
+def steadiness(database: np.ndarray, conts: list, block: int, z_max: float = 3.0) -> dict:
+    """Is the bed steady from t0 to t2? The bed height's mean and spread over the database's halves and over the
+    continuations (their errors pooled as independent runs); ``drift`` names those of the continuations that lie more
+    than ``z_max`` standard errors from the database's. Reported beside the bed checks, whose failure it can explain:
+    a database recorded before the bed settled does not represent what follows it (validation/rcfd/README.md, 000).
+    A diagnostic, not a check: the errors come from the blocks, themselves uncertain, and a steady AR(1) bed of 3,000
+    + 3 x 2,000 frames was flagged in 3-4 of 20-40 seeds (tests/test_rcfd.py); a spread falling from 8 to 5 mm was
+    flagged in every one. rcfd_bubbling's 5 s database: z = 1.7 (mean), 2.9 (std), not flagged."""
+    half = database.size // 2
+    rows = {"database, first half": block_stats(database[:half], block),
+            "database, second half": block_stats(database[half:], block), "database": block_stats(database, block)}
+    each = [block_stats(c, block) for c in conts]
+    n = len(each)
+    rows["continuations"] = {k: float(np.mean([e[k] for e in each])) for k in ("mean", "std")}
+    rows["continuations"].update({f"{k}_se": float(np.sqrt(np.sum([e[f"{k}_se"] ** 2 for e in each])) / n)
+                                  for k in ("mean", "std")})
+    d, c = rows["database"], rows["continuations"]
+    z = {k: abs(c[k] - d[k]) / np.hypot(c[f"{k}_se"], d[f"{k}_se"]) for k in ("mean", "std")}
+    return {"tests": "is the bed steady from t0 to t2 (bed height: the database against the continuations)",
+            "rows": rows, "z": {k: float(v) for k, v in z.items()}, "block_samples": block,
+            "drift": [k for k, v in z.items() if v > z_max]}
+
+
 def sensitivity_checks(A: pathlib.Path, od: pathlib.Path, conts: list, horizon: float, n_paths: int, seed: int,
                        lag: int, eng, jump_grid: str, jump: str, log=print) -> dict:
     """The design note's sensitivity check: the extrapolation again with the frame interval doubled (each frame
@@ -297,6 +335,9 @@ def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_pa
     mix_L, (_, Lf) = mixing_checks(conts, t_r, L_paths, "L", "lacey_index")
     checks.update(mix_L)
     checks.update(bed_checks(conts, summ, horizon, db.frame_interval / lag))
+    tau = checks["bed_height_mean"]["integral_time"]
+    block = max(2, int(round(2 * tau * lag / db.frame_interval)))  # recorded frames in two integral times
+    steady = steadiness(db.bed_height, [c["heights"] for c in conts], block)
     checks.update(cost_checks(conts, summ))
     if sensitivity:
         checks.update(sensitivity_checks(A, od, conts, horizon, n_paths, seed, lag, eng, jump_grid, jump, log))
@@ -305,7 +346,7 @@ def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_pa
     total = c_full * horizon / (c_full * (t1 - t0) + summ["cost"]["prep_seconds"] + n_paths * c_r * horizon)
     result = {"preset": preset, "lag": lag, "solids": eng.solids, "jump_cells": "half cells" if eng.half else "cells", "l_min": eng.params.l_min, "l_mean": eng.params.l_mean, "t0": t0, "t1": t1, "t2": t2, "paths": n_paths,
               "seed": seed, "continuations": n_cont, "perturbation_of_d": PERTURBATION, "analysis": ana,
-              "checks": checks, "total_speedup_with_database": total,
+              "checks": checks, "steadiness": steady, "total_speedup_with_database": total,
               "total_speedup_without_database": summ["cost"]["total_speedup_without_database"],
               "replay_curve": {k: np.asarray(v).tolist() for k, v in rep.items()},
               "full_curves": {"t": tf.tolist(), "M": Mf.tolist(), "L": Lf.tolist()},
@@ -384,4 +425,17 @@ def _report(path: pathlib.Path, res: dict) -> None:
         lines.append(f"| {name} | {c['tests']} | {fmt(r)} | {fmt(f)} | {fmt(c['tolerance'])} | {verdict} |")
     lines += ["", "The mixing curve is the real test of rCFD. The bed statistics only test that the database is "
               "representative: rCFD replays recorded frames, so matching them is nearly automatic.", ""]
+    st = res.get("steadiness")
+    if st:
+        lines += [f"Is the bed steady? The bed height [mm] (standard errors from blocks of {st['block_samples']} "
+                  "frames, about two integral times):", "", "| | mean | std |", "|---|---|---|"]
+        lines += [f"| {name} | {1e3 * r['mean']:.2f} ({1e3 * r['mean_se']:.2f}) | {1e3 * r['std']:.2f} "
+                  f"({1e3 * r['std_se']:.2f}) |" for name, r in st["rows"].items()]
+        z = st["z"]
+        lines += ["", (f"The continuations' {' and '.join(st['drift'])} lie{'s' * (len(st['drift']) == 1)} more than "
+                       "3 standard errors from the database's (z: mean {:.1f}, std {:.1f}): the bed was likely not "
+                       "steady from t0 to t2, so the database does not represent what followed it; record it later "
+                       "(a steady bed of a few thousand frames is flagged about one time in ten: read the table)."
+                       if st["drift"] else "The continuations' mean and spread lie within 3 standard errors of the "
+                       "database's (z: mean {:.1f}, std {:.1f}).").format(z["mean"], z["std"]), ""]
     path.write_text("\n".join(lines))
