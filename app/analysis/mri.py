@@ -21,7 +21,8 @@ The steps, each a function below:
   height (130 mm);
 - statistics: mean, maximum and standard deviation with 95% bootstrap intervals (10,000
   resamples with replacement, percentile intervals, as the study) and two-sample KS tests between
-  neighbouring thresholds;
+  neighbouring thresholds; beside the study's interval, one over blocks of consecutive frames (``_blocks``:
+  the frames are correlated, so resampling them one by one gives intervals too narrow);
 - the threshold per metric from the study's criteria only (CV < 30%, interval width < 30% of the
   mean, KS p > 0.01 against the neighbouring thresholds, gradient quality > 0.3, bubble velocity
   within 5-80 cm/s), never from data: ``choose_threshold`` says how ties are broken;
@@ -45,7 +46,7 @@ from scipy import ndimage, signal, stats
 
 from . import mri_figures as mfig
 from .mri_stats import (CI_MAX, CV_MAX, GRADIENT_MIN, KS_MIN, N_BOOT, THRESHOLDS, V_RANGE,  # noqa: F401
-                        bootstrap, choose_threshold, gradient_quality)
+                        block_bootstrap, block_frames, bootstrap, choose_threshold, gradient_quality)
 
 MIN_AREA = 4.0e-6         # m^2: smallest bubble (the study's 4 mm^2)
 OCCUPANCY = 0.10          # a row with more solid pixels than this fraction is inside the bed
@@ -219,13 +220,20 @@ def analyse(void: np.ndarray, times: np.ndarray, dx: float, dz: float, mask: np.
     mid = np.where(m[None] & below[None, None, :], 1.0 - alpha, 0.0).sum((1, 2)) / max(1, (m & below[None]).sum())
     f, p, f_peak = spectrum(mid, frame_dt)
     db = [b for bs in per[dthr]["frames"] for b in bs]
-    hstat = bootstrap(hb, n_boot)
-    return dict(table=table, chosen=chosen, frame_dt=frame_dt, max_disp=max_disp,
+    blk = block_frames(hb)  # the frames are correlated: intervals also over blocks of frames (block_bootstrap)
+    hstat = bootstrap(hb, n_boot) | block_bootstrap([[h] for h in hb], blk, n_boot)
+    athr = chosen["aspect_ratio"]
+    by_start = [[] for _ in range(nt)]  # each track's velocity under the frame it starts in
+    for t in per[vthr]["tracks"]:
+        by_start[t["frames"][0]].append(t["vz"])
+    return dict(table=table, chosen=chosen, frame_dt=frame_dt, max_disp=max_disp, block_frames=blk,
                 height=hb, height_stats=hstat, expansion_ratio=hstat["mean"] / static_height,
                 expansion_ratio_max=hstat["max"] / static_height,
-                diameter_stats=bootstrap(per[dthr]["diameter"], n_boot),
-                aspect_stats=bootstrap(per[chosen["aspect_ratio"]]["aspect"], n_boot),
-                velocity_stats=bootstrap(per[vthr]["velocity"], n_boot),
+                diameter_stats=bootstrap(per[dthr]["diameter"], n_boot) | block_bootstrap(
+                    [[b["diameter"] for b in bs] for bs in per[dthr]["frames"]], blk, n_boot),
+                aspect_stats=bootstrap(per[athr]["aspect"], n_boot) | block_bootstrap(
+                    [[b["aspect"] for b in bs] for bs in per[athr]["frames"]], blk, n_boot),
+                velocity_stats=bootstrap(per[vthr]["velocity"], n_boot) | block_bootstrap(by_start, blk, n_boot),
                 x=xc, radial_whole=pw, radial_static=ps, diameter_height=diameter_vs_height(db, nz * dz),
                 velocity_classes=velocity_classes(per[vthr]["tracks"], n_boot),
                 mid_void=mid, freq=f, power=p, f_peak=f_peak, f_resolution=1.0 / (nt * frame_dt),
@@ -344,7 +352,8 @@ def write(res: dict, out: pathlib.Path, title: str = "") -> dict:
     for name, st in (("bed_height [m]", res["height_stats"]), ("bubble_diameter [m]", res["diameter_stats"]),
                      ("aspect_ratio [-]", res["aspect_stats"]), ("bubble_velocity [m/s]", res["velocity_stats"])):
         summary.append(dict(metric=name, threshold=res["chosen"][name.split(" ")[0]], **st))
-    skeys = ["metric", "threshold", "n", "mean", "mean_lo", "mean_hi", "max", "std", "cv"]
+    skeys = ["metric", "threshold", "n", "mean", "mean_lo", "mean_hi", "mean_lo_blocks", "mean_hi_blocks", "max",
+             "std", "cv"]
     _write_csv(out / "metrics.csv", summary, skeys)
     radial = [dict(x=float(x), r=float(abs(x)), whole_bed=float(a), static_bed=float(b))
               for x, a, b in zip(res["x"], res["radial_whole"], res["radial_static"])]
@@ -358,6 +367,9 @@ def write(res: dict, out: pathlib.Path, title: str = "") -> dict:
           f"Frames: {len(res['times'])} at {1e3 * res['frame_dt']:.3g} ms; max displacement for tracking "
           f"{1e3 * res['max_disp']:.3g} mm; static height {1e3 * res['static_height']:.0f} mm.\n",
           "## Metrics at their chosen thresholds (lengths in m, velocities in m/s, 95% bootstrap intervals)\n",
+          "mean_lo, mean_hi: the study's interval, frames (bubbles, tracks) resampled one by one. mean_lo_blocks, "
+          f"mean_hi_blocks: blocks of {res['block_frames']} consecutive frames resampled (two integral times of the "
+          "bed height): the frames are correlated, so the study's interval is too narrow; compare runs with these.\n",
           _md(summary, skeys),
           f"Expansion ratio: mean {res['expansion_ratio']:.4g}, max {res['expansion_ratio_max']:.4g}. "
           f"Dominant frequency of the void fraction below the static height: {res['f_peak']:.4g} Hz (resolution "
@@ -370,6 +382,9 @@ def write(res: dict, out: pathlib.Path, title: str = "") -> dict:
     mfig.plot(res, out, title)
     hs, ds, vs = res["height_stats"], res["diameter_stats"], res["velocity_stats"]
     return dict(bed_height_mean=hs["mean"], bed_height_mean_lo=hs["mean_lo"], bed_height_mean_hi=hs["mean_hi"],
+                bed_height_mean_lo_blocks=hs["mean_lo_blocks"], bed_height_mean_hi_blocks=hs["mean_hi_blocks"],
+                bubble_diameter_mean_lo_blocks=ds["mean_lo_blocks"],
+                bubble_diameter_mean_hi_blocks=ds["mean_hi_blocks"],
                 bed_height_max=hs["max"], bed_height_std=hs["std"], expansion_ratio=res["expansion_ratio"],
                 bubble_diameter_mean=ds["mean"], bubble_diameter_mean_lo=ds["mean_lo"],
                 bubble_diameter_mean_hi=ds["mean_hi"], bubble_diameter_max=ds["max"], bubble_count=ds["n"],
@@ -416,9 +431,10 @@ def summarize(run_dir) -> dict:
     return figures
 
 
-COMPARE_KEYS = ("bed_height_mean", "bed_height_mean_lo", "bed_height_mean_hi", "bed_height_max", "expansion_ratio",
-                "bubble_diameter_mean", "bubble_diameter_max", "bubble_velocity_mean", "bubble_count",
-                "void_frequency")
+COMPARE_KEYS = ("bed_height_mean", "bed_height_mean_lo", "bed_height_mean_hi", "bed_height_mean_lo_blocks",
+                "bed_height_mean_hi_blocks", "bed_height_max", "expansion_ratio", "bubble_diameter_mean",
+                "bubble_diameter_mean_lo_blocks", "bubble_diameter_mean_hi_blocks", "bubble_diameter_max",
+                "bubble_velocity_mean", "bubble_count", "void_frequency")  # _blocks: the intervals to compare by
 
 
 def compare(sweep_dir) -> pathlib.Path:
@@ -441,6 +457,9 @@ def compare(sweep_dir) -> pathlib.Path:
         table.append(row)
     keys = list(dict.fromkeys(k for r in table for k in r))
     _write_csv(d / "mri_compare.csv", table, keys)
-    (d / "mri_compare.md").write_text("# MRI figures of the sweep's cases (m, m/s, Hz)\n\n" + _md(table, keys))
+    (d / "mri_compare.md").write_text("# MRI figures of the sweep's cases (m, m/s, Hz)\n\nIntervals: 95%; _lo, _hi "
+                                      "the study's (frames resampled one by one), _lo_blocks, _hi_blocks over blocks "
+                                      "of correlated frames: cases differ where these do not overlap.\n\n"
+                                      + _md(table, keys))
     mfig.compare(table, swept, [src for src, _ in SOURCES], d / "mri_compare.png")
     return d / "mri_compare.md"

@@ -24,6 +24,7 @@ import shutil
 import h5py
 import numpy as np
 
+from ..analysis.mri_stats import integral_time
 from ..outputs import out_folder
 from . import commands, paths as pathmod, recurrence as rec
 from .database import load
@@ -207,7 +208,7 @@ def mixing_checks(conts: list, t_r: np.ndarray, M_paths: np.ndarray, key: str = 
 def bed_checks(conts: list, summ: dict, horizon: float, dt: float) -> dict:
     """Bed height mean, std, frequency and the radial void profile along the paths against the continuations:
     these test only that the database is representative."""
-    tau = float(np.mean([_integral_time(c["heights"], dt) for c in conts]))
+    tau = float(np.mean([integral_time(c["heights"], dt) for c in conts]))
     n_eff = max(1.0, horizon / (2 * tau))  # independent samples of the bed height in the horizon
     std = float(np.mean([c["bed_std"] for c in conts]))
     mean = float(np.mean([c["bed_mean"] for c in conts]))
@@ -368,17 +369,6 @@ def validate(preset: str, t0: float, t1: float, t2: float, out: str | None, n_pa
 def _diameter(A: pathlib.Path) -> float:
     with h5py.File(A / "checkpoint.h5", "r") as f:
         return float(2.0 * np.mean(f["grains/radius"][...]))
-
-
-def _integral_time(x: np.ndarray, dt: float) -> float:
-    """Integral time scale [s] of a series: the autocorrelation summed up to its first zero."""
-    y = x - x.mean()
-    if not np.any(y):
-        return dt
-    ac = np.correlate(y, y, "full")[y.size - 1:] / (y.var() * y.size)
-    zero = np.nonzero(ac <= 0)[0]
-    end = int(zero[0]) if zero.size else ac.size
-    return float(ac[:end].sum() * dt)
 
 
 def _plot(od, rep, t_r, paths, tf, full):
