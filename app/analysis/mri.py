@@ -46,7 +46,7 @@ from scipy import ndimage, signal, stats
 
 from . import mri_figures as mfig
 from .mri_stats import (CI_MAX, CV_MAX, GRADIENT_MIN, KS_MIN, N_BOOT, THRESHOLDS, V_RANGE,  # noqa: F401
-                        block_bootstrap, block_frames, bootstrap, choose_threshold, gradient_quality)
+                        block_bootstrap, block_frames, bootstrap, choose_threshold, gradient_quality, halves)
 
 MIN_AREA = 4.0e-6         # m^2: smallest bubble (the study's 4 mm^2)
 OCCUPANCY = 0.10          # a row with more solid pixels than this fraction is inside the bed
@@ -227,6 +227,7 @@ def analyse(void: np.ndarray, times: np.ndarray, dx: float, dz: float, mask: np.
     for t in per[vthr]["tracks"]:
         by_start[t["frames"][0]].append(t["vz"])
     return dict(table=table, chosen=chosen, frame_dt=frame_dt, max_disp=max_disp, block_frames=blk,
+                height_halves=halves(hb, blk),
                 height=hb, height_stats=hstat, expansion_ratio=hstat["mean"] / static_height,
                 expansion_ratio_max=hstat["max"] / static_height,
                 diameter_stats=bootstrap(per[dthr]["diameter"], n_boot) | block_bootstrap(
@@ -371,6 +372,7 @@ def write(res: dict, out: pathlib.Path, title: str = "") -> dict:
           f"mean_hi_blocks: blocks of {res['block_frames']} consecutive frames resampled (two integral times of the "
           "bed height): the frames are correlated, so the study's interval is too narrow; compare runs with these.\n",
           _md(summary, skeys),
+          _steady_line(res["height_halves"]),
           f"Expansion ratio: mean {res['expansion_ratio']:.4g}, max {res['expansion_ratio_max']:.4g}. "
           f"Dominant frequency of the void fraction below the static height: {res['f_peak']:.4g} Hz (resolution "
           f"{res['f_resolution']:.3g} Hz: the record's length sets it).\n",
@@ -388,8 +390,22 @@ def write(res: dict, out: pathlib.Path, title: str = "") -> dict:
                 bed_height_max=hs["max"], bed_height_std=hs["std"], expansion_ratio=res["expansion_ratio"],
                 bubble_diameter_mean=ds["mean"], bubble_diameter_mean_lo=ds["mean_lo"],
                 bubble_diameter_mean_hi=ds["mean_hi"], bubble_diameter_max=ds["max"], bubble_count=ds["n"],
+                bed_height_halves_z_mean=res["height_halves"]["z"]["mean"],
+                bed_height_halves_z_std=res["height_halves"]["z"]["std"],
                 bubble_velocity_mean=vs["mean"], bubble_tracks=vs["n"], aspect_ratio_mean=res["aspect_stats"]["mean"],
                 void_frequency=res["f_peak"])
+
+
+def _steady_line(hv: dict) -> str:
+    """The window's steadiness in words: the bed height's halves, mean and std with block errors, and z."""
+    a, b, z = hv["first"], hv["second"], hv["z"]
+    words = ("too short to tell: fewer than two blocks a half" if not all(map(math.isfinite, z.values())) else
+             "more than 3 standard errors apart: the window is not yet the bed's steady state, so start it later "
+             "(output.average_from) or run longer" if max(z.values()) > 3 else "within 3 standard errors")
+    return (f"Steady? The bed height over the window's first and second halves: mean {1e3 * a['mean']:.2f} "
+            f"({1e3 * a['mean_se']:.2f}) and {1e3 * b['mean']:.2f} ({1e3 * b['mean_se']:.2f}) mm, std "
+            f"{1e3 * a['std']:.2f} ({1e3 * a['std_se']:.2f}) and {1e3 * b['std']:.2f} ({1e3 * b['std_se']:.2f}) mm "
+            f"(block standard errors): z {z['mean']:.1f} (mean), {z['std']:.1f} (std), {words}.\n")
 
 
 SOURCES = (("mri", "synthetic MRI (grain volume on the MRI pixels)"),

@@ -60,6 +60,35 @@ def block_frames(series) -> int:
     return max(1, int(round(2.0 * integral_time(series))))
 
 
+def block_stats(h: np.ndarray, block: int) -> dict:
+    """Mean and std of a series [its unit] with their standard errors from ``block``-sample blocks (each about two
+    integral times, so the blocks are near independent): the mean's from the block means, the std's from the blocks'
+    mean squared deviation (its variance's error, halved by the square root). NaN errors under two blocks."""
+    h = np.asarray(h, np.float64)
+    nb = h.size // max(1, block)
+    m, sd = float(h.mean()), float(h.std())
+    if nb < 2:
+        return {"mean": m, "mean_se": float("nan"), "std": sd, "std_se": float("nan"), "blocks": nb}
+    b = h[:nb * block].reshape(nb, block)
+    sq = ((b - m) ** 2).mean(1)
+    return {"mean": m, "mean_se": float(b.mean(1).std(ddof=1) / np.sqrt(nb)), "std": sd,
+            "std_se": float(sq.std(ddof=1) / np.sqrt(nb) / (2 * max(sd, 1e-300))), "blocks": nb}
+
+
+def z_between(a: dict, b: dict) -> dict:
+    """How many standard errors apart two :func:`block_stats` are, in mean and in std (NaN without errors)."""
+    return {k: float(abs(a[k] - b[k]) / np.hypot(a[f"{k}_se"], b[f"{k}_se"])) for k in ("mean", "std")}
+
+
+def halves(series, block: int) -> dict:
+    """Is a record steady? :func:`block_stats` of its first and second halves and how far apart they lie (``z``, in
+    standard errors). A drift of several standard errors means the window's statistics are not yet the bed's
+    steady ones (validation/rcfd/README.md, 000: a bed whose spread fell from 8.6 to 5.3 mm over 8 s)."""
+    x = np.asarray(series, np.float64)
+    first, second = block_stats(x[:x.size // 2], block), block_stats(x[x.size // 2:], block)
+    return {"first": first, "second": second, "z": z_between(first, second)}
+
+
 def block_bootstrap(groups, block: int, n_boot: int = N_BOOT, seed: int = 0) -> dict:
     """95% interval of the mean of the values in ``groups`` (one array of values a frame, in frame order) over
     n_boot moving-block resamples: blocks of ``block`` consecutive frames drawn with replacement until they hold as

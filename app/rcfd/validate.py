@@ -24,7 +24,7 @@ import shutil
 import h5py
 import numpy as np
 
-from ..analysis.mri_stats import integral_time
+from ..analysis.mri_stats import block_stats, integral_time, z_between
 from ..outputs import out_folder
 from . import commands, paths as pathmod, recurrence as rec
 from .database import load
@@ -230,21 +230,6 @@ def bed_checks(conts: list, summ: dict, horizon: float, dt: float) -> dict:
             "radial_void_profile_rms": {"tests": rep, "rms_difference": rms, "tolerance": 0.02, "pass": rms <= 0.02}}
 
 
-def block_stats(h: np.ndarray, block: int) -> dict:
-    """Mean and std of a series [its unit] with their standard errors from ``block``-sample blocks (each about two
-    integral times, so the blocks are near independent): the mean's from the block means, the std's from the blocks'
-    mean squared deviation (its variance's error, halved by the square root). NaN errors under two blocks."""
-    h = np.asarray(h, np.float64)
-    nb = h.size // max(1, block)
-    m, sd = float(h.mean()), float(h.std())
-    if nb < 2:
-        return {"mean": m, "mean_se": float("nan"), "std": sd, "std_se": float("nan"), "blocks": nb}
-    b = h[:nb * block].reshape(nb, block)
-    sq = ((b - m) ** 2).mean(1)
-    return {"mean": m, "mean_se": float(b.mean(1).std(ddof=1) / np.sqrt(nb)), "std": sd,
-            "std_se": float(sq.std(ddof=1) / np.sqrt(nb) / (2 * max(sd, 1e-300))), "blocks": nb}
-
-
 def steadiness(database: np.ndarray, conts: list, block: int, z_max: float = 3.0) -> dict:
     """Is the bed steady from t0 to t2? The bed height's mean and spread over the database's halves and over the
     continuations (their errors pooled as independent runs); ``drift`` names those of the continuations that lie more
@@ -262,7 +247,7 @@ def steadiness(database: np.ndarray, conts: list, block: int, z_max: float = 3.0
     rows["continuations"].update({f"{k}_se": float(np.sqrt(np.sum([e[f"{k}_se"] ** 2 for e in each])) / n)
                                   for k in ("mean", "std")})
     d, c = rows["database"], rows["continuations"]
-    z = {k: abs(c[k] - d[k]) / np.hypot(c[f"{k}_se"], d[f"{k}_se"]) for k in ("mean", "std")}
+    z = z_between(c, d)
     return {"tests": "is the bed steady from t0 to t2 (bed height: the database against the continuations)",
             "rows": rows, "z": {k: float(v) for k, v in z.items()}, "block_samples": block,
             "drift": [k for k, v in z.items() if v > z_max]}
