@@ -574,6 +574,10 @@ def test_a_third_signal_ends_the_run_at_once_mid_step_and_the_last_checkpoint_re
             deadline = time.time() + 300
             while time.time() < deadline and "kernels ready" not in log.read_text():
                 time.sleep(0.1)
+            # the line is written between steps, a few ms before the next step's launch: a signal sent at once could
+            # land there on a loaded machine (CI saw it: the run stopped after that step, and the second signal
+            # found Python's default handler back, exit -2), so the signals wait until that step is under way
+            time.sleep(0.5)
             t0 = time.time()
             for _ in range(3):
                 p.send_signal(signal.SIGINT)
