@@ -4,8 +4,10 @@ from __future__ import annotations
 import pathlib
 import sys
 
+import h5py
 import numpy as np
 
+from .beds import load_bed
 from .config import ConfigError
 from .io import store
 
@@ -28,27 +30,16 @@ def pack_command(src: str, dst: str, resolution: float) -> int:
     if not dst_p.parent.is_dir():
         raise ConfigError("no such folder", str(dst_p.parent), "OUT", hint="make it first, or name a file in a "
                           "folder that exists")
+    grains = load_bed(src_p, "BED")  # its live grains, checked: finite positions and velocities, positive radii
+    with h5py.File(src_p, "r") as f:
+        t = float(f.attrs.get("time", 0.0))
     try:
-        grains, _, meta = store.read_checkpoint(src_p)
-        if grains is None or "position" not in grains or "radius" not in grains:
-            raise KeyError("no /grains/position and /grains/radius")
-    except (OSError, KeyError) as err:
-        why = err.args[0] if isinstance(err, KeyError) else \
-            "not an HDF5 file" if "signature not found" in str(err) else str(err)
-        raise ConfigError(f"cannot read grains from it: {why}", str(src_p), "BED",
-                          hint="give the bed.h5 or checkpoint.h5 written by an earlier fbed run") from None
-    alive = grains["alive"].astype(bool) if "alive" in grains else np.ones(len(grains["radius"]), bool)
-    x = np.asarray(grains["position"])[alive]
-    if not np.all(np.isfinite(x)):
-        raise ConfigError("a grain's position is not finite", str(src_p), "BED", hint="pack a bed from a good run")
-    try:
-        info = store.write_packed_bed(dst_p, x, np.asarray(grains["radius"])[alive], float(meta.get("time", 0.0)),
-                                      resolution, str(src_p))
+        info = store.write_packed_bed(dst_p, grains["position"], grains["radius"], t, resolution, str(src_p))
     except PermissionError as err:  # (a full disk is the CLI's exit 3, as for every writer)
         raise ConfigError(f"cannot write there ({err.strerror})", str(dst_p), "OUT",
                           hint="name a file in a folder you may write to") from None
-    speed = float(np.sqrt((np.asarray(grains["velocity"])[alive] ** 2).sum(1)).max()) if "velocity" in grains \
-        and alive.any() else 0.0
+    v = grains.get("velocity")
+    speed = float(np.sqrt((v ** 2).sum(1)).max()) if v is not None and len(v) else 0.0
     n = max(int(info["grains"]), 1)
     print(f"fbed: packed {info['grains']} grains into {dst_p}: {info['bytes'] / 1e6:.2f} MB, "
           f"{info['bytes'] / n:.2f} B a grain; positions to +-{0.5 * info['resolution']:.3g} m an axis, sizes exact; "

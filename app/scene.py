@@ -17,10 +17,10 @@ import pathlib
 
 import numpy as np
 
+from .beds import load_bed
 from .config import ConfigError, resolve_path
 from .config.derived import Derived, derive, periodic_axes, smoothing_passes
 from .config.schema import Config
-from .io import store
 from .io.store import available_memory
 from .schedule import InletSchedule
 from .sim import coupling, drag, geometry, runtime
@@ -102,41 +102,6 @@ def open_area(cfg: Config, walls: list, z: float) -> float:
     pts = np.stack([X, Y, np.full_like(X, z)], -1)
     frac = np.mean(geometry.vessel_clearance(walls, pts) > 0) if walls else 1.0
     return float(frac * (d.hi[0] - d.lo[0]) * (d.hi[1] - d.lo[1]))
-
-
-def load_bed(path: pathlib.Path) -> dict:
-    """The grains alive in an earlier run's bed.h5 or checkpoint.h5: position, velocity, radius and, with friction,
-    omega. A damaged or hand-made file (arrays of other lengths, a value not finite, a radius not positive) is
-    refused here, naming the first grain, not left to the guard to stop at t = 0 as unstable."""
-    if path.is_dir():  # (HDF5's own message was a dump of its read call's arguments)
-        inside = [n for n in ("bed.h5", "checkpoint.h5") if (path / n).is_file()]
-        raise ConfigError("is a folder, not a bed file", str(path), "particles.initial_state",
-                          hint=f"give {path / inside[0]}" if inside else "give the bed.h5 or checkpoint.h5 written "
-                          "by an earlier fbed run")
-    try:
-        grains, _, _ = store.read_checkpoint(path)
-        if grains is None:
-            raise KeyError("no /grains group")
-        out = {k: grains[k] for k in ("position", "velocity", "radius", "omega") if k in grains}
-        keep = grains["alive"].astype(bool) if "alive" in grains else np.ones(len(out["position"]), bool)
-    except (OSError, KeyError) as err:  # (HDF5's words for a file of another kind: "file signature not found")
-        why = err.args[0] if isinstance(err, KeyError) else \
-            "not an HDF5 file" if "signature not found" in str(err) else str(err)
-        raise ConfigError(f"cannot read grains from it: {why}", str(path), "particles.initial_state",
-                          hint="give the bed.h5 or checkpoint.h5 written by an earlier fbed run") from None
-    n = len(out["position"])
-    for k, v in {**out, "alive": keep}.items():
-        shape = (n,) if k in ("radius", "alive") else (n, 3)
-        bad = None if v.shape == shape else f"/grains/{k} has shape {v.shape}, not {shape}"
-        if bad is None:
-            wrong = ~np.isfinite(v.reshape(n, -1)).all(axis=1) | ((v <= 0) if k == "radius" else False)
-            if wrong.any():
-                bad = (f"/grains/{k} is {'not finite' if k != 'radius' else 'not finite and positive'} for "
-                       f"{int(wrong.sum())} grain(s) (the first: grain {int(np.flatnonzero(wrong)[0])})")
-        if bad:
-            raise ConfigError(f"cannot use the grains in it: {bad}", str(path), "particles.initial_state",
-                              hint="give the bed.h5 or checkpoint.h5 written by an earlier fbed run")
-    return {k: v[keep] for k, v in out.items()}
 
 
 def check_bed(cfg: Config, walls: list, d: Derived, bed: dict, path: pathlib.Path) -> None:
