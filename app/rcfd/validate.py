@@ -24,7 +24,7 @@ import shutil
 import h5py
 import numpy as np
 
-from ..analysis.mri_stats import block_stats, integral_time, z_between
+from ..analysis.mri_stats import block_stats, halves, integral_time, z_between
 from ..outputs import out_folder
 from . import commands, paths as pathmod, recurrence as rec
 from .database import load
@@ -238,9 +238,9 @@ def steadiness(database: np.ndarray, conts: list, block: int, z_max: float = 3.0
     A diagnostic, not a check: the errors come from the blocks, themselves uncertain, and a steady AR(1) bed of 3,000
     + 3 x 2,000 frames was flagged in 3-4 of 20-40 seeds (tests/test_rcfd.py); a spread falling from 8 to 5 mm was
     flagged in every one. rcfd_bubbling's 5 s database: z = 1.7 (mean), 2.9 (std), not flagged."""
-    half = database.size // 2
-    rows = {"database, first half": block_stats(database[:half], block),
-            "database, second half": block_stats(database[half:], block), "database": block_stats(database, block)}
+    hv = halves(database, block)
+    rows = {"database, first half": hv["first"], "database, second half": hv["second"],
+            "database": block_stats(database, block)}
     each = [block_stats(c, block) for c in conts]
     n = len(each)
     rows["continuations"] = {k: float(np.mean([e[k] for e in each])) for k in ("mean", "std")}
@@ -249,7 +249,7 @@ def steadiness(database: np.ndarray, conts: list, block: int, z_max: float = 3.0
     d, c = rows["database"], rows["continuations"]
     z = z_between(c, d)
     return {"tests": "is the bed steady from t0 to t2 (bed height: the database against the continuations)",
-            "rows": rows, "z": {k: float(v) for k, v in z.items()}, "block_samples": block,
+            "rows": rows, "z": z, "block_samples": block,
             "drift": [k for k, v in z.items() if v > z_max]}
 
 
