@@ -26,6 +26,7 @@ import sys
 
 from .config import ConfigError
 from .config.rules import mp4_name
+from .io.bedpack import RESOLUTION
 from .io.store import VERSION, DiskFull, disk_full_text
 
 
@@ -174,7 +175,7 @@ def _add_pack(sub) -> None:
                                    "positions. OUT serves as particles.initial_state.")
     k.add_argument("bed", help="a bed.h5 or checkpoint.h5 of an earlier run")
     k.add_argument("out", help="the packed bed to write (.h5)")
-    k.add_argument("--resolution", type=float, default=1.0e-7, help="position resolution [m] (a coordinate is off "
+    k.add_argument("--resolution", type=float, default=RESOLUTION, help="position resolution [m] (a coordinate is off "
                    "by at most half of it; raised where the bed spans more than 2^21 of it)")
 
 
