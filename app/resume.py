@@ -14,13 +14,15 @@ from . import config as cfgmod
 from .callbacks.progress import log
 from .config import ConfigError
 from .io.store import SPLIT_KEY
+from .provenance import code_id
 
 
 def prepared_state(cfg, preset_path: pathlib.Path, arch: str, runner, chain: tuple = ()) -> pathlib.Path:
     """The checkpoint of ``run.start_from``'s preparation preset: reused from the cache
-    (runs/prepared/<name>-<hash of its resolved config>/) when it holds a finished run,
+    (runs/prepared/<name>-<hash of its resolved config>-<fbed's code fingerprint>/) when it holds a finished run,
     else run there now. The hash covers the preparation's own chain, so editing any stage
-    reruns it and everything after it. ``runner``: ``app.run.run`` (given, so this module needs no import of the
+    reruns it and everything after it; the fingerprint (app.provenance) makes a bed prepared by other fbed code
+    be prepared again, not reused as this code's. ``runner``: ``app.run.run`` (given, so this module needs no import of the
     runner that imports it)."""
     prep = cfgmod.resolve_path(cfg, cfg.run.start_from)
     if not prep.exists():
@@ -33,7 +35,13 @@ def prepared_state(cfg, preset_path: pathlib.Path, arch: str, runner, chain: tup
     if prep_cfg.run.start_from:  # its own preparation's identity is part of its identity
         text += str(prepared_state(prep_cfg, prep, arch, runner, chain + (prep.resolve(),)))
     key = hashlib.sha1(text.encode()).hexdigest()[:10]
-    cache = pathlib.Path("runs") / "prepared" / f"{prep.stem}-{key}"
+    cache = pathlib.Path("runs") / "prepared" / f"{prep.stem}-{key}-{code_id()[:8]}"
+    older = [p for p in cache.parent.glob(f"{prep.stem}-{key}-*") if p != cache and (p / "checkpoint.h5").is_file()]
+    if older and not cache.exists():
+        last = max(older, key=lambda p: p.stat().st_mtime)
+        log(f"fbed: note: {last} holds {prep.name} as other fbed code prepared it; the code has changed since, so it "
+            f"is prepared again. To start from its grains anyway: --set particles.initial_state={last}/checkpoint.h5 "
+            "--set run.start_from=''")
     # one process prepares at a time (sweep cases start together): the others wait for it, then reuse its result
     locks = cache.parent / ".locks"
     locks.mkdir(parents=True, exist_ok=True)

@@ -6,7 +6,7 @@ run.h5
   /series/<name>                1-D, one entry per series sample (``time`` in s first)
   /particles/<k>/{time,position,velocity,radius}   snapshot k (k = 0, 1, ...)
   /particle_id                  each grain's index (0 .. n-1), for run.xdmf
-  attrs: fbed_version, preset, units (JSON: name -> unit)
+  attrs: fbed_version, fbed_code (app.provenance: the code that ran it), preset, units (JSON: name -> unit)
   /fields/<k>/{time,gas_velocity,pressure,void_fraction}  gas snapshot k: cell-centred
                                 interstitial velocity (nx,ny,nz,3) [m/s], pressure [Pa], gas fraction [-]
 checkpoint.h5 / bed.h5
@@ -15,7 +15,7 @@ checkpoint.h5 / bed.h5
   /particle_id                  each grain's index, for checkpoint.xdmf / bed.xdmf
   /parts/<name>/<array>         a recorder's own state at the checkpoint (checkpoint.h5 only; the rCFD probe's
                                 open frame: RcfdRecorder.saved), so a resumed run records what the run would have
-  attrs: time [s], step, config (the resolved TOML), fbed_version
+  attrs: time [s], step, config (the resolved TOML), fbed_version, fbed_code (the code that made the state)
   /grid/{points,hexahedra,open_volume}  the gas grid for run.xdmf (written once): cell corners [m],
                                 cells as 8 corner indices (VTK order), open volume fraction of each cell [-]
 Every write goes to a temporary file first and is renamed into place, so a crash
@@ -37,6 +37,7 @@ import h5py
 import numpy as np
 
 from . import bedpack
+from ..provenance import code_id
 
 VERSION = "0.1.0"
 #: a checkpoint's gas-group array of the adaptive fluid step: [pieces, peak, changes] (Simulation.gas_split ...)
@@ -177,7 +178,7 @@ def write_checkpoint(path: pathlib.Path, grains: dict | None, gas: dict | None, 
                 g.create_dataset(k, data=np.asarray(v))
         if grains is not None and "position" in grains:  # the grains' index, for checkpoint.xdmf
             f.create_dataset("particle_id", data=grain_ids(len(grains["position"])))
-        f.attrs.update(time=time, step=step, config=config_text, fbed_version=VERSION)
+        f.attrs.update(time=time, step=step, config=config_text, fbed_version=VERSION, fbed_code=code_id())
 
     _atomic_write(pathlib.Path(path), fill, _nbytes(grains, gas, *parts.values()) + len(config_text))
 
@@ -244,7 +245,7 @@ class RunFile:
         self.path = pathlib.Path(path)
         mode = "a" if resume_time is not None and self.path.exists() else "w"
         self.f = h5py.File(self.path, mode)
-        self.f.attrs.update(fbed_version=VERSION, preset=preset, units=json.dumps(SERIES_UNITS))
+        self.f.attrs.update(fbed_version=VERSION, fbed_code=code_id(), preset=preset, units=json.dumps(SERIES_UNITS))
         self.series = self.f.require_group("series")
         self.particles = self.f.require_group("particles")
         self._rows: list[dict] = []
