@@ -169,6 +169,33 @@ def test_block_intervals_allow_for_correlated_frames_where_the_studys_do_not():
     assert math.isnan(block_bootstrap([[], []], 1, 10)["mean_lo_blocks"])
 
 
+def test_velocity_per_size_class_has_block_intervals_of_its_own_tracks():
+    """Tracks of two size classes, one starting each frame: the 15 mm class rises at 0.4 m/s plus an AR(1) surge
+    correlated over ~20 frames (phi = 0.95), the 35 mm class at 0.8 m/s plus independent noise. The 15 mm class's
+    interval over blocks of frames is within a factor 2 of the mean's true standard error, where resampling tracks
+    one by one is under a quarter of it; the 35 mm class's block interval is its own (it covers 0.8 m/s, not the
+    two classes' mixture) and agrees with the one-by-one interval to 20%. Without the record's frames there is no
+    block interval (the earlier call)."""
+    from scipy.signal import lfilter
+
+    n, phi, sigma = 2000, 0.95, 0.05
+    rng = np.random.default_rng(3)
+    e = rng.standard_normal(n) * sigma * math.sqrt(1 - phi ** 2)
+    e[0] = rng.standard_normal() * sigma
+    surge = lfilter([1.0], [1.0, -phi], e)
+    tracks = [dict(frames=[k, k + 1], mean_diameter=0.015, vz=0.4 + surge[k]) for k in range(n)]
+    tracks += [dict(frames=[k, k + 1], mean_diameter=0.035, vz=0.8 + sigma * rng.standard_normal())
+               for k in range(0, n, 2)]
+    small, big = mri.velocity_classes(tracks, 4000, frames=n + 1, block=40)
+    assert (small["d_lo"], big["d_lo"]) == (0.010, 0.030) and (small["n"], big["n"]) == (n, n // 2)
+    true_se = sigma * math.sqrt((1 + phi) / (1 - phi) / n)
+    assert 0.5 <= (small["mean_hi_blocks"] - small["mean_lo_blocks"]) / (2 * 1.96 * true_se) <= 2.0
+    assert (small["mean_hi"] - small["mean_lo"]) / (2 * 1.96 * true_se) < 0.25
+    assert big["mean_lo_blocks"] < 0.8 < big["mean_hi_blocks"]
+    assert big["mean_hi_blocks"] - big["mean_lo_blocks"] == pytest.approx(big["mean_hi"] - big["mean_lo"], rel=0.2)
+    assert "mean_lo_blocks" not in mri.velocity_classes(tracks, 100)[0]
+
+
 def test_the_windows_halves_say_whether_the_bed_was_steady():
     """A bed height whose spread falls from 8 to 5 mm within the analysed window (3,000 frames, correlated over ~20)
     is named unsteady in 20 of 20 records; a steady one in at most 4 of 20 (the block errors are themselves

@@ -236,7 +236,7 @@ def analyse(void: np.ndarray, times: np.ndarray, dx: float, dz: float, mask: np.
                     [[b["aspect"] for b in bs] for bs in per[athr]["frames"]], blk, n_boot),
                 velocity_stats=bootstrap(per[vthr]["velocity"], n_boot) | block_bootstrap(by_start, blk, n_boot),
                 x=xc, radial_whole=pw, radial_static=ps, diameter_height=diameter_vs_height(db, nz * dz),
-                velocity_classes=velocity_classes(per[vthr]["tracks"], n_boot),
+                velocity_classes=velocity_classes(per[vthr]["tracks"], n_boot, nt, blk),
                 mid_void=mid, freq=f, power=p, f_peak=f_peak, f_resolution=1.0 / (nt * frame_dt),
                 static_height=static_height,
                 bubbles_at_diameter_threshold=db, times=times)
@@ -298,13 +298,21 @@ def diameter_vs_height(found: list[dict], top: float) -> list[dict]:
     return out
 
 
-def velocity_classes(tracks: list[dict], n_boot: int) -> list[dict]:
-    """Rise velocity (bootstrap statistics of vz) per bubble-diameter class of SIZE_CLASSES (track mean diameter)."""
+def velocity_classes(tracks: list[dict], n_boot: int, frames: int = 0, block: int = 1) -> list[dict]:
+    """Rise velocity (bootstrap statistics of vz) per bubble-diameter class of SIZE_CLASSES (track mean diameter);
+    with ``frames`` (the record's), also the interval over blocks of ``block`` frames (each track under the frame
+    it starts in), as for the metrics."""
     out = []
     for a, b in zip(SIZE_CLASSES[:-1], SIZE_CLASSES[1:]):
-        sel = [t["vz"] for t in tracks if a <= t["mean_diameter"] < b]
-        if sel:
-            out.append(dict(d_lo=a, d_hi=b, **bootstrap(sel, n_boot)))
+        mine = [t for t in tracks if a <= t["mean_diameter"] < b]
+        if mine:
+            row = dict(d_lo=a, d_hi=b, **bootstrap([t["vz"] for t in mine], n_boot))
+            if frames:
+                by_start = [[] for _ in range(frames)]
+                for t in mine:
+                    by_start[t["frames"][0]].append(t["vz"])
+                row |= block_bootstrap(by_start, block, n_boot)
+            out.append(row)
     return out
 
 
@@ -360,8 +368,8 @@ def write(res: dict, out: pathlib.Path, title: str = "") -> dict:
               for x, a, b in zip(res["x"], res["radial_whole"], res["radial_static"])]
     _write_csv(out / "radial.csv", radial, ["x", "r", "whole_bed", "static_bed"])
     _write_csv(out / "diameter_height.csv", res["diameter_height"], ["z_lo", "z_hi", "n", "mean", "max", "std"])
-    _write_csv(out / "velocity_classes.csv", res["velocity_classes"],
-               ["d_lo", "d_hi", "n", "mean", "mean_lo", "mean_hi", "std"])
+    vkeys = ["d_lo", "d_hi", "n", "mean", "mean_lo", "mean_hi", "mean_lo_blocks", "mean_hi_blocks", "std"]
+    _write_csv(out / "velocity_classes.csv", res["velocity_classes"], vkeys)
     _write_csv(out / "spectrum.csv", [dict(f=float(a), power=float(b)) for a, b in zip(res["freq"], res["power"])],
                ["f", "power"])
     md = [f"# MRI-style analysis{': ' + title if title else ''}\n",
@@ -377,8 +385,7 @@ def write(res: dict, out: pathlib.Path, title: str = "") -> dict:
           f"Dominant frequency of the void fraction below the static height: {res['f_peak']:.4g} Hz (resolution "
           f"{res['f_resolution']:.3g} Hz: the record's length sets it).\n",
           "## Every threshold\n", _md(res["table"], tkeys),
-          "## Velocity per bubble size class (m, m/s)\n",
-          _md(res["velocity_classes"], ["d_lo", "d_hi", "n", "mean", "mean_lo", "mean_hi", "std"]),
+          "## Velocity per bubble size class (m, m/s; intervals as above)\n", _md(res["velocity_classes"], vkeys),
           "## Diameter against height (m)\n", _md(res["diameter_height"], ["z_lo", "z_hi", "n", "mean", "max"])]
     (out / "tables.md").write_text("\n".join(md))
     mfig.plot(res, out, title)

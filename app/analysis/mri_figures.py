@@ -45,7 +45,8 @@ def plot(res: dict, out: pathlib.Path, title: str = "") -> None:
     vc = res["velocity_classes"]
     if vc:
         ax[1, 1].bar([f"{1e3 * r['d_lo']:.0f}-{1e3 * r['d_hi']:.0f}" for r in vc], [r["mean"] for r in vc],
-                     yerr=[[r["mean"] - r["mean_lo"] for r in vc], [r["mean_hi"] - r["mean"] for r in vc]])
+                     yerr=[[r["mean"] - r.get("mean_lo_blocks", r["mean_lo"]) for r in vc],
+                           [r.get("mean_hi_blocks", r["mean_hi"]) - r["mean"] for r in vc]])  # the honest interval
     ax[1, 1].set(xlabel="bubble diameter class [mm]", ylabel="rise velocity [m/s]", title="velocity per size class")
     ax[1, 2].semilogy(res["freq"][1:], res["power"][1:] + 1e-30, "k-")
     ax[1, 2].set(xlabel="f [Hz]", ylabel="power", title=f"void fraction below static height: {res['f_peak']:.3g} Hz")
