@@ -92,6 +92,9 @@ def restore(sim, scene, arrays, gas_arrays, meta, prepared: bool, resume_dir) ->
         sim.fresh = True
     if not resume_dir:
         return
+    if str(meta.get("fbed_code", code_id())) != code_id():  # (a checkpoint from before it was kept says nothing)
+        log(f"fbed: note: {ckpt} was written by other fbed code ({meta['fbed_code']}; this is {code_id()}): the run "
+            "goes on from it, but not bit for bit as the run would have gone on under the code that began it")
     if sim.flow is not None:
         if gas_arrays is None:
             raise ConfigError("the checkpoint holds no gas state", str(ckpt), "--resume",

@@ -310,6 +310,23 @@ def test_a_frame_of_another_shape_is_not_appended_to_a_record(tmp_path):
         assert f["mri/porosity"].shape == (1, 12, 24)
 
 
+def test_a_resume_under_other_code_says_so(done_run, tmp_path):
+    """A checkpoint keeps the fingerprint of the code that wrote it (app/provenance.py). A resume under other code
+    (fbed upgraded or edited between the legs) goes on, and says that the result is not the straight run's; under
+    the same code it says nothing of it."""
+    import shutil
+
+    d = tmp_path / "run"
+    shutil.copytree(done_run, d)
+    r = fbed("run", "--resume", d, "--set", "run.duration=0.006")
+    assert r.returncode == 0 and "other fbed code" not in r.stderr, r.stderr
+    with h5py.File(d / "checkpoint.h5", "r+") as f:
+        f.attrs["fbed_code"] = "0123456789ab"
+    r = fbed("run", "--resume", d, "--set", "run.duration=0.007")
+    assert r.returncode == 0, r.stderr
+    assert "was written by other fbed code (0123456789ab" in r.stderr and "not bit for bit" in r.stderr
+
+
 def test_a_run_whose_config_toml_was_deleted_resumes_from_its_checkpoints_config(done_run, tmp_path):
     """config.toml gone (deleted by hand, or a copy of the folder without it): the checkpoint holds the resolved
     config it was written with, so `--resume DIR` goes on from it, says so and writes config.toml again; the
