@@ -100,3 +100,31 @@ def test_viscous_launches_follow_the_last_step_and_a_shortfall_changes_nothing()
         for a, b in zip(other[2], every[2]):
             assert np.array_equal(a, b)
     assert sum(budget[1][1:]) < sum(every[1][1:]), (budget[1], every[1])
+
+
+def test_a_huge_viscous_sweep_cap_launches_what_the_sweeps_need():
+    """gas.max_viscous_sweeps = 1e9 (the schema allows it): the first step had launched every chunk up to the cap,
+    2.5e8 empty kernels, and the run never ended (found by running every schema key at its edges). Now the first
+    step launches FlowSolver.FIRST_LAUNCHES chunks and, when its sweeps outrun them, doubles them: the viscous bed
+    (10-13 sweeps a step) takes the steps it takes under the default cap of 40, to the bit, with as many launches."""
+    def run(cap):
+        s, _ = _bed_scene((8, 8, 12))
+        s = gas.FlowSolver(dataclasses.replace(s.config, mu=1e-2, max_viscous_sweeps=cap))
+        s.set_eps(np.where(np.arange(12) < 5, 0.45, 1.0)[None, None, :] * np.ones((8, 8, 12)))
+        s.set_beta(np.where(np.arange(12) < 5, 1.5e4, 0.0)[None, None, :] * np.ones((8, 8, 12)))
+        infos, more = [], []
+        with KernelCounter(_sim_modules()) as kc:
+            for _ in range(3):
+                kc.reset()
+                infos.append(s.step(DT))
+                more.append(sum(c for k, c in kc.by_kernel.items() if k.endswith("k_visc_more")))
+        return infos, more, [u.copy() for u in s.face_velocities()] + [s.pressure().copy()]
+
+    capped, huge = run(40), run(10 ** 9)
+    assert all(8 < i.viscous_sweeps < 40 for i in capped[0]), capped[0]
+    assert huge[0] == capped[0]
+    for a, b in zip(huge[2], capped[2]):
+        assert np.array_equal(a, b)
+    # the first step runs the solver twice (a throw-away step sets the initial pressure); later steps launch as
+    # many chunks as under the default cap
+    assert huge[1][0] <= 2 * gas.FlowSolver.FIRST_LAUNCHES and huge[1][1:] == capped[1][1:], (huge[1], capped[1])

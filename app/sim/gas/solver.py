@@ -323,11 +323,14 @@ class FlowSolver(SolverOutputs):
         rec = self._project(dt, 0, max_iter)
         while rec[12] > 0.5 and n_more < n_all:
             # the sweeps outran the launches: that round was void (k_build), the predictor goes on where it
-            # stopped, and the projection starts again, as if every launch had been made at first
+            # stopped, and the projection starts again, as if every launch had been made at first. The launches
+            # double each round, not all up to the cap at once (gas.max_viscous_sweeps = 1e9 had the host launch
+            # 2.5e8 empty kernels on the first step: a run that never ended)
             self.viscous_retries += 1
-            for _ in range(n_all - n_more):
+            extra = min(n_all - n_more, max(n_more, self.FIRST_LAUNCHES))
+            for _ in range(extra):
                 predictor.k_visc_more(*self._sweep_args, nmax, self.serial)
-            n_more = n_all
+            n_more += extra
             rec = self._project(dt, 0, max_iter)
         first = self.mg.info_from(rec[7:])
         iters = first.iterations
@@ -358,15 +361,20 @@ class FlowSolver(SolverOutputs):
     #: predictor.VISCOUS_CHUNK_MORE sweeps; None: every launch up to gas.max_viscous_sweeps, the sweeps stopping
     #: themselves on the device)
     VISCOUS_MARGIN: int | None = 2
+    #: launches of ``k_visc_more`` on the first step (no count yet), and the fewest added when a step's sweeps outrun
+    #: their launches: 16 reach 68 sweeps, past the default cap of 40 (so a default run launches every chunk at once)
+    FIRST_LAUNCHES = 16
 
     def _viscous_budget(self) -> int:
         """Launches of ``k_visc_more`` before the first look: enough for the last step's sweeps and
-        ``VISCOUS_MARGIN`` more (all of them on the first step). A launch past the sweeps' end does nothing on the
-        device but costs its host time and tasks (13 on CUDA); a step whose sweeps outrun the budget finds out at
-        its one read (the record), and launches the rest and projects again (``viscous_retries``): the same result,
+        ``VISCOUS_MARGIN`` more (``FIRST_LAUNCHES`` on the first step). A launch past the sweeps' end does nothing
+        on the device but costs its host time and tasks (13 on CUDA); a step whose sweeps outrun the budget finds out
+        at its one read (the record), and launches more and projects again (``viscous_retries``): the same result,
         at the cost of a void projection. The Verma grid: ~3 sweeps a step against a cap of 40, 9 launches."""
-        if self.VISCOUS_MARGIN is None or self._viscous_last is None:
-            return 1 << 30
+        if self.VISCOUS_MARGIN is None:
+            return 1 << 62
+        if self._viscous_last is None:
+            return self.FIRST_LAUNCHES
         want = self._viscous_last + self.VISCOUS_MARGIN - predictor.VISCOUS_CHUNK
         return max(0, -(-want // predictor.VISCOUS_CHUNK_MORE))
 
