@@ -77,6 +77,49 @@ def test_dt_above_limit_is_refused_and_forcing_accepts_it():
     assert d.dt == pytest.approx(1e-4)
 
 
+@pytest.mark.parametrize("dem", [{"dt_fraction": 0.2}, {"max_dt_fraction": 0.001}])
+def test_an_automatic_step_above_the_stable_fraction_names_dt_fraction_not_dt(dem):
+    """dem.dt = 0: the step is dt_fraction x the collision time, so the refusal names dem.dt_fraction and both
+    fractions (it had named dem.dt and said to lower it, while it was 0)."""
+    with pytest.raises(ConfigError) as err:
+        derive(cfg_of(dem=dem))
+    assert err.value.key == "dem.dt_fraction"
+    assert "dem.max_dt_fraction" in err.value.message and "lower dem.dt " not in str(err.value)
+    derive(cfg_of(dem={**dem, "force_dt": True}))  # forced: taken as given
+
+
+GAS = {"domain": {"lo": [-0.01, -0.01, 0.0], "hi": [0.01, 0.01, 0.04], "gravity": [0.0, 0.0, -9.81]},
+       "gas": {"cell_size": 0.005}, "boundary": {"bottom": {"kind": "velocity_inlet", "velocity": [0.0, 0.0, 0.1]},
+                                                 "top": {"kind": "pressure_outlet"}}}
+
+
+@pytest.mark.parametrize("changes, key, words", [
+    ({"gas": {"cell_size": 1e-300}}, "gas.cell_size", "gas cells, beyond"),  # had been a ZeroDivisionError
+    ({"gas": {"cell_size": 1e-9}}, "gas.cell_size", "more than 1e+15 gas cells"),  # 1.6e22 cells
+    ({"gas": {"tolerance": 0.01}}, "gas.tolerance", "guard.max_divergence = 0.001"),
+    ({"gas": {"tolerance": 1e-4}, "guard": {"max_divergence": 1e-5}}, "gas.tolerance", "above"),
+    ({"gas": {"density": 1e-300}}, "gas.density", ""),  # below the schema's 1e-6 kg/m^3
+    ({"gas": {"viscosity": 1e30}}, "gas.viscosity", ""),  # above its 1e6 Pa s
+    ({"run": {"step": 1e-300}}, "run.step", ""),  # below its 1e-12 s
+])
+def test_values_the_kernels_cannot_run_are_refused_naming_the_key(changes, key, words):
+    """Found by running every schema key at its range's edges (stop 54): each of these ran into a traceback, a
+    non-finite gas at the first step blamed on other knobs, or a guard stop naming gas.max_iterations."""
+    base = merged(**GAS)
+    for section, table in changes.items():
+        base.setdefault(section, {}).update(table)
+    with pytest.raises(ConfigError) as err:
+        load_text(toml_text(base), "t.toml")
+    assert err.value.key == key and words in str(err.value), str(err.value)
+
+
+def test_the_edges_just_inside_the_new_bounds_load():
+    base = merged(**GAS)
+    for changes in ({"gas": {"tolerance": 1e-3, "density": 1e-6, "viscosity": 1e6}},
+                    {"run": {"step": 1e-12, "duration": 1e-11}}, {"gas": {"cell_size": 0.0025}}):
+        load_text(toml_text({**base, **{k: {**base.get(k, {}), **v} for k, v in changes.items()}}), "t.toml")
+
+
 def test_a_dem_step_below_a_ten_thousandth_of_the_collision_time_is_refused():
     """dem.dt = 1e-12 s ran settle.toml at 2 x 10^9 substeps a step: a step no Ctrl-C or SIGTERM interrupts (the
     signal is taken between steps), under a note calling 2,500 grains a 'GPU-sized scene'. dem.dt_fraction's lower

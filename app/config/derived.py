@@ -62,6 +62,11 @@ def smoothing_passes(width: float, h: float) -> int:
     return int(math.ceil(width ** 2 / (2 * SMOOTH_ALPHA * h * h)))
 
 
+#: the most gas cells a preset may ask for: a petabyte at a byte a cell. The memory check (app/scene.py) names the
+#: real limit, far below it; this bound only keeps absurd values from the arithmetic of the checks before it
+#: (1e-300 m cells: 1e896 cells, and a ZeroDivisionError traceback from the smoothing's passes)
+MAX_GAS_CELLS = 10 ** 15
+
 #: the most pixels of one synthetic MRI image, 1024 x 1024 (4 MB a frame in run.h5): 0.25 mm pixels over the poppy
 #: bed's 96 mm x 600 mm are 921,600 (the MRI's are 4 mm x 8 mm, 1,800); 1 um pixels in fluidize's column asked Taichi
 #: for an array beyond int32 indices, and the host's memory ran out
@@ -266,6 +271,12 @@ def derive(cfg: Config, file: str = "<preset>") -> Derived:
     t_short = min(tc, tcw)
     limit = cfg.dem.max_dt_fraction * t_short
     dt = cfg.dem.dt if cfg.dem.dt > 0 else cfg.dem.dt_fraction * t_short
+    if dt > limit and not cfg.dem.force_dt and cfg.dem.dt == 0:  # (the hint had said to lower dem.dt, which was 0)
+        raise ConfigError(
+            f"dem.dt_fraction = {cfg.dem.dt_fraction:g} of the {t_short:.3g} s collision time (at {v:g} m/s) is above "
+            f"dem.max_dt_fraction = {cfg.dem.max_dt_fraction:g}, the stable limit", file, "dem.dt_fraction",
+            hint=f"dem.dt_fraction at most {cfg.dem.max_dt_fraction:g} (default 0.05), or set dem.force_dt = true to "
+                 "run anyway")
     if dt > limit and not cfg.dem.force_dt:
         raise ConfigError(
             f"{dt:.3g} s is above the stable limit {limit:.3g} s "

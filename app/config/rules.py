@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pathlib
 
-from .derived import (MAX_SMOOTHING_PASSES, MRI_MAX_PIXELS, mri_pixels, periodic_axes, plane_name,
+from .derived import (MAX_GAS_CELLS, MAX_SMOOTHING_PASSES, MRI_MAX_PIXELS, mri_pixels, periodic_axes, plane_name,
                       smoothing_passes)
 from .errors import ConfigError, find_line
 from .schema import Config
@@ -77,11 +77,20 @@ def _gas_and_boundaries(cfg: Config, fail) -> None:
              "drag law is written (di_felice, beetstra, tang and koch_hill drag came out NaN; stokes gave none)",
              "give the gas's viscosity, e.g. 1.8e-5 Pa s for air at 20 C")
     if g is not None:
+        cells = 1
         for a in range(3):
             n = (d.hi[a] - d.lo[a]) / g.cell_size
             if abs(n - round(n)) > 1e-6 * max(1.0, n) or round(n) < 1:
                 fail("gas", "cell_size", f"the domain's {'xyz'[a]} extent {d.hi[a] - d.lo[a]:g} m is not a whole "
                      f"number of {g.cell_size:g} m cells ({n:.4g})", "adjust gas.cell_size or domain.lo / domain.hi")
+            cells *= round(n)
+        if cells > MAX_GAS_CELLS:
+            fail("gas", "cell_size", f"{g.cell_size:g} m cells make more than {MAX_GAS_CELLS:.0e} gas cells, beyond "
+                 "any machine's memory", "cells of a few grain diameters (the presets: 3-10 mm)")
+        if g.tolerance > cfg.guard.max_divergence:  # (the guard blamed gas.max_iterations at the first check)
+            fail("gas", "tolerance", f"the pressure solve stops at a relative divergence of {g.tolerance:g}, above "
+                 f"guard.max_divergence = {cfg.guard.max_divergence:g}, for which the guard stops the run",
+                 f"gas.tolerance at most {cfg.guard.max_divergence:g} (default 1e-6), or raise guard.max_divergence")
         _periodic_pairs(cfg, fail)
         _smoothing(cfg, fail)
         for face, b in dict(cfg.boundary).items():

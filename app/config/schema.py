@@ -33,7 +33,9 @@ class RunConfig:
                        "or one that starts from a prepared state runs up to it; rounded up to a whole number of "
                        "run.step, with a note)", lo=0.0, lo_open=True)
     step: float = spec(1.0e-3, unit="s", doc="coupling step: the fluid step when the scene has gas; in DEM-only "
-                       "scenes the interval at which callbacks (output, guard, progress) are checked", lo=0.0, lo_open=True, hi=1.0)
+                       "scenes the interval at which callbacks (output, guard, progress) are checked (at least 1e-12 "
+                       "s: float32 kernels then hold the gas's 1/dt; 1e-300 s made the gas non-finite at its first "
+                       "step)", lo=1.0e-12, hi=1.0)
     name: str = spec("", doc="run name stamped on outputs (default: the preset file's name)")
     seed: int = spec(0, doc="random seed for filling and size sampling", lo=0)
     start_from: str = spec("", doc="a preparation preset (path relative to this one): it is run first, or its "
@@ -231,9 +233,11 @@ class GuardConfig:
 class GasConfig:
     cell_size: float = spec(unit="m", doc="gas cell size h (the domain must be a whole number of cells)",
                             lo=0.0, lo_open=True)
-    density: float = spec(1.2, unit="kg/m^3", doc="gas density", lo=0.0, lo_open=True, hi=1.0e4)
+    density: float = spec(1.2, unit="kg/m^3", doc="gas density (at least 1e-6: float32 kernels lose a lighter gas; "
+                          "1e-300 made it non-finite at the first step)", lo=1.0e-6, hi=1.0e4)
     viscosity: float = spec(1.8e-5, unit="Pa s", doc="gas dynamic viscosity (0, inviscid, only "
-                            "without grains: the drag laws divide by it)", lo=0.0)
+                            "without grains: the drag laws divide by it; at most 1e6, a pitch: 1e30 overflowed "
+                            "float32)", lo=0.0, hi=1.0e6)
     pressure_form: str = spec("gas", doc="who carries the pressure gradient: 'gas' (Model B) or 'shared' "
                               "(Model A: grains feel -V grad p too)", choices=("gas", "shared"))
     convection: str = spec("maccormack", doc="convection scheme (semi-Lagrangian, with the MacCormack "
