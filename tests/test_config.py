@@ -101,6 +101,14 @@ GAS = {"domain": {"lo": [-0.01, -0.01, 0.0], "hi": [0.01, 0.01, 0.04], "gravity"
     ({"gas": {"density": 1e-300}}, "gas.density", ""),  # below the schema's 1e-6 kg/m^3
     ({"gas": {"viscosity": 1e30}}, "gas.viscosity", ""),  # above its 1e6 Pa s
     ({"run": {"step": 1e-300}}, "run.step", ""),  # below its 1e-12 s
+    ({"boundary": {"bottom": {"kind": "velocity_inlet", "velocity": [0.0, 0.0, 1e6]}}}, "boundary.z-",
+     "blows at 1e+06 m/s, above guard.max_gas_speed = 300"),
+    ({"boundary": {"bottom": {"kind": "velocity_inlet", "velocity": [0.0, 0.0, 1.0],
+                              "schedule": [[0.0, 0.0], [0.001, 1e9]]}}}, "boundary.z-", "schedule's largest fraction"),
+    ({"boundary": {"bottom": {"kind": "velocity_inlet", "velocity": [0.0, 0.0, 1.0], "jet_radius": 0.003,
+                              "jet_velocity": [0.0, 0.0, 60.0]}}, "guard": {"max_gas_speed": 50.0}}, "boundary.z-",
+     "jet_velocity blows at 60 m/s"),
+    ({"probes": {"rcfd_from": 0.0, "rcfd_interval": 5e-4}}, "probes.rcfd_interval", "shorter than run.step"),
 ])
 def test_values_the_kernels_cannot_run_are_refused_naming_the_key(changes, key, words):
     """Found by running every schema key at its range's edges (stop 54): each of these ran into a traceback, a
@@ -116,7 +124,10 @@ def test_values_the_kernels_cannot_run_are_refused_naming_the_key(changes, key, 
 def test_the_edges_just_inside_the_new_bounds_load():
     base = merged(**GAS)
     for changes in ({"gas": {"tolerance": 1e-3, "density": 1e-6, "viscosity": 1e6}},
-                    {"run": {"step": 1e-12, "duration": 1e-11}}, {"gas": {"cell_size": 0.0025}}):
+                    {"run": {"step": 1e-12, "duration": 1e-11}}, {"gas": {"cell_size": 0.0025}},
+                    {"boundary": {"bottom": {"kind": "velocity_inlet", "velocity": [0.0, 0.0, 1.0], "jet_radius": 0.003,
+                                             "jet_velocity": [0.0, 0.0, 300.0]}}},  # at the guard's limit
+                    {"probes": {"rcfd_from": 0.0, "rcfd_interval": 1e-3}}):
         load_text(toml_text({**base, **{k: {**base.get(k, {}), **v} for k, v in changes.items()}}), "t.toml")
 
 

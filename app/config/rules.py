@@ -1,6 +1,7 @@
 """Rules that involve more than one key (each names the key to change)."""
 from __future__ import annotations
 
+import math
 import pathlib
 
 from .derived import (MAX_GAS_CELLS, MAX_SMOOTHING_PASSES, MRI_MAX_PIXELS, mri_pixels, periodic_axes, plane_name,
@@ -67,6 +68,9 @@ def _rcfd(cfg: Config, fail) -> None:
                  f"({'xyz'[axis]} {lo:g}..{hi:g} m)", "give a value inside it, e.g. 'x<0' for the half x < 0")
         if cfg.gas is None or cfg.particles is None:
             fail("probes", "rcfd_from", "rCFD frames need both grains and gas", "set probes.rcfd_from = -1")
+        if pr.rcfd_interval < cfg.run.step * (1 - 1e-9):  # (0.5 ms in 1 ms steps had made 1 ms frames, silently)
+            fail("probes", "rcfd_interval", f"shorter than run.step ({cfg.run.step:g} s): a frame is a whole number "
+                 "of fluid steps", f"probes.rcfd_interval a multiple of {cfg.run.step:g} s (the default: 0.005)")
 
 
 def _gas_and_boundaries(cfg: Config, fail) -> None:
@@ -95,6 +99,7 @@ def _gas_and_boundaries(cfg: Config, fail) -> None:
         _smoothing(cfg, fail)
         for face, b in dict(cfg.boundary).items():
             _boundary_face(face, b, fail)
+            _inlet_speed(face, b, cfg.guard.max_gas_speed, fail)
         _gas_way_out(dict(cfg.boundary), fail)
     else:
         for face, b in cfg.boundary:  # without gas only periodic faces mean something (the grains wrap)
@@ -146,6 +151,23 @@ def _gas_way_out(faces: dict, fail) -> None:
         fail("boundary", face, "gas is blown in through velocity inlets and let out nowhere: no face is a "
              "pressure_outlet, and the incompressible gas has no solution",
              "add one, e.g. top = { kind = \"pressure_outlet\" } (0 Pa: the atmosphere)")
+
+
+def _inlet_speed(face: str, b, most: float, fail) -> None:
+    """An inlet or jet faster than guard.max_gas_speed: the guard would stop the run as it opens, blaming the gas
+    step (inlets of 1e6 m/s, a schedule's fraction of 1e9, a 1e5 m/s jet: found by running the keys at their edges).
+    The gas there moves at least at the superficial speed given."""
+    if b.kind != "velocity_inlet":
+        return
+    peak = max([abs(f) for _, f in b.schedule] or [1.0])
+    blows = [(math.hypot(*b.velocity) * peak, "velocity" + (" x the schedule's largest fraction" if b.schedule else ""))]
+    if b.jet_radius > 0:
+        blows.append((math.hypot(*b.jet_velocity), "jet_velocity"))
+    speed, what = max(blows)
+    if speed > most:
+        fail("boundary", face, f"its {what} blows at {speed:.4g} m/s, above guard.max_gas_speed = {most:g} m/s: the "
+             "guard would stop the run as the inlet opens", "correct the inlet, or raise guard.max_gas_speed above "
+             "it if such speeds are meant (the default 300 m/s serves jets of 50-100 m/s)")
 
 
 def _boundary_face(face: str, b, fail) -> None:
