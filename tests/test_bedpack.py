@@ -116,6 +116,9 @@ def test_fbed_pack_writes_a_bed_and_refuses_bad_input_naming_it(tmp_path):
                           ((tmp_path / "bed.h5", tmp_path / "bed.h5"), ("OUT is BED itself",)),
                           ((tmp_path / "bed.h5", tmp_path), ("is a folder, not a file", "bed.h5")),
                           ((tmp_path / "bed.h5", tmp_path / "o.h5", "--resolution", "-1"), ("--resolution",)),
+                          # coarser than 1% of the 1 mm grains (1e9 m had packed every grain onto one point)
+                          ((tmp_path / "bed.h5", tmp_path / "o.h5", "--resolution", "1.1e-5"),
+                           ("--resolution", "0.011 of the smallest grain", "at most 0.01 of it, 1e-05 m")),
                           ((ROOT / "README.md", tmp_path / "o.h5"), ("README.md", "not an HDF5 file"))]:
         r = fbed("pack", *args)
         assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr

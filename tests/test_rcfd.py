@@ -105,6 +105,18 @@ def test_paths_respect_their_bounds_and_reproduce_from_the_seed():
     assert par.l_min < L.mean() <= par.l_mean + 3 * L.std() / np.sqrt(L.size)
 
 
+def test_a_database_shorter_than_its_exclusion_window_says_to_record_longer():
+    """12 frames, a window of 29 states (half a period longer than the record): no jump is possible, and the error
+    says what to change, a longer database (its earlier words, "lower the window", named no knob: the window is
+    derived from the bed's period)."""
+    b0, b1, succ = linear_database(12)
+    R = np.ones((13, 13))
+    np.fill_diagonal(R, 0)
+    with pytest.raises(ValueError, match=r"window \(29 states.*among its 13: record a database several"):
+        pm.jump_targets(R, b0, succ, pm.PathParams(l_min=1, l_mean=2, window=29))
+    assert (pm.jump_targets(R, b0, succ, pm.PathParams(l_min=1, l_mean=2, window=6))[0] >= 0).any()
+
+
 def test_shift_operator_columns_sum_to_one_and_move_the_volume():
     rng = np.random.default_rng(2)
     n = 50

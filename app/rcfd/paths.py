@@ -71,8 +71,9 @@ def jump_targets(R: np.ndarray, b0: np.ndarray, successor: np.ndarray, params: P
         i = int(np.argmin(r))
         target[s], value[s] = cand_frame[ok][i], r[i]
     if (target < 0).all():
-        raise ValueError(f"the exclusion window ({params.window} states) leaves no state to jump to: "
-                         "record a longer database or lower the window")
+        raise ValueError(f"the exclusion window ({params.window} states: half the bed's period, or a twentieth of "
+                         f"the database) leaves no state to jump to among its {n_states}: record a database several "
+                         "of the bed's periods long (probes.rcfd_from earlier, or run.duration later)")
     return target, value
 
 
