@@ -69,6 +69,26 @@ def test_one_gas_step_reads_one_value_back():
     assert [u.shape for u in s.face_velocities()] == [s.grid.face_shape(a) for a in range(3)]
 
 
+def _viscous_bed(**changes):
+    """A viscous bed (mu = 1e-2 Pa s: 10-13 sweeps a step) on 8 x 8 x 12 cells, the bed in the lower 5 layers."""
+    s, _ = _bed_scene((8, 8, 12))
+    s = gas.FlowSolver(dataclasses.replace(s.config, mu=1e-2, **changes))
+    s.set_eps(np.where(np.arange(12) < 5, 0.45, 1.0)[None, None, :] * np.ones((8, 8, 12)))
+    s.set_beta(np.where(np.arange(12) < 5, 1.5e4, 0.0)[None, None, :] * np.ones((8, 8, 12)))
+    return s
+
+
+def _viscous_steps(s, n):
+    """n steps: their StepInfos, the k_visc_more launches of each, and the final velocities and pressure."""
+    infos, more = [], []
+    with KernelCounter(_sim_modules()) as kc:
+        for _ in range(n):
+            kc.reset()
+            infos.append(s.step(DT))
+            more.append(sum(c for k, c in kc.by_kernel.items() if k.endswith("k_visc_more")))
+    return infos, more, [u.copy() for u in s.face_velocities()] + [s.pressure().copy()]
+
+
 def test_viscous_launches_follow_the_last_step_and_a_shortfall_changes_nothing():
     """The viscous sweeps stop themselves on the device; the host launches the later chunks only as far as the
     last step's count and a margin (FlowSolver.VISCOUS_MARGIN), not to gas.max_viscous_sweeps. When a step's
@@ -77,19 +97,9 @@ def test_viscous_launches_follow_the_last_step_and_a_shortfall_changes_nothing()
     10-13 sweeps a step, 3 chunks) run with every launch, with the margin, and with a margin so short that every
     step outruns it: the same velocities, pressures and step figures; the margin launches fewer chunks (counted)."""
     def run(margin):
-        s, _ = _bed_scene((8, 8, 12))
-        cfg = s.config
-        s = gas.FlowSolver(dataclasses.replace(cfg, mu=1e-2))
-        s.set_eps(np.where(np.arange(12) < 5, 0.45, 1.0)[None, None, :] * np.ones((8, 8, 12)))
-        s.set_beta(np.where(np.arange(12) < 5, 1.5e4, 0.0)[None, None, :] * np.ones((8, 8, 12)))
+        s = _viscous_bed()
         s.VISCOUS_MARGIN = margin
-        infos, more = [], []
-        with KernelCounter(_sim_modules()) as kc:
-            for _ in range(4):
-                kc.reset()
-                infos.append(s.step(DT))
-                more.append(sum(c for k, c in kc.by_kernel.items() if k.endswith("k_visc_more")))
-        state = [u.copy() for u in s.face_velocities()] + [s.pressure().copy()]
+        infos, more, state = _viscous_steps(s, 4)
         return infos, more, state, s.viscous_retries
 
     every, budget, short = run(None), run(2), run(-20)
@@ -107,20 +117,7 @@ def test_a_huge_viscous_sweep_cap_launches_what_the_sweeps_need():
     2.5e8 empty kernels, and the run never ended (found by running every schema key at its edges). Now the first
     step launches FlowSolver.FIRST_LAUNCHES chunks and, when its sweeps outrun them, doubles them: the viscous bed
     (10-13 sweeps a step) takes the steps it takes under the default cap of 40, to the bit, with as many launches."""
-    def run(cap):
-        s, _ = _bed_scene((8, 8, 12))
-        s = gas.FlowSolver(dataclasses.replace(s.config, mu=1e-2, max_viscous_sweeps=cap))
-        s.set_eps(np.where(np.arange(12) < 5, 0.45, 1.0)[None, None, :] * np.ones((8, 8, 12)))
-        s.set_beta(np.where(np.arange(12) < 5, 1.5e4, 0.0)[None, None, :] * np.ones((8, 8, 12)))
-        infos, more = [], []
-        with KernelCounter(_sim_modules()) as kc:
-            for _ in range(3):
-                kc.reset()
-                infos.append(s.step(DT))
-                more.append(sum(c for k, c in kc.by_kernel.items() if k.endswith("k_visc_more")))
-        return infos, more, [u.copy() for u in s.face_velocities()] + [s.pressure().copy()]
-
-    capped, huge = run(40), run(10 ** 9)
+    capped, huge = (_viscous_steps(_viscous_bed(max_viscous_sweeps=cap), 3) for cap in (40, 10 ** 9))
     assert all(8 < i.viscous_sweeps < 40 for i in capped[0]), capped[0]
     assert huge[0] == capped[0]
     for a, b in zip(huge[2], capped[2]):
