@@ -318,6 +318,8 @@ def test_a_resume_under_other_code_says_so(done_run, tmp_path):
 
     d = tmp_path / "run"
     shutil.copytree(done_run, d)
+    with h5py.File(d / "checkpoint.h5", "r") as f:  # the run's summary names the same code as its checkpoint
+        assert json.loads((d / "summary.json").read_text())["fbed_code"] == f.attrs["fbed_code"]
     r = fbed("run", "--resume", d, "--set", "run.duration=0.006")
     assert r.returncode == 0 and "other fbed code" not in r.stderr, r.stderr
     with h5py.File(d / "checkpoint.h5", "r+") as f:

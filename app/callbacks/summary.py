@@ -7,6 +7,7 @@ from ..scene import device_bytes
 from ..sim import runtime
 from ..sim.fields import bytes_per_grain
 from ..postprocess import post_process
+from ..provenance import code_id
 from .writers import DEM_SERIES, GAS_SERIES, write_xdmf
 
 UNITS = {"time": "s", "wall_time": "s", "dem_dt": "s", "collision_time": "s", "rayleigh_time": "s",
@@ -32,7 +33,8 @@ class Summary:
         rate = 1.0 / max(sim.wall_elapsed, 1e-9)
         out = {"preset": self.name, "status": status, "message": message, "arch": self.arch,
                "precision": cfg.run.precision, "time": sim.time, "steps": sim.step_count,
-               "duration": cfg.run.duration, "wall_time": wall, "steps_per_s": steps_here * rate}
+               "duration": cfg.run.duration, "wall_time": wall, "steps_per_s": steps_here * rate,
+               "fbed_version": store.VERSION, "fbed_code": code_id()}  # the code that ran it (app/provenance.py)
         if sim.dem is not None:
             out.update({"grains": scene.n, "dem_dt": der.dt, "substeps_per_step": der.substeps,
                         "collision_time": der.collision_time, "rayleigh_time": der.rayleigh_time,
