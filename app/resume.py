@@ -22,8 +22,8 @@ def prepared_state(cfg, preset_path: pathlib.Path, arch: str, runner, chain: tup
     (runs/prepared/<name>-<hash of its resolved config>-<fbed's code fingerprint>/) when it holds a finished run,
     else run there now. The hash covers the preparation's own chain, so editing any stage
     reruns it and everything after it; the fingerprint (app.provenance) makes a bed prepared by other fbed code
-    be prepared again, not reused as this code's. ``runner``: ``app.run.run`` (given, so this module needs no import of the
-    runner that imports it)."""
+    be prepared again, not reused as this code's. ``runner``: ``app.run.run`` (given, so this module needs no
+    import of the runner that imports it)."""
     prep = cfgmod.resolve_path(cfg, cfg.run.start_from)
     if not prep.exists():
         raise ConfigError("preparation preset not found", str(prep), "run.start_from",

@@ -160,7 +160,8 @@ def _inlet_speed(face: str, b, most: float, fail) -> None:
     if b.kind != "velocity_inlet":
         return
     peak = max([abs(f) for _, f in b.schedule] or [1.0])
-    blows = [(math.hypot(*b.velocity) * peak, "velocity" + (" x the schedule's largest fraction" if b.schedule else ""))]
+    scaled = " x the schedule's largest fraction" if b.schedule else ""
+    blows = [(math.hypot(*b.velocity) * peak, "velocity" + scaled)]
     if b.jet_radius > 0:
         blows.append((math.hypot(*b.jet_velocity), "jet_velocity"))
     speed, what = max(blows)
