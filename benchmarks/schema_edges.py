@@ -23,7 +23,6 @@ import argparse
 import dataclasses
 import json
 import pathlib
-import platform
 import subprocess
 import sys
 import tempfile
@@ -32,6 +31,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from app.bench.common import append_results, machine_line  # noqa: E402
 from app.config import schema  # noqa: E402
 
 SECTIONS = {"run": schema.RunConfig, "particles": schema.ParticlesConfig, "vessel": schema.VesselConfig,
@@ -125,6 +125,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "EDGES.md"))
     a = ap.parse_args(argv)
     todo = cases(a.only)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     with tempfile.TemporaryDirectory() as tmp:
         work = pathlib.Path(tmp)
         preset = work / "edges.toml"
@@ -140,13 +141,12 @@ def main(argv=None) -> int:
                 first = f"{rows[i]['rc']}: {rows[i]['message'][:150]}"
                 rows[i] = run_case(case, preset, work, 3 * a.timeout) | {"retried": first}
                 print(f"{rows[i]['outcome']:9s} {rows[i]['case']} (retried alone; first exit {first})", flush=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     failed = [r for r in rows if r["outcome"] == "FAILED"]
     counts = {k: sum(r["outcome"] == k for r in rows) for k in ("finished", "refused", "stopped", "FAILED")}
     md = [f"# Preset keys at their edges (`benchmarks/schema_edges.py`)\n",
-          f"{time.strftime('%Y-%m-%d')}, commit {commit}, {platform.processor() or platform.machine()} "
-          f"({len(rows)} cases, {a.jobs} at a time, one thread each), presets/fluidize.toml cut to 300 grains and "
-          f"4 steps. " + ", ".join(f"{v} {k}" for k, v in counts.items()) + ".\n",
+          f"{time.strftime('%Y-%m-%d')}, commit {commit} (at the start), {machine_line('cpu')}; {len(rows)} cases, "
+          f"{a.jobs} at a time, one thread each, presets/fluidize.toml cut to 300 grains and 4 steps. "
+          + ", ".join(f"{v} {k}" for k, v in counts.items()) + ".\n",
           "Contract: finished (exit 0), refused naming a key (exit 2) or stopped by the guard naming a knob "
           "(exit 3); never a traceback, a kill or a hang (FAILED). Stops are for review (a rule could refuse the "
           "value up front).\n", "| case | outcome | exit | wall [s] | message |", "|---|---|---|---|---|"]
@@ -155,6 +155,8 @@ def main(argv=None) -> int:
         again = f" (retried alone; first exit {r['retried']})" if r.get("retried") else ""
         md.append(f"| `{r['case']}` | {r['outcome']}{again} | {r['rc']} | {r['wall_s']} | {msg} |")
     pathlib.Path(a.out).write_text("\n".join(md) + "\n")
+    append_results("Preset keys at their edges (benchmarks/schema_edges.py; the table in benchmarks/EDGES.md)",
+                   [{"cases": len(rows), **counts, "wall_s": round(sum(r["wall_s"] for r in rows), 1)}], "cpu")
     print(f"{counts}; table in {a.out}")
     return 1 if failed else 0
 
