@@ -223,9 +223,6 @@ def analyse(void: np.ndarray, times: np.ndarray, dx: float, dz: float, mask: np.
     blk = block_frames(hb)  # the frames are correlated: intervals also over blocks of frames (block_bootstrap)
     hstat = bootstrap(hb, n_boot) | block_bootstrap([[h] for h in hb], blk, n_boot)
     athr = chosen["aspect_ratio"]
-    by_start = [[] for _ in range(nt)]  # each track's velocity under the frame it starts in
-    for t in per[vthr]["tracks"]:
-        by_start[t["frames"][0]].append(t["vz"])
     return dict(table=table, chosen=chosen, frame_dt=frame_dt, max_disp=max_disp, block_frames=blk,
                 height_halves=halves(hb, blk),
                 height=hb, height_stats=hstat, expansion_ratio=hstat["mean"] / static_height,
@@ -234,7 +231,8 @@ def analyse(void: np.ndarray, times: np.ndarray, dx: float, dz: float, mask: np.
                     [[b["diameter"] for b in bs] for bs in per[dthr]["frames"]], blk, n_boot),
                 aspect_stats=bootstrap(per[athr]["aspect"], n_boot) | block_bootstrap(
                     [[b["aspect"] for b in bs] for bs in per[athr]["frames"]], blk, n_boot),
-                velocity_stats=bootstrap(per[vthr]["velocity"], n_boot) | block_bootstrap(by_start, blk, n_boot),
+                velocity_stats=bootstrap(per[vthr]["velocity"], n_boot) | block_bootstrap(
+                    _by_start(per[vthr]["tracks"], nt), blk, n_boot),
                 x=xc, radial_whole=pw, radial_static=ps, diameter_height=diameter_vs_height(db, nz * dz),
                 velocity_classes=velocity_classes(per[vthr]["tracks"], n_boot, nt, blk),
                 mid_void=mid, freq=f, power=p, f_peak=f_peak, f_resolution=1.0 / (nt * frame_dt),
@@ -308,11 +306,17 @@ def velocity_classes(tracks: list[dict], n_boot: int, frames: int = 0, block: in
         if mine:
             row = dict(d_lo=a, d_hi=b, **bootstrap([t["vz"] for t in mine], n_boot))
             if frames:
-                by_start = [[] for _ in range(frames)]
-                for t in mine:
-                    by_start[t["frames"][0]].append(t["vz"])
-                row |= block_bootstrap(by_start, block, n_boot)
+                row |= block_bootstrap(_by_start(mine, frames), block, n_boot)
             out.append(row)
+    return out
+
+
+def _by_start(tracks: list[dict], frames: int) -> list[list[float]]:
+    """Each track's rise velocity under the frame it starts in (``frames`` lists, one a frame: block_bootstrap's
+    groups)."""
+    out = [[] for _ in range(frames)]
+    for t in tracks:
+        out[t["frames"][0]].append(t["vz"])
     return out
 
 
