@@ -51,7 +51,8 @@ def _attach(sim, scene, name, out_dir, runfile, config_text, renderer, viewer, r
     """The run's callbacks, in the order they fire: guard, series, snapshots, gas fields, probes, video,
     checkpoints (simulated and wall time), progress. Returns (final outputs, series' bed measures, video frames)."""
     cfg, o, dem, flow = scene.cfg, scene.cfg.output, sim.dem, sim.flow
-    guard = Guard.of(cfg, scene.derived, dem.masses() if dem is not None else None)
+    grains = (dem.masses(), dem.radii()) if dem is not None else (None, None)  # [kg], [m]: the energy floor
+    guard = Guard.of(cfg, scene.derived, *grains)
     series = Series(runfile, BedMeasures(scene, flow, dem) if sim.coupler is not None else None)
     writers = [(GrainSnapshots(runfile, dem), o.particles_interval)] if dem is not None else []
     writers += [(GasFields(runfile, flow), cfg.gas.fields_interval)] if flow is not None else []

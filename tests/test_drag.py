@@ -150,3 +150,28 @@ def test_kernel_per_grain_volume_at_eps_one_is_finite_and_positive():
     run(drag.law_of("wen_yu"))
     assert out[None] == pytest.approx(drag.per_grain_volume("wen_yu", 1.0, 1e-3, D, RHO, MU, phi=0.0), rel=1e-10)
     assert out[None] > 0
+
+
+def test_terminal_slip_is_stokes_settling_and_schiller_naumanns_by_an_independent_root():
+    """A lone grain hangs where drag balances weight less buoyancy: Stokes' law gives
+    w = (rho_p - rho_g) g d^2 / (18 mu) exactly; Schiller-Naumann's is checked against the bench's brentq root
+    of the same balance (app/bench/gas_cases.py, written apart) at Re 0.005-460, to 1e-9 relative."""
+    from app.bench.gas_cases import MU as MU_AIR, RHO_G, G, schiller_naumann_terminal
+
+    d = np.array([1e-5, 1e-4, 1e-3])
+    w = drag.terminal_slip("stokes", d, 2500.0, RHO_G, MU_AIR, G)
+    np.testing.assert_allclose(w, (2500.0 - RHO_G) * G * d ** 2 / (18 * MU_AIR), rtol=1e-9)
+    w = drag.terminal_slip("schiller_naumann", d, 2500.0, RHO_G, MU_AIR, G)
+    np.testing.assert_allclose(w, [schiller_naumann_terminal(x, 2500.0) for x in d], rtol=1e-9)
+    assert RHO_G * 1e-3 * w[-1] / MU_AIR > 300  # the largest is well inside the inertial range
+
+
+@pytest.mark.parametrize("law", list(drag.LAWS))
+def test_terminal_slip_balances_the_weight_by_every_law_and_is_zero_without_weight(law):
+    d = np.array([1e-5, 2e-3])
+    w = drag.terminal_slip(law, d, 1000.0, RHO, MU, 9.81)
+    force = drag.per_grain_volume(law, 1.0, w, d, RHO, MU, phi=0.0) * w
+    np.testing.assert_allclose(force, (1000.0 - RHO) * 9.81, rtol=1e-9)
+    assert w[0] < w[1]
+    assert not drag.terminal_slip(law, d, 1000.0, RHO, MU, 0.0).any()   # no gravity: any gas carries it
+    assert not drag.terminal_slip(law, d, 1.0, RHO, MU, 9.81).any()     # lighter than the gas

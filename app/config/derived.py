@@ -221,6 +221,16 @@ def periodic_axes(cfg: Config) -> tuple[bool, bool, bool]:
                  for ax in "xyz")
 
 
+def inlet_peak_speeds(face) -> tuple[float, float]:
+    """A [boundary] face's fastest superficial speeds [m/s]: (its uniform velocity times the schedule's largest
+    fraction, its jet's); (0, 0) for a face that is not a velocity inlet."""
+    if face.kind != "velocity_inlet":
+        return 0.0, 0.0
+    peak = max([abs(f) for _, f in face.schedule] or [1.0])
+    jet = math.hypot(*face.jet_velocity) if face.jet_radius > 0 else 0.0
+    return math.hypot(*face.velocity) * peak, jet
+
+
 def size_distribution(cfg: Config) -> tuple[tuple[float, ...], tuple[float, ...]]:
     """Size classes and number fractions; mass fractions are converted (n_k ~ f_k / d_k^3)."""
     p = cfg.particles

@@ -1,11 +1,10 @@
 """Rules that involve more than one key (each names the key to change)."""
 from __future__ import annotations
 
-import math
 import pathlib
 
-from .derived import (MAX_GAS_CELLS, MAX_SMOOTHING_PASSES, MRI_MAX_PIXELS, mri_pixels, periodic_axes, plane_name,
-                      smoothing_passes)
+from .derived import (MAX_GAS_CELLS, MAX_SMOOTHING_PASSES, MRI_MAX_PIXELS, inlet_peak_speeds, mri_pixels,
+                      periodic_axes, plane_name, smoothing_passes)
 from .errors import ConfigError, find_line
 from .schema import Config
 
@@ -159,12 +158,9 @@ def _inlet_speed(face: str, b, most: float, fail) -> None:
     The gas there moves at least at the superficial speed given."""
     if b.kind != "velocity_inlet":
         return
-    peak = max([abs(f) for _, f in b.schedule] or [1.0])
+    uniform, jet = inlet_peak_speeds(b)
     scaled = " x the schedule's largest fraction" if b.schedule else ""
-    blows = [(math.hypot(*b.velocity) * peak, "velocity" + scaled)]
-    if b.jet_radius > 0:
-        blows.append((math.hypot(*b.jet_velocity), "jet_velocity"))
-    speed, what = max(blows)
+    speed, what = max((uniform, "velocity" + scaled), (jet, "jet_velocity"))
     if speed > most:
         fail("boundary", face, f"its {what} blows at {speed:.4g} m/s, above guard.max_gas_speed = {most:g} m/s: the "
              "guard would stop the run as the inlet opens", "correct the inlet, or raise guard.max_gas_speed above "

@@ -222,7 +222,9 @@ class GuardConfig:
                                  lo_open=True)
     max_energy_growth: float = spec(1.0e3, doc="stop when the grains' kinetic energy grows more than this factor "
                                     "from one guard check to the next (measured from at least the energy of every "
-                                    "grain moving at sqrt(g d): from rest any factor is physical). Measured per check: "
+                                    "grain moving at sqrt(g d), or at the speed the inlet's gas carries it, its "
+                                    "superficial speed less the grain's terminal slip, where faster: from rest any "
+                                    "factor is physical). Measured per check: "
                                     "forced DEM-step blow-ups 2.4e3-9.3e4x, a 100 m/s jet into a bed 30x (it runs "
                                     "on), grains started at 20% overlap 2.4e3x (stopped)", lo=1.0, lo_open=True)
     max_gas_speed: float = spec(300.0, unit="m/s", doc="stop when the gas moves faster than this anywhere (a gas "

@@ -199,6 +199,33 @@ def beta(law, eps, slip, diameter, gas_density, gas_viscosity) -> np.ndarray:
     return (1.0 - eps) * per_grain_volume(law, eps, slip, diameter, gas_density, gas_viscosity)
 
 
+def terminal_slip(law, diameter, grain_density: float, gas_density: float, gas_viscosity: float,
+                  gravity: float) -> np.ndarray:
+    """Slip speed [m/s] at which a lone grain (eps = 1) of each diameter [m] hangs in the gas by this law:
+    g(w) w = (rho_p - rho_g) |gravity| per unit grain volume (drag against weight less buoyancy), solved by
+    bisection to 1e-12 relative (each law's drag grows with the slip). 0 where the grain is no denser than the gas
+    or there is no gravity: any gas speed then carries it."""
+    d = np.atleast_1d(np.asarray(diameter, float))
+    weight = max(grain_density - gas_density, 0.0) * abs(gravity)  # [N/m^3]
+    if weight == 0.0:
+        return np.zeros_like(d)
+
+    def drag(w):
+        return per_grain_volume(law, 1.0, w, d, gas_density, gas_viscosity, phi=0.0) * w
+
+    lo, hi = np.zeros_like(d), np.full_like(d, 1e-6)
+    for _ in range(200):  # bracket: double until the drag outweighs the grain
+        short = drag(hi) < weight
+        if not short.any():
+            break
+        lo, hi = np.where(short, hi, lo), np.where(short, 2.0 * hi, hi)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        light = drag(mid) < weight
+        lo, hi = np.where(light, mid, lo), np.where(light, hi, mid)
+    return 0.5 * (lo + hi)
+
+
 @ti.func
 def per_grain_volume_func(law: ti.template(), eps, phi, w, d, rho, mu):
     """beta / phi inside a kernel (``law`` a compile-time Law); phi is the grain fraction, passed in."""
