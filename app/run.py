@@ -138,6 +138,7 @@ def _run(preset, overrides, out, arch, resume, overwrite, viewer) -> int:
         return EXIT_UNSTABLE
     summary = Summary(scene, name, used_arch, out_dir, int(meta["step"]) if meta else 0, renderer, video, bed)
     figures = summary.figures(sim, status, message, wall)
+    figures.update(final.guard.stop_times() if status == "unstable" else {})  # when it went wrong, not where it got
     if status == "disk_full":
         return stop_disk_full(out_dir, figures, final.disk_full[0])
     summary.write(figures, analyze=status in ("finished", "interrupted"))

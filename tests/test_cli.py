@@ -226,9 +226,12 @@ def test_guard_stops_an_unstable_run_and_keeps_readable_outputs(tmp_path):
     with h5py.File(out / "run.h5") as f:
         for name in f["series"]:
             assert np.all(np.isfinite(f["series"][name][...])), name
+    # the guard reads its rows a few steps behind the run: the summary says when it went wrong, and the last good row
+    assert s["last_good_time"] < s["unstable_at"] <= s["time"]
+    assert f"at t = {s['unstable_at']:.6g} s" in s["message"]
     with h5py.File(out / "checkpoint.h5") as f:  # the last good checkpoint is finite and earlier
         t_good = f.attrs["time"]
-        assert t_good < s["time"]
+        assert t_good <= s["last_good_time"]
         assert np.all(np.isfinite(f["grains/position"][...]))
     # the knob the guard names is turned, and the run goes on from that checkpoint (a resume refused dem.dt before:
     # the checkpoint it kept could not be used with the step it advised)

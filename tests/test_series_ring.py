@@ -109,3 +109,41 @@ def test_a_bad_row_still_on_the_device_when_the_run_ends_stops_it():
     Guard(max_overlap=0.5, max_speed=1e-9).attach(sim, 1e-3)
     with pytest.raises(Unstable, match=r"a grain moves at .* at t = 0.001 s"):
         sim.run()
+
+
+def test_the_rows_the_guard_judges_do_not_depend_on_the_log_rate():
+    """A headless log line read the current step's diagnostics as a row, and every row read reaches the guard: at a
+    fast log rate the guard judged more rows, and a bed started at 20% overlap was stopped at 1 ms on the overlap
+    instead of at 2 ms on its energy (the stress scene overlap_20pct, with output.log_interval 0.1 s or 5 s). A log
+    line now reads the gas itself: with or without one every step, the guard sees the rows of its own schedule
+    and the series', the same steps."""
+    from app.callbacks.progress import Progress
+
+    seen = {}
+    for logged in (False, True):
+        scene = Scene(load(FLUIDIZE, SMALL + ["run.duration=0.006", "output.series_interval=3e-3"]), str(FLUIDIZE))
+        sim = build_simulation(scene)
+        Guard(max_overlap=0.5, max_speed=100.0).attach(sim, 2e-3)
+        Series(Rows(), None).attach(sim, 3e-3)
+        steps = seen[logged] = []
+        sim.diagnostics_sinks.append(lambda d, steps=steps: steps.append(d["step"]))
+        if logged:
+            progress = Progress(sim, "log", 0.1)
+            progress.tty, progress.bar = False, None
+            sim.add(progress, 1e-3)  # a log line after every step
+        sim.run()
+        sim.flush_diagnostics()
+    assert seen[False] == [0, 2, 3, 4, 6]
+    assert seen[True] == seen[False]
+
+
+def test_only_the_guards_own_rows_move_its_energy_reference():
+    """A row read off the guard's schedule (a checkpoint on the wall clock's) is checked against the reference but
+    does not become it: otherwise where the reference sits, and so the verdict, would depend on the wall clock."""
+    from app.sim.simulation import Unstable
+
+    g = Guard(max_overlap=0.2, max_speed=100.0, max_energy_growth=100.0, energy_floor=1e-3, interval=2e-3)
+    g._energy_check(1e-3, 0.0, own=True)
+    g._energy_check(0.09, 3e-3, own=False)  # 90x: passes, an interval on, but not the guard's row
+    with pytest.raises(Unstable, match="grew 500x in 0.004 s"):
+        g._energy_check(0.5, 4e-3, own=True)  # 500x the reference at t = 0 (5.6x the wall-timed row's)

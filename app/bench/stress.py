@@ -158,6 +158,7 @@ def judge(s: Scene, rc: int | None, out: pathlib.Path, log: str, wall: float) ->
     summary = json.loads((out / "summary.json").read_text()) if (out / "summary.json").exists() else {}
     row["status"] = summary.get("status", "-")
     row["reached_s"] = summary.get("time")
+    row["unstable_at"] = summary.get("unstable_at", "")  # the guard reads rows a few steps behind the run
     row["message"] = summary.get("message", "")
     if (out / "run.h5").exists():
         with h5py.File(out / "run.h5", "r") as f:
@@ -229,7 +230,7 @@ def run_scene(s: Scene, out_dir: pathlib.Path, arch: str, limit: float) -> dict:
 
 
 def table(rows: list[dict]) -> str:
-    cols = ["scene", "what", "outcome", "reached_s", "wall_s", "grains_removed_top", "max_divergence", "ok",
+    cols = ["scene", "what", "outcome", "reached_s", "unstable_at", "wall_s", "grains_removed_top", "max_divergence", "ok",
             "message", "problems"]
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in rows:

@@ -58,7 +58,10 @@ class Guard:
         self.dt = dt
         self.dt_limit = dt_limit
         self.last_good_step = 0
+        self.last_good_time = 0.0  # [s]
+        self.failed_time: float | None = None  # [s] of the row that failed: the run reads rows a few steps behind
         self._checked = -1  # the step of the last row that passed
+        self._every = 1  # steps between the guard's own rows (attach): only those move the energy reference
 
     def attach(self, sim: Simulation, interval: float) -> None:
         """In a run: every diagnostics row read back passes the guard before any other sink (the series) gets
@@ -66,6 +69,7 @@ class Guard:
         the ring is read within ``sim.diag_rows`` steps, and at once before any guarded write)."""
         sim.diagnostics_sinks.insert(0, lambda d: self.check(d, sim))
         sim.add(lambda s: s.record_diagnostics(), interval, at_start=True)
+        self._every = sim.every(interval) if interval > 0 else 1
 
     @classmethod
     def of(cls, cfg, derived, masses=None, radii=None) -> "Guard":
@@ -141,10 +145,24 @@ class Guard:
         checked again."""
         if d["step"] <= self._checked:
             return
-        t = d["time"]
+        try:
+            self._check_row(d, sim, d["time"])
+        except Unstable:
+            self.failed_time = d["time"]
+            raise
+        self.last_good_step = self._checked = d["step"]
+        self.last_good_time = d["time"]
+
+    def stop_times(self) -> dict:
+        """For summary.json after a stop: the time of the row that failed and of the last that passed [s] (the run
+        itself went on to its next read of the rows, up to Simulation.diag_rows steps later)."""
+        if self.failed_time is None:
+            return {}
+        return {"unstable_at": self.failed_time, "last_good_time": self.last_good_time}
+
+    def _check_row(self, d: dict, sim: Simulation, t: float) -> None:
         self._gas_check(sim, d, t)
         if "non_finite" not in d:  # no grains in this scene
-            self.last_good_step = self._checked = d["step"]
             return
         if d["non_finite"] or not math.isfinite(d["kinetic_energy"]):
             raise Unstable(f"non-finite grain positions or velocities at t = {t:.6g} s: {self._advice()}")
@@ -154,15 +172,16 @@ class Guard:
         if d["max_speed"] > self.max_speed:
             raise Unstable(f"a grain moves at {d['max_speed']:.3g} m/s at t = {t:.6g} s (guard.max_speed = "
                            f"{self.max_speed:g} m/s; raise it if such speeds are real): {self._advice()}")
-        self._energy_check(d["kinetic_energy"], t)
+        self._energy_check(d["kinetic_energy"], t, d["step"] % self._every == 0)
         if through := d.get("grains_through_walls", 0):  # counted by the DEM as they leave: never missed
             raise Unstable(f"{through} grain{'s' * (through != 1)} passed through the vessel's walls (its floor, "
                            f"sides or lid) and left the domain by t = {t:.6g} s: {self._advice()}")
-        self.last_good_step = self._checked = d["step"]
 
-    def _energy_check(self, energy: float, t: float) -> None:
+    def _energy_check(self, energy: float, t: float, own: bool = True) -> None:
         """Stop when the kinetic energy grew more than max_energy_growth times since the reference check (one
-        to two guard intervals back; checks in between, from the writers, compare with the same reference)."""
+        to two guard intervals back; checks in between, from the writers, compare with the same reference).
+        Only the guard's ``own`` rows (on its schedule) become the reference, so which other rows were read (a
+        checkpoint on the wall clock's schedule) does not change the verdict."""
         if self._energy_ref is not None:
             t_ref, e_ref = self._energy_ref
             base = max(e_ref, self.energy_floor)
@@ -174,4 +193,5 @@ class Guard:
                     "the bed with the run's contacts. Raise guard.max_energy_growth if the growth is real")
             if t - t_ref < self.interval * (1.0 - 1e-9):
                 return
-        self._energy_ref = (t, energy)
+        if own:
+            self._energy_ref = (t, energy)

@@ -76,11 +76,12 @@ class Progress:
                             eta=f"ETA {_duration(eta)}" if eta is not None else "")
         elif self.first is not None:
             # log lines are what a long headless (GPU) run leaves: with gas, where its fastest cell is, so a run
-            # that later blows up, or carries a wall channel, shows where its gas was racing (one device read
-            # per line, every output.log_interval of wall time)
+            # that later blows up, or carries a wall channel, shows where its gas was racing (two device reads
+            # per line, every output.log_interval of wall time). Read from the gas itself, not as a diagnostics
+            # row: a row would reach the guard, whose verdict must not depend on the wall clock
             gas = ""
             if s.flow is not None:
-                gas = f"  gas {s.diagnostics()['gas_max_speed']:.3g} m/s{_fastest_cell(s.gas_fastest_cell())}"
+                gas = f"  gas {s.flow.gas_extremes()[0]:.3g} m/s{_fastest_cell(s.gas_fastest_cell())}"
             eta_text = f"ETA {_duration(eta)}" if eta is not None else "ETA ..."
             rate_text = f"{rate:.3g} st/s" if rate > 0 else "... st/s"
             log(f"t {s.time:.4g}/{s.duration:g} s  step {s.step_count}/{s.total_steps}  {rate_text}  "

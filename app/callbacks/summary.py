@@ -16,7 +16,7 @@ UNITS = {"time": "s", "wall_time": "s", "dem_dt": "s", "collision_time": "s", "r
          "gas_cell_size": "m", "gas_max_speed": "m/s", "steps_per_s": "1/s", "bed_weight_per_area": "Pa",
          "bed_area": "m^2",
          "mean_pressure_drop": "Pa", "mean_bed_height": "m", "pressure_drop_over_weight": "1", "average_from": "s",
-         "render_time": "s", "render_share": "1"}
+         "render_time": "s", "render_share": "1", "unstable_at": "s", "last_good_time": "s"}
 
 
 class Summary:
