@@ -230,8 +230,8 @@ def run_scene(s: Scene, out_dir: pathlib.Path, arch: str, limit: float) -> dict:
 
 
 def table(rows: list[dict]) -> str:
-    cols = ["scene", "what", "outcome", "reached_s", "unstable_at", "wall_s", "grains_removed_top", "max_divergence", "ok",
-            "message", "problems"]
+    cols = ["scene", "what", "outcome", "reached_s", "unstable_at", "wall_s", "grains_removed_top", "max_divergence",
+            "ok", "message", "problems"]
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in rows:
         vals = []
