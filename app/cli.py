@@ -14,7 +14,7 @@
     fbed rcfd analyze RUN_DIR         (recurrence plot, spectra, period of a run that recorded rcfd.h5)
     fbed rcfd run RUN_DIR --horizon T --paths N --seed S [--tag "x<0"]   (rCFD mixing along Markov paths)
     fbed rcfd validate PRESET --t0 A --t1 B --t2 C [--out DIR]   (rCFD against full continuations)
-    fbed pack BED OUT [--resolution R]   (a bed's positions and sizes in a few bytes a grain, for carrying)
+    fbed pack BED OUT [--resolution R] [--speed-resolution Q]   (a bed in a few bytes a grain, for carrying)
 
 Bad input (preset, key, unit, range, file) prints one clear message and exits with 2.
 """
@@ -168,15 +168,19 @@ def _add_rcfd(sub) -> None:
 
 
 def _add_pack(sub) -> None:
-    k = sub.add_parser("pack", help="pack a settled bed's positions and sizes into a small file",
+    k = sub.add_parser("pack", help="pack a bed's positions and sizes (and, moving, its speeds) into a small file",
                        description="Write BED's live grains (a bed.h5 or checkpoint.h5) as a packed bed: positions "
-                                   "rounded to --resolution, sizes exact, velocities, spins and contact history left "
-                                   "out (a bed at rest); about 5.5 B a grain at 0.1 um, against 12 for float32 "
-                                   "positions. OUT serves as particles.initial_state.")
+                                   "rounded to --resolution, sizes exact, velocities and spins kept to "
+                                   "--speed-resolution (else left out: a bed at rest), contact history left out; "
+                                   "about 5.5 B a grain at 0.1 um, against 12 for float32 positions. OUT serves as "
+                                   "particles.initial_state.")
     k.add_argument("bed", help="a bed.h5 or checkpoint.h5 of an earlier run")
     k.add_argument("out", help="the packed bed to write (.h5)")
     k.add_argument("--resolution", type=float, default=RESOLUTION, help="position resolution [m] (a coordinate is off "
                    "by at most half of it; raised where the bed spans more than 2^21 of it)")
+    k.add_argument("--speed-resolution", type=float, default=0.0, help="keep each grain's velocity and its spin's "
+                   "surface speed (omega x radius) to this [m/s] a component, to go on with a moving bed (default 0: "
+                   "left out, the bed restarts at rest)")
 
 
 #: the kinds of `fbed bench` each flag is read by (its dest -> kinds)
@@ -250,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
             return run(args.preset, args.overrides, out=args.out, arch=args.arch, viewer=ViewerController)
         if args.command == "pack":
             from .pack import pack_command  # (numpy and h5py: no Taichi)
-            return pack_command(args.bed, args.out, args.resolution)
+            return pack_command(args.bed, args.out, args.resolution, args.speed_resolution)
         if args.command == "bench":
             if args.kind == "accuracy":
                 from .bench.accuracy import accuracy, all_cases

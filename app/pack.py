@@ -18,13 +18,17 @@ from .io import bedpack, store
 COARSEST = 0.01
 
 
-def pack_command(src: str, dst: str, resolution: float) -> int:
-    """`fbed pack BED OUT`: the live grains of BED (a bed.h5 or checkpoint.h5, or a packed bed) packed into OUT;
-    says what was kept and what left out. Bad input is a ConfigError naming the file or flag."""
+def pack_command(src: str, dst: str, resolution: float, speed_resolution: float = 0.0) -> int:
+    """`fbed pack BED OUT`: the live grains of BED (a bed.h5 or checkpoint.h5, or a packed bed) packed into OUT,
+    with their velocities and spins where ``speed_resolution`` [m/s] > 0; says what was kept and what left out.
+    Bad input is a ConfigError naming the file or flag."""
     src_p, dst_p = pathlib.Path(src), pathlib.Path(dst)
     if not (resolution > 0 and np.isfinite(resolution)):
         raise ConfigError(f"--resolution must be a positive length in m, got {resolution:g}", "", "--resolution",
                           hint="e.g. --resolution 1e-7 (0.1 um)")
+    if not (speed_resolution >= 0 and np.isfinite(speed_resolution)):
+        raise ConfigError(f"--speed-resolution must be a speed in m/s, 0 or more, got {speed_resolution:g}", "",
+                          "--speed-resolution", hint="e.g. --speed-resolution 1e-3 (1 mm/s), or 0 for a bed at rest")
     if not src_p.is_file():
         raise ConfigError("no such file" if not src_p.exists() else "not a file", str(src_p), "BED",
                           hint="give the bed.h5 or checkpoint.h5 written by an earlier fbed run")
@@ -46,15 +50,21 @@ def pack_command(src: str, dst: str, resolution: float) -> int:
                                f"{bedpack.RESOLUTION:g} m)")
     with h5py.File(src_p, "r") as f:
         t = float(f.attrs.get("time", 0.0))
+    v = grains.get("velocity")
     try:
-        info = store.write_packed_bed(dst_p, grains["position"], grains["radius"], t, resolution, str(src_p))
+        info = store.write_packed_bed(dst_p, grains["position"], grains["radius"], t, resolution, str(src_p),
+                                      v, grains.get("omega"), speed_resolution)
     except PermissionError as err:  # (a full disk is the CLI's exit 3, as for every writer)
         raise ConfigError(f"cannot write there ({err.strerror})", str(dst_p), "OUT",
                           hint="name a file in a folder you may write to") from None
-    v = grains.get("velocity")
+    except ValueError as err:  # a speed beyond 2^52 steps of the resolution
+        raise ConfigError(str(err), str(src_p), "--speed-resolution", hint="a coarser --speed-resolution") from None
     speed = float(np.sqrt((v ** 2).sum(1)).max()) if v is not None and len(v) else 0.0
     n = max(int(info["grains"]), 1)
+    moving = (f"velocities (up to {speed:.3g} m/s) and spins' surface speeds to +-{0.5 * speed_resolution:.3g} m/s "
+              "a component; contact history left out" if speed_resolution > 0 else
+              f"velocities (up to {speed:.3g} m/s), spins and contact history left out")
     print(f"fbed: packed {info['grains']} grains into {dst_p}: {info['bytes'] / 1e6:.2f} MB, "
           f"{info['bytes'] / n:.2f} B a grain; positions to +-{0.5 * info['resolution']:.3g} m an axis, sizes exact; "
-          f"velocities (up to {speed:.3g} m/s), spins and contact history left out", file=sys.stderr)
+          f"{moving}", file=sys.stderr)
     return 0

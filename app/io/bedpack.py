@@ -11,8 +11,12 @@ grain for a million grains in the poppy bed's 96 mm x 130 mm at 0.1 um, 4.58 at 
 A coordinate is off by at most half the resolution.
 
 Kept: the positions [m] (to +-resolution/2 an axis) and the radii [m] (exactly: a radius is a class, unless the bed
-has more than 65,535 sizes, when each grain's float32 radius is kept). Not kept: velocities, spins and the contact
-history (a bed at rest: they start from zero, as in ``particles.initial_state``), the grains' order.
+has more than 65,535 sizes, when each grain's float32 radius is kept). With a ``speed_resolution`` q [m/s] (a
+moving bed, carried to go on): each grain's velocity and its spin's surface speed (omega x radius) to +-q/2 a
+component, as integers of q zigzagged to unsigned and Rice-coded per component (a component's spread sets its
+bits: about log2(2 e s / q) bits for a Laplace-like spread s). Not kept: the contact history (it starts from zero,
+as in ``particles.initial_state``), the grains' order; without a speed_resolution, velocities and spins (a bed at
+rest).
 
 Layout (an HDF5 file; attrs ``format`` = FORMAT, time [s], resolution [m], origin [m] (3), grains, source):
   /radius (C,) f8      the classes' radii [m], or (grains,) f4 when there are more than MAX_CLASSES
@@ -20,6 +24,9 @@ Layout (an HDF5 file; attrs ``format`` = FORMAT, time [s], resolution [m], origi
   /bits (C,) i8        each class's Rice parameter
   /low (bytes,) u1     each class's gaps' low bits, packed (``bits`` a gap, a class starting on a byte)
   /high (bytes,) u1    every gap's high part (gap >> bits) as a varint (LEB128), class after class
+  /motion_bits (6,) i8, /motion_low, /motion_high   (with attr speed_resolution [m/s]) the velocity's x, y, z and the
+                       spin's surface speed x, y, z, each a Rice-coded column of zigzagged integers, grains in the
+                       order of the positions (class by class, by Morton code)
 A class's codes are its gaps summed, the first gap from 0. ``store.write_packed_bed`` writes the file, and
 ``store.read_checkpoint`` reads it as a bed (position and radius), so it serves as ``particles.initial_state``.
 """
@@ -107,9 +114,53 @@ def rice_bits(gaps: np.ndarray) -> int:
     return int(np.clip(np.floor(np.log2(max(float(np.mean(gaps)) * np.log(2), 1.0))), 0, 63)) if gaps.size else 0
 
 
-def pack(position: np.ndarray, radius: np.ndarray, resolution: float = RESOLUTION) -> tuple[dict, dict]:
+def zigzag(q: np.ndarray) -> np.ndarray:
+    """Signed integers as unsigned ones, small magnitudes small: 0, -1, 1, -2, 2 ... -> 0, 1, 2, 3, 4 ..."""
+    q = np.asarray(q, np.int64)
+    return ((q << np.int64(1)) ^ (q >> np.int64(63))).astype(np.uint64)
+
+
+def unzigzag(z: np.ndarray) -> np.ndarray:
+    z = np.asarray(z, np.uint64)
+    return (z >> np.uint64(1)).astype(np.int64) ^ -(z & np.uint64(1)).astype(np.int64)
+
+
+#: the largest speed [m/s] a speed_resolution may code, in units of it (2^52: every such integer a float64)
+MAX_SPEED_STEPS = float(1 << 52)
+
+
+def _pack_motion(motion: np.ndarray, q: float) -> dict:
+    """The (n, 6) velocities and spin surface speeds [m/s], to +-q/2, as Rice-coded columns (the layout's motion_*)."""
+    steps = np.rint(motion / q)
+    if not np.all(np.abs(steps) <= MAX_SPEED_STEPS):
+        raise ValueError(f"a speed of {float(np.abs(motion).max()):.3g} m/s is beyond 2^52 steps of {q:g} m/s")
+    low, high, bits = [], [], []
+    for column in zigzag(steps.astype(np.int64)).T:
+        bits.append(rice_bits(column))
+        lo_, hi_ = rice(column, bits[-1])
+        low.append(lo_)
+        high.append(hi_)
+    return {"motion_low": np.concatenate(low), "motion_high": varints(np.concatenate(high)),
+            "motion_bits": np.asarray(bits, np.int64)}
+
+
+def _unpack_motion(arrays: dict, n: int, q: float) -> np.ndarray:
+    high = unvarints(np.asarray(arrays["motion_high"], np.uint8))
+    if high.size != 6 * n:
+        raise ValueError(f"{high.size} speeds for {n} grains (6 a grain)")
+    low, at, out = np.asarray(arrays["motion_low"], np.uint8), 0, np.empty((n, 6))
+    for c, bits in enumerate(np.asarray(arrays["motion_bits"], np.int64)):
+        nbytes = (n * int(bits) + 7) // 8
+        out[:, c] = unzigzag(unrice(low[at:at + nbytes], high[c * n:(c + 1) * n], int(bits), n)) * q
+        at += nbytes
+    return out
+
+
+def pack(position: np.ndarray, radius: np.ndarray, resolution: float = RESOLUTION, velocity=None, omega=None,
+         speed_resolution: float = 0.0) -> tuple[dict, dict]:
     """(arrays, attrs) of a packed bed (the module's layout). The resolution is raised where the bed is taller or
-    wider than 2^21 of it (attrs hold the one used)."""
+    wider than 2^21 of it (attrs hold the one used). With ``speed_resolution`` [m/s] > 0, ``velocity`` [m/s] and
+    ``omega`` [rad/s] (each (n, 3), or None for zeros) are kept to it."""
     x = np.asarray(position, np.float64)
     if x.ndim != 2 or x.shape[1] != 3 or len(radius) != len(x) or not np.all(np.isfinite(x)):
         raise ValueError(f"positions of shape {x.shape} and {len(radius)} radii: not a bed of finite positions")
@@ -137,11 +188,19 @@ def pack(position: np.ndarray, radius: np.ndarray, resolution: float = RESOLUTIO
               "radius": sizes[order] if per_grain else sizes}
     if not per_grain:
         arrays["count"] = count
-    return arrays, {"format": FORMAT, "resolution": res, "origin": lo, "grains": len(x)}
+    attrs = {"format": FORMAT, "resolution": res, "origin": lo, "grains": len(x)}
+    if speed_resolution > 0:
+        zero = np.zeros_like(x)
+        v = zero if velocity is None else np.asarray(velocity, np.float64)
+        spin = zero if omega is None else np.asarray(omega, np.float64) * np.asarray(radius, np.float64)[:, None]
+        arrays.update(_pack_motion(np.concatenate([v, spin], axis=1)[order], float(speed_resolution)))
+        attrs["speed_resolution"] = float(speed_resolution)
+    return arrays, attrs
 
 
 def unpack(arrays: dict, attrs: dict) -> dict:
-    """{"position": (n, 3) f8 [m], "radius": (n,) f8 [m]} of a packed bed."""
+    """{"position": (n, 3) f8 [m], "radius": (n,) f8 [m]} of a packed bed, with "velocity" [m/s] and "omega"
+    [rad/s] (n, 3) where it kept them."""
     n = int(attrs["grains"])
     if "count" in arrays:
         count = np.asarray(arrays["count"], np.int64)
@@ -158,7 +217,11 @@ def unpack(arrays: dict, attrs: dict) -> dict:
         codes[a:b] = np.cumsum(unrice(low[at:at + nbytes], high[a:b], int(bits), b - a), dtype=np.uint64)
         at += nbytes
     x = np.asarray(attrs["origin"], np.float64) + unmorton(codes).astype(np.float64) * float(attrs["resolution"])
-    return {"position": x, "radius": radius}
+    out = {"position": x, "radius": radius}
+    if "motion_bits" in arrays:
+        motion = _unpack_motion(arrays, n, float(attrs["speed_resolution"]))
+        out.update(velocity=motion[:, :3], omega=motion[:, 3:] / radius[:, None])
+    return out
 
 
 def is_packed(f: h5py.File) -> bool:
@@ -174,6 +237,6 @@ def read(f: h5py.File) -> tuple[dict, dict]:
 def fill(f: h5py.File, arrays: dict, attrs: dict) -> None:
     """Write :func:`pack`'s arrays and attrs into an open, empty file (``store.write_packed_bed`` writes it whole)."""
     for k, v in arrays.items():
-        raw = k == "low" or v.size <= 1024  # the low bits are as good as random: gzip gains nothing there
+        raw = k in ("low", "motion_low") or v.size <= 1024  # low bits are as good as random: gzip gains nothing
         f.create_dataset(k, data=v, **({} if raw else {"compression": "gzip", "compression_opts": 9}))
     f.attrs.update(attrs)

@@ -196,10 +196,11 @@ def read_checkpoint(path: pathlib.Path) -> tuple[dict | None, dict | None, dict]
 
 
 def write_packed_bed(path: pathlib.Path, position, radius, time: float = 0.0, resolution: float = bedpack.RESOLUTION,
-                     source: str = "") -> dict:
-    """A packed bed (app/io/bedpack.py: positions to the resolution [m], sizes exact), whole or not at all; returns
-    its attrs (resolution, origin, grains) and ``bytes``, the file's size."""
-    arrays, attrs = bedpack.pack(position, radius, resolution)
+                     source: str = "", velocity=None, omega=None, speed_resolution: float = 0.0) -> dict:
+    """A packed bed (app/io/bedpack.py: positions to the resolution [m], sizes exact, velocities and spins to the
+    speed_resolution [m/s] where it is given), whole or not at all; returns its attrs (resolution, origin, grains)
+    and ``bytes``, the file's size."""
+    arrays, attrs = bedpack.pack(position, radius, resolution, velocity, omega, speed_resolution)
     attrs.update(time=time, source=source)
     path = pathlib.Path(path)
     _atomic_write(path, lambda f: bedpack.fill(f, arrays, attrs), sum(v.nbytes for v in arrays.values()))
