@@ -37,7 +37,12 @@
 # validation/rcfd/README.md, 00b, before reading its mixing). Estimated (not measured) on one H200: 240-400 s per simulated
 # second of the 1e6-grain bed, so mri_prepare 2-4 min and a 0.3 s mri_law cost probe 2-3 min fit one command
 # together; a full law (3.1 s) is 13-21 min and fits no 10-minute command: cut it with MRI_SET (run.duration,
-# output.average_from) to (LIMIT - 60 s) / measured cost; validation/mri/README.md has the table.
+# output.average_from) to (LIMIT - 60 s) / measured cost; validation/mri/README.md has the table. A law's run
+# ends packed with its grains' speeds in $OUT/mri_state_<law>.h5 (`fbed pack --speed-resolution 1e-2`); a later
+# session that carries it as runs/mri_state_<law>.h5 goes on with that law from its fluidized end (the inlet at
+# full speed from 0, analysed from 0.02 s): carry [".devkit", "runs/mri_state_<law>.h5"] with validation/,
+# benchmarks/accuracy, benchmarks/stiffness and docs/ moved aside (8.0 MB left for it; `benchmarks/device_carry.py
+# --aside validation benchmarks/accuracy benchmarks/stiffness docs --carry .devkit runs/mri_state_<law>.h5`).
 # Keep LIMIT_<stage> at least 40 s under the call's timeout: the packing below needs the time.
 # The accuracy and stiffness stages resume (--resume): to go on from rows already committed, copy them first,
 # e.g. `mkdir -p runs/accuracy_full && cp benchmarks/accuracy/full_gpu/accuracy.csv runs/accuracy_full/`, and
@@ -160,16 +165,30 @@ for stage in "$@"; do
       $T python3 -m app run presets/mri_poppy_prepare.toml --arch cuda --out runs/mri_prepare --overwrite \
         && python3 -m app pack runs/mri_prepare/bed.h5 runs/mri_bed.h5 --resolution 5e-7 && cp runs/mri_bed.h5 "$OUT/" ;;
     mri_law|mri_sweep_start)
-      # from a carried bed: no preparation stage, the clock starts at 0 (inlet ramp 0-0.1 s, steady from 1.1 s,
-      # 2 s recorded); else mri_poppy.toml's own start_from (prepared here, cached in runs/prepared)
+      # from a carried moving state (mri_law only: runs/mri_state_<law>.h5, the end of an earlier session's run of
+      # that law, packed with its speeds): the bed goes on fluidized, the inlet at full speed from 0, analysed from
+      # 0.02 s (the gas starts afresh and settles within a step). Else from a carried bed: no preparation stage, the
+      # clock starts at 0 (inlet ramp 0-0.1 s, steady from 1.1 s, 2 s recorded); else mri_poppy.toml's own
+      # start_from (prepared here, cached in runs/prepared)
+      law=${MRI_LAW:-koch_hill}
       FROM=()
-      [ -f runs/mri_bed.h5 ] && FROM=(--set 'run.start_from=""' --set "particles.initial_state=\"$PWD/runs/mri_bed.h5\"" \
-        --set particles.bed_height=0.0 --set 'boundary.bottom.schedule=[[0.0,0.0],[0.1,1.0]]' \
-        --set run.duration=3.1 --set output.average_from=1.1)
+      if [ "$stage" = mri_law ] && [ -f "runs/mri_state_$law.h5" ]; then
+        FROM=(--set 'run.start_from=""' --set "particles.initial_state=\"$PWD/runs/mri_state_$law.h5\"" \
+          --set particles.bed_height=0.0 --set 'boundary.bottom.schedule=[[0.0,1.0]]' \
+          --set run.duration=2.0 --set output.average_from=0.02)
+      elif [ -f runs/mri_bed.h5 ]; then
+        FROM=(--set 'run.start_from=""' --set "particles.initial_state=\"$PWD/runs/mri_bed.h5\"" \
+          --set particles.bed_height=0.0 --set 'boundary.bottom.schedule=[[0.0,0.0],[0.1,1.0]]' \
+          --set run.duration=3.1 --set output.average_from=1.1)
+      fi
       if [ "$stage" = mri_law ]; then
-        law=${MRI_LAW:-koch_hill}
         $T python3 -m app run presets/mri_poppy.toml --arch cuda --out runs/mri_$law --overwrite \
           --set coupling.drag=$law "${FROM[@]}" ${MRI_SET:-}
+        # its end state with the grains' speeds (bed.h5, or the checkpoint of a run cut at its limit), for a later
+        # session to go on from: carry it back as runs/mri_state_<law>.h5 (about 6-7 MB; MRI_PACK sets the packing)
+        src=runs/mri_$law/bed.h5; [ -f "$src" ] || src=runs/mri_$law/checkpoint.h5
+        [ -f "$src" ] && python3 -m app pack "$src" "runs/mri_state_$law.h5" ${MRI_PACK:---resolution 2e-6 \
+          --speed-resolution 1e-2} && cp "runs/mri_state_$law.h5" "$OUT/"
       else
         setsid nohup python3 -m app sweep presets/mri_poppy.toml --arch cuda --out runs/mri_poppy-sweep --overwrite \
           --set coupling.drag=koch_hill,di_felice,gidaspow,beetstra "${FROM[@]}" ${MRI_SET:-} \

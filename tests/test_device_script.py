@@ -39,20 +39,20 @@ def stages() -> list[str]:
     return names
 
 
-def record(tmp_path: pathlib.Path, names: list[str], env_extra: dict, bed: bool) -> list[list[str]]:
-    """Run the script's stages with the stubs first on PATH, in a folder that links the project's code; return
-    the argv of every python3 call."""
+def record(tmp_path: pathlib.Path, names: list[str], env_extra: dict, bed: bool, files=()) -> list[list[str]]:
+    """Run the script's stages with the stubs first on PATH, in a folder that links the project's code (and holds
+    ``files``, empty: what earlier stages or sessions left); return the argv of every python3 call."""
     bin_dir, work, out = tmp_path / "bin", tmp_path / "work", tmp_path / "out"
     for d in (bin_dir, work, out):
-        d.mkdir()
+        d.mkdir(parents=True)
     for name, body in STUBS.items():
         (bin_dir / name).write_text("#!/bin/bash\n" + body)
         (bin_dir / name).chmod(0o755)
     for d in ("app", "benchmarks", "presets", "validation"):
         (work / d).symlink_to(ROOT / d)
-    if bed:
-        (work / "runs").mkdir()
-        (work / "runs" / "mri_bed.h5").write_bytes(b"")
+    for rel in (["runs/mri_bed.h5"] if bed else []) + list(files):
+        (work / rel).parent.mkdir(parents=True, exist_ok=True)
+        (work / rel).write_bytes(b"")
     log = tmp_path / "calls"
     env = dict(os.environ, PATH=f"{bin_dir}{os.pathsep}{os.environ['PATH']}", FAKE_LOG=str(log), OUT=str(out),
                **env_extra)
@@ -144,6 +144,24 @@ def test_the_mri_stages_from_a_carried_bed_with_extra_overrides(tmp_path, monkey
     assert "coupling.drag=gidaspow" in run and "run.duration=0.6" in run and 'run.start_from=""' in run
     assert any(a.startswith("particles.initial_state=") and a.endswith('mri_bed.h5"') for a in run), run
     check_all(calls, monkeypatch)
+
+
+def test_a_law_run_packs_its_moving_end_and_a_later_session_goes_on_from_it(tmp_path, monkeypatch):
+    """A law's run ends (bed.h5, or the checkpoint of a run cut at its limit) packed with its speeds into $OUT; a
+    later session carrying that pack as runs/mri_state_<law>.h5 starts from it, fluidized: the inlet at full speed
+    from 0 and the analysis from 0.02 s. Without a moving state the carried bed is used, as before."""
+    for end in ("bed.h5", "checkpoint.h5"):
+        calls = record(tmp_path / end, ["mri_law"], {"MRI_LAW": "gidaspow"}, bed=True,
+                       files=[f"runs/mri_gidaspow/{end}", "runs/mri_state_gidaspow.h5"])
+        run, pack = calls
+        assert any(a.endswith('runs/mri_state_gidaspow.h5"') for a in run), run
+        assert "boundary.bottom.schedule=[[0.0,1.0]]" in run and "output.average_from=0.02" in run
+        assert pack == ["-m", "app", "pack", f"runs/mri_gidaspow/{end}", "runs/mri_state_gidaspow.h5",
+                        "--resolution", "2e-6", "--speed-resolution", "1e-2"], pack
+        check_all(calls, monkeypatch)
+        assert (tmp_path / end / "out" / "mri_state_gidaspow.h5").exists()
+    calls = record(tmp_path / "first", ["mri_law"], {"MRI_LAW": "gidaspow"}, bed=True)
+    assert len(calls) == 1 and any(a.endswith('mri_bed.h5"') for a in calls[0])
 
 
 def test_a_renamed_flag_or_key_is_caught(monkeypatch):
