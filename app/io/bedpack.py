@@ -28,7 +28,8 @@ Layout (an HDF5 file; attrs ``format`` = FORMAT, time [s], resolution [m], origi
                        spin's surface speed x, y, z, each a Rice-coded column of zigzagged integers, grains in the
                        order of the positions (class by class, by Morton code)
 A class's codes are its gaps summed, the first gap from 0. ``store.write_packed_bed`` writes the file, and
-``store.read_checkpoint`` reads it as a bed (position and radius), so it serves as ``particles.initial_state``.
+``store.read_checkpoint`` reads it as a bed (position and radius, with velocity and omega where kept), so it serves
+as ``particles.initial_state``.
 """
 from __future__ import annotations
 
