@@ -8,7 +8,8 @@
 # fill: particle-substeps/s and bytes_per_grain in runs/verma_dem/summary.json), small (boyce_small with video), boyce (full rig),
 # sweep (the injection-time sweep from the cached bed), verma_start (the full Verma run, started in its
 # own process session so that it outlives this call: the machine stays lent while later calls poll it),
-# wait (poll the background run until it ends or LIMIT_wait), accuracy / stiffness (the full-size benches),
+# wait (poll the background run until it ends or LIMIT_wait), verma_pack (its last state packed with the grains'
+# speeds into $OUT/verma_state.h5, for the next session to go on from: see VERMA_FROM below), accuracy / stiffness (the full-size benches),
 # gas (the gas step alone on the Verma grid 32x32x116 and on 32x32x64 with a bed's void fraction and drag:
 # ms per step, then launches and host reads per step, then the launches' host cost: Taichi's own call against
 # the cached plans of app/sim/launch.py, interleaved; issue 18's target is <= 3 ms per Verma step on one H200),
@@ -61,6 +62,16 @@ nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$L/gpu.t
 # A check stage that failed in an earlier call on this warm machine turned its path off for the later calls too
 # (the app also checks both barrier paths at start-up on CUDA: app/sim/dem/scan.py, app/sim/gas/cycle_check.py)
 [ -f "$L/fallbacks.env" ] && { source "$L/fallbacks.env"; cat "$L/fallbacks.env"; }
+# A Verma run that outlasts a session goes on in the next: `verma_pack` packs its last state with the grains' speeds
+# into $OUT/verma_state.h5; carried back as runs/verma_state.h5 (present when this call starts), `verma` and
+# `verma_start` go on from it, fluidized: the inlet at full speed from 0, 3 s analysed from 0.02 s (VERMA_SET can
+# set run.duration to what the first session left of the preset's 1.0-6.5 s window)
+VERMA_FROM=()
+[ -f runs/verma_state.h5 ] && VERMA_FROM=(--set particles.count=0 \
+  --set "particles.initial_state=\"$PWD/runs/verma_state.h5\"" --set 'boundary.bottom.schedule=[[0.0,1.0]]' \
+  --set run.duration=3.0 --set output.average_from=0.02)
+VERMA_FROM_Q=""  # the same, quoted for verma_start's bash -c
+[ ${#VERMA_FROM[@]} -gt 0 ] && VERMA_FROM_Q=$(printf '%q ' "${VERMA_FROM[@]}")
 BUDGET=${BUDGET:-0}
 call_start=$(date +%s)
 for stage in "$@"; do
@@ -140,13 +151,19 @@ for stage in "$@"; do
     boyce)
       $T python3 -m app run presets/boyce.toml --arch cuda --out runs/boyce --overwrite ;;
     verma)
-      $T python3 -m app run presets/verma.toml --arch cuda --out runs/verma --overwrite ;;
+      $T python3 -m app run presets/verma.toml --arch cuda --out runs/verma --overwrite "${VERMA_FROM[@]}" \
+        ${VERMA_SET:-} ;;
     verma_resume)
       $T python3 -m app run --resume runs/verma --arch cuda ;;
+    verma_pack)  # the run's last state with its grains' speeds, for a later session (carry it as runs/verma_state.h5)
+      src=runs/verma/bed.h5; [ -f "$src" ] || src=runs/verma/checkpoint.h5
+      python3 -m app pack "$src" runs/verma_state.h5 --resolution 2e-6 --speed-resolution 1e-2 \
+        && cp runs/verma_state.h5 "$OUT/" ;;
     verma_start)
       # a guard stop skips the automatic analysis: run it on the data up to the stop
       setsid nohup bash -c "python3 -m app run presets/verma.toml --arch cuda --out runs/verma --overwrite \
-        ${VERMA_SET:-}; [ \$? -eq 3 ] && python3 -m app analyze runs/verma" > "$L/verma.log" 2>&1 < /dev/null &
+        $VERMA_FROM_Q ${VERMA_SET:-}; [ \$? -eq 3 ] && python3 -m app analyze runs/verma" \
+        > "$L/verma.log" 2>&1 < /dev/null &
       echo $! > runs/verma.pid; sleep 20; tail -3 "$L/verma.log" ;;
     wait)
       end=$(( $(date +%s) + lim - 15 ))

@@ -164,6 +164,25 @@ def test_a_law_run_packs_its_moving_end_and_a_later_session_goes_on_from_it(tmp_
     assert len(calls) == 1 and any(a.endswith('mri_bed.h5"') for a in calls[0])
 
 
+def test_a_verma_run_packs_its_end_and_a_later_session_goes_on_from_it(tmp_path, monkeypatch):
+    """`verma_pack` packs the run's last state with speeds into $OUT; a call that starts with that pack carried as
+    runs/verma_state.h5 runs verma (and verma_start, through its bash -c) from it, fluidized, its own window analysed;
+    without it, the preset as it is."""
+    calls = record(tmp_path / "on", ["verma", "verma_start", "verma_pack"], {}, bed=False,
+                   files=["runs/verma_state.h5", "runs/verma/checkpoint.h5"])
+    run, start, pack = calls
+    for c in (run, start):
+        assert "particles.count=0" in c and "boundary.bottom.schedule=[[0.0,1.0]]" in c, c
+        assert any(a.startswith("particles.initial_state=") and a.endswith('runs/verma_state.h5"') for a in c), c
+    assert pack == ["-m", "app", "pack", "runs/verma/checkpoint.h5", "runs/verma_state.h5", "--resolution", "2e-6",
+                    "--speed-resolution", "1e-2"], pack
+    check_all(calls, monkeypatch)
+    assert (tmp_path / "on" / "out" / "verma_state.h5").exists()
+    run, start = record(tmp_path / "off", ["verma", "verma_start"], {}, bed=False)
+    assert run == start == ["-m", "app", "run", "presets/verma.toml", "--arch", "cuda", "--out", "runs/verma",
+                            "--overwrite"], (run, start)
+
+
 def test_a_renamed_flag_or_key_is_caught(monkeypatch):
     """The checks can fail: the device's own commands with one flag or key misspelt."""
     with pytest.raises(SystemExit):
