@@ -202,7 +202,7 @@ for stage in "$@"; do
         $T python3 -m app run presets/mri_poppy.toml --arch cuda --out runs/mri_$law --overwrite \
           --set coupling.drag=$law "${FROM[@]}" ${MRI_SET:-}
         # its end state with the grains' speeds (bed.h5, or the checkpoint of a run cut at its limit), for a later
-        # session to go on from: carry it back as runs/mri_state_<law>.h5 (about 6-7 MB; MRI_PACK sets the packing)
+        # session to go on from: carry it back as runs/mri_state_<law>.h5 (about 5 MB; MRI_PACK sets the packing)
         src=runs/mri_$law/bed.h5; [ -f "$src" ] || src=runs/mri_$law/checkpoint.h5
         [ -f "$src" ] && python3 -m app pack "$src" "runs/mri_state_$law.h5" ${MRI_PACK:---resolution 2e-6 \
           --speed-resolution 1e-2} && cp "runs/mri_state_$law.h5" "$OUT/"
