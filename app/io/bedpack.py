@@ -115,6 +115,30 @@ def rice_bits(gaps: np.ndarray) -> int:
     return int(np.clip(np.floor(np.log2(max(float(np.mean(gaps)) * np.log(2), 1.0))), 0, 63)) if gaps.size else 0
 
 
+def rice_groups(groups) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each group of unsigned values Rice-coded with its own parameter: (the low bits, each group starting on a
+    byte; every high part as a varint, group after group; the parameters)."""
+    low, high, bits = [], [], []
+    for g in groups:
+        bits.append(rice_bits(g))
+        lo_, hi_ = rice(g, bits[-1])
+        low.append(lo_)
+        high.append(hi_)
+    return np.concatenate(low), varints(np.concatenate(high)), np.asarray(bits, np.int64)
+
+
+def unrice_groups(low: np.ndarray, high: np.ndarray, bits, counts) -> list[np.ndarray]:
+    """The inverse of :func:`rice_groups`, given each group's size (``high``: the varint bytes)."""
+    high, low, out, at, start = unvarints(np.asarray(high, np.uint8)), np.asarray(low, np.uint8), [], 0, 0
+    if high.size != int(np.sum(counts)):
+        raise ValueError(f"{high.size} values for groups of {int(np.sum(counts))}")
+    for n, b in zip((int(c) for c in counts), (int(b) for b in bits)):
+        nbytes = (n * b + 7) // 8
+        out.append(unrice(low[at:at + nbytes], high[start:start + n], b, n))
+        at, start = at + nbytes, start + n
+    return out
+
+
 def zigzag(q: np.ndarray) -> np.ndarray:
     """Signed integers as unsigned ones, small magnitudes small: 0, -1, 1, -2, 2 ... -> 0, 1, 2, 3, 4 ..."""
     q = np.asarray(q, np.int64)
@@ -135,26 +159,13 @@ def _pack_motion(motion: np.ndarray, q: float) -> dict:
     steps = np.rint(motion / q)
     if not np.all(np.abs(steps) <= MAX_SPEED_STEPS):
         raise ValueError(f"a speed of {float(np.abs(motion).max()):.3g} m/s is beyond 2^52 steps of {q:g} m/s")
-    low, high, bits = [], [], []
-    for column in zigzag(steps.astype(np.int64)).T:
-        bits.append(rice_bits(column))
-        lo_, hi_ = rice(column, bits[-1])
-        low.append(lo_)
-        high.append(hi_)
-    return {"motion_low": np.concatenate(low), "motion_high": varints(np.concatenate(high)),
-            "motion_bits": np.asarray(bits, np.int64)}
+    low, high, bits = rice_groups(zigzag(steps.astype(np.int64)).T)
+    return {"motion_low": low, "motion_high": high, "motion_bits": bits}
 
 
 def _unpack_motion(arrays: dict, n: int, q: float) -> np.ndarray:
-    high = unvarints(np.asarray(arrays["motion_high"], np.uint8))
-    if high.size != 6 * n:
-        raise ValueError(f"{high.size} speeds for {n} grains (6 a grain)")
-    low, at, out = np.asarray(arrays["motion_low"], np.uint8), 0, np.empty((n, 6))
-    for c, bits in enumerate(np.asarray(arrays["motion_bits"], np.int64)):
-        nbytes = (n * int(bits) + 7) // 8
-        out[:, c] = unzigzag(unrice(low[at:at + nbytes], high[c * n:(c + 1) * n], int(bits), n)) * q
-        at += nbytes
-    return out
+    columns = unrice_groups(arrays["motion_low"], arrays["motion_high"], arrays["motion_bits"], [n] * 6)
+    return np.stack([unzigzag(c) * q for c in columns], axis=1)
 
 
 def pack(position: np.ndarray, radius: np.ndarray, resolution: float = RESOLUTION, velocity=None, omega=None,
@@ -178,15 +189,9 @@ def pack(position: np.ndarray, radius: np.ndarray, resolution: float = RESOLUTIO
     codes, cls = codes[order], cls[order]
     count = np.bincount(cls, minlength=1 if per_grain else sizes.size).astype(np.int64)
     bounds = np.concatenate([[0], np.cumsum(count)])
-    low, high, bits = [], [], []
-    for a, b in zip(bounds[:-1], bounds[1:]):  # each class's codes as gaps, the first from 0, Rice-coded
-        gaps = np.diff(codes[a:b], prepend=np.uint64(0))
-        bits.append(rice_bits(gaps))
-        lo_, hi_ = rice(gaps, bits[-1])
-        low.append(lo_)
-        high.append(hi_)
-    arrays = {"low": np.concatenate(low), "high": varints(np.concatenate(high)), "bits": np.asarray(bits, np.int64),
-              "radius": sizes[order] if per_grain else sizes}
+    # each class's codes as gaps, the first from 0, Rice-coded
+    low, high, bits = rice_groups(np.diff(codes[a:b], prepend=np.uint64(0)) for a, b in zip(bounds[:-1], bounds[1:]))
+    arrays = {"low": low, "high": high, "bits": bits, "radius": sizes[order] if per_grain else sizes}
     if not per_grain:
         arrays["count"] = count
     attrs = {"format": FORMAT, "resolution": res, "origin": lo, "grains": len(x)}
@@ -208,15 +213,10 @@ def unpack(arrays: dict, attrs: dict) -> dict:
         radius = np.repeat(np.asarray(arrays["radius"], np.float64), count)
     else:
         radius, count = np.asarray(arrays["radius"], np.float64), np.array([n], np.int64)
-    high = unvarints(np.asarray(arrays["high"], np.uint8))
-    if int(count.sum()) != n or high.size != n:
-        raise ValueError(f"{high.size} positions in classes of {int(count.sum())} grains for {n} grains")
-    codes = np.empty(n, np.uint64)
-    low, bounds, at = np.asarray(arrays["low"], np.uint8), np.concatenate([[0], np.cumsum(count)]), 0
-    for a, b, bits in zip(bounds[:-1], bounds[1:], np.asarray(arrays["bits"], np.int64)):
-        nbytes = ((b - a) * int(bits) + 7) // 8
-        codes[a:b] = np.cumsum(unrice(low[at:at + nbytes], high[a:b], int(bits), b - a), dtype=np.uint64)
-        at += nbytes
+    if int(count.sum()) != n:
+        raise ValueError(f"classes of {int(count.sum())} grains for {n} grains")
+    gaps = unrice_groups(arrays["low"], arrays["high"], arrays["bits"], count)
+    codes = np.concatenate([np.cumsum(g, dtype=np.uint64) for g in gaps]) if n else np.zeros(0, np.uint64)
     x = np.asarray(attrs["origin"], np.float64) + unmorton(codes).astype(np.float64) * float(attrs["resolution"])
     out = {"position": x, "radius": radius}
     if "motion_bits" in arrays:
