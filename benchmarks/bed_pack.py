@@ -73,6 +73,17 @@ def sizes(n: int, resolutions, d: pathlib.Path) -> list[dict]:
     return rows
 
 
+def _run_from(path, preset: str, sets: list[str], duration: float, out: pathlib.Path) -> dict:
+    cmd = [sys.executable, "-m", "app", "run", preset, "--arch", "cpu", "--out", str(out),
+           "--set", f'particles.initial_state="{path}"', "--set", f"run.duration={duration}",
+           "--set", "output.series_interval=1e-3", "--set", "output.average_from=0.0"] + \
+        [a for s in sets for a in ("--set", s)]
+    r = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    if r.returncode:
+        sys.exit(f"{path}: {r.stderr[-2000:]}")
+    return store.read_series(out / "run.h5")
+
+
 def restarts(bed: pathlib.Path, preset: str, sets: list[str], duration: float, resolutions,
              d: pathlib.Path) -> list[dict]:
     grains, _, _ = store.read_checkpoint(bed)
@@ -85,33 +96,14 @@ def restarts(bed: pathlib.Path, preset: str, sets: list[str], duration: float, r
         store.write_packed_bed(d / f"p{res:g}.h5", grains["position"][alive], grains["radius"][alive], resolution=res)
         starts.append((f"fbed pack, {res:g} m", d / f"p{res:g}.h5"))
     rows = []
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
     for name, path in starts:
-        out = d / f"run{len(rows)}"
-        cmd = [sys.executable, "-m", "app", "run", preset, "--arch", "cpu", "--out", str(out),
-               "--set", f'particles.initial_state="{path}"', "--set", "particles.bed_height=0.0",
-               "--set", f"run.duration={duration}", "--set", "output.series_interval=1e-3",
-               "--set", "guard.interval=1e-3"] + [a for s in sets for a in ("--set", s)]
-        r = subprocess.run(cmd, capture_output=True, text=True, env=env)
-        if r.returncode:
-            sys.exit(f"{name}: {r.stderr[-2000:]}")
-        s = store.read_series(out / "run.h5")
+        s = _run_from(path, preset, ["particles.bed_height=0.0", "guard.interval=1e-3"] + sets, duration,
+                      d / f"run{len(rows)}")
         rows.append({"restart from": name, "kinetic energy peak [J]": f"{s['kinetic_energy'].max():.3g}",
                      "at the end [J]": f"{s['kinetic_energy'][-1]:.3g}", "largest speed [m/s]":
                      f"{s['max_speed'].max():.3g}", "bed height change [m]":
                      f"{s['bed_height'][-1] - s['bed_height'][0]:.2g}"})
     return rows
-
-
-def _run_from(path, preset: str, sets: list[str], duration: float, out: pathlib.Path) -> dict:
-    cmd = [sys.executable, "-m", "app", "run", preset, "--arch", "cpu", "--out", str(out),
-           "--set", f'particles.initial_state="{path}"', "--set", f"run.duration={duration}",
-           "--set", "output.series_interval=1e-3", "--set", "output.average_from=0.0"] + \
-        [a for s in sets for a in ("--set", s)]
-    r = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)))
-    if r.returncode:
-        sys.exit(f"{path}: {r.stderr[-2000:]}")
-    return store.read_series(out / "run.h5")
 
 
 def moving_restarts(bed: pathlib.Path, preset: str, sets: list[str], duration: float, resolution: float,
