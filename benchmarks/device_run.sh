@@ -62,6 +62,14 @@ nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv > "$L/gpu.t
 # A check stage that failed in an earlier call on this warm machine turned its path off for the later calls too
 # (the app also checks both barrier paths at start-up on CUDA: app/sim/dem/scan.py, app/sim/gas/cycle_check.py)
 [ -f "$L/fallbacks.env" ] && { source "$L/fallbacks.env"; cat "$L/fallbacks.env"; }
+# pack_moving RUN_DIR OUT_FILE [FLAGS]: the run's last state (bed.h5, or the checkpoint of a run its limit cut)
+# packed with the grains' speeds (FLAGS: default --resolution 2e-6 --speed-resolution 1e-2) and copied to $OUT
+pack_moving() {
+  local src=$1/bed.h5 out=$2; shift 2
+  [ -f "$src" ] || src=${src%/bed.h5}/checkpoint.h5
+  [ $# -gt 0 ] || set -- --resolution 2e-6 --speed-resolution 1e-2
+  [ -f "$src" ] && python3 -m app pack "$src" "$out" "$@" && cp "$out" "$OUT/"
+}
 # A Verma run that outlasts a session goes on in the next: `verma_pack` packs its last state with the grains' speeds
 # into $OUT/verma_state.h5; carried back as runs/verma_state.h5 (present when this call starts), `verma` and
 # `verma_start` go on from it, fluidized: the inlet at full speed from 0, 3 s analysed from 0.02 s (VERMA_SET can
@@ -156,9 +164,7 @@ for stage in "$@"; do
     verma_resume)
       $T python3 -m app run --resume runs/verma --arch cuda ;;
     verma_pack)  # the run's last state with its grains' speeds, for a later session (carry it as runs/verma_state.h5)
-      src=runs/verma/bed.h5; [ -f "$src" ] || src=runs/verma/checkpoint.h5
-      python3 -m app pack "$src" runs/verma_state.h5 --resolution 2e-6 --speed-resolution 1e-2 \
-        && cp runs/verma_state.h5 "$OUT/" ;;
+      pack_moving runs/verma runs/verma_state.h5 ;;
     verma_start)
       # a guard stop skips the automatic analysis: run it on the data up to the stop
       setsid nohup bash -c "python3 -m app run presets/verma.toml --arch cuda --out runs/verma --overwrite \
@@ -203,9 +209,7 @@ for stage in "$@"; do
           --set coupling.drag=$law "${FROM[@]}" ${MRI_SET:-}
         # its end state with the grains' speeds (bed.h5, or the checkpoint of a run cut at its limit), for a later
         # session to go on from: carry it back as runs/mri_state_<law>.h5 (about 5 MB; MRI_PACK sets the packing)
-        src=runs/mri_$law/bed.h5; [ -f "$src" ] || src=runs/mri_$law/checkpoint.h5
-        [ -f "$src" ] && python3 -m app pack "$src" "runs/mri_state_$law.h5" ${MRI_PACK:---resolution 2e-6 \
-          --speed-resolution 1e-2} && cp "runs/mri_state_$law.h5" "$OUT/"
+        pack_moving "runs/mri_$law" "runs/mri_state_$law.h5" ${MRI_PACK:-}
       else
         setsid nohup python3 -m app sweep presets/mri_poppy.toml --arch cuda --out runs/mri_poppy-sweep --overwrite \
           --set coupling.drag=koch_hill,di_felice,gidaspow,beetstra "${FROM[@]}" ${MRI_SET:-} \
