@@ -57,7 +57,6 @@ class Guard:
         self.max_speed = max_speed
         self.dt = dt
         self.dt_limit = dt_limit
-        self.last_good_step = 0
         self.last_good_time = 0.0  # [s]
         self.failed_time: float | None = None  # [s] of the row that failed: the run reads rows a few steps behind
         self._checked = -1  # the step of the last row that passed
@@ -150,7 +149,7 @@ class Guard:
         except Unstable:
             self.failed_time = d["time"]
             raise
-        self.last_good_step = self._checked = d["step"]
+        self._checked = d["step"]
         self.last_good_time = d["time"]
 
     def stop_times(self) -> dict:
