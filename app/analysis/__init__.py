@@ -10,5 +10,5 @@
   (``run.h5`` + ``summary.json``) into a comparison table and figures (``verma_figures``).
 - ``app.analysis.boyce``: the Boyce et al. single-bubble rig.
 - ``app.analysis.mri``: the MRI poppy-seed study's pipeline on slab images (its statistics in
-  ``mri_stats``, its figures in ``mri_figures``); ``app.analysis.umf``: fluidization curves and U_mf.
+  ``mri_stats``, its tables in ``mri_report``, its figures in ``mri_figures``); ``app.analysis.umf``: fluidization curves and U_mf.
 """
