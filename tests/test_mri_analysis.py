@@ -330,3 +330,18 @@ def test_umf_sweep_compare_keeps_a_failed_case(tmp_path):
     assert "| case-000 | koch_hill | 0.31 | 4 | 1000 |" in text
     assert "| case-001 | gidaspow | no analysis: failed: exit 3 | - | - |" in text
     assert (tmp_path / "umf_compare.png").stat().st_size > 0
+
+
+def test_a_bed_height_constant_over_the_window_is_analysed():
+    """A fixed bed (or one whose surface stays in one 8 mm row) has a constant bed height. Its mean minus the mean
+    is 5.6e-17, not 0, in floating point, with variance 0: the integral time divided by zero, and the analysis
+    failed with OverflowError. A constant series is uncorrelated by convention: one frame, blocks of two."""
+    from app.analysis.mri_stats import block_frames, integral_time
+
+    h = np.full(300, 0.236)
+    assert integral_time(h) == 1.0 and integral_time(h, 0.004) == 0.004 and block_frames(h) == 2
+    dx, dz, nx, nz = 0.004, 0.008, 24, 75
+    void = np.stack([1.0 - frame(nx, nz, dx, dz, 0.236)] * 40)
+    res = mri.analyse(void, np.arange(40) * 0.004, dx, dz, n_boot=50)
+    assert res["height_stats"]["mean"] == pytest.approx(0.236, abs=dz) and res["height_stats"]["std"] < 1e-12
+    assert res["diameter_stats"]["n"] == 0

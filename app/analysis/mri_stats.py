@@ -43,11 +43,12 @@ def bootstrap(values, n_boot: int = N_BOOT, seed: int = 0) -> dict:
 
 def integral_time(x, dt: float = 1.0) -> float:
     """Integral time scale of a series [the unit of dt; frames for dt = 1]: its autocorrelation summed up to the
-    first zero (dt for a constant series)."""
+    first zero (dt for a constant series: one whose values are all equal, although y - mean may not be 0 in floating
+    point, 0.236 - 0.236 = 5.6e-17, with variance 0; that divided by zero)."""
     y = np.asarray(x, np.float64)
-    y = y - y.mean()
-    if not np.any(y):
+    if y.size == 0 or not np.ptp(y) > 0:
         return dt
+    y = y - y.mean()
     ac = np.correlate(y, y, "full")[y.size - 1:] / (y.var() * y.size)
     zero = np.nonzero(ac <= 0)[0]
     end = int(zero[0]) if zero.size else ac.size
