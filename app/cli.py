@@ -5,6 +5,7 @@
     fbed view PRESET [--set ...]      (the run in a window with live controls)
     fbed analyze RUN_DIR              (the preset's bubble analysis on a finished run; on a sweep folder
                                       of mri or umf runs, the cases side by side)
+    fbed analyze RUN_DIR RUN_DIR... --out DIR   (mri: several runs of one case pooled, e.g. GPU sessions)
     fbed bench stress [--out DIR]     (hostile scenes: finish clean or stop with a clear message)
     fbed bench accuracy|stiffness [--size small|full] [--arch cpu|cuda] [--out DIR] [--resume]
                                       (error against cost; --resume goes on from the rows in --out)
@@ -75,8 +76,13 @@ def _add_analyze(sub) -> None:
                                    "the central slab; verma: bubble statistics on the planes; mri: the MRI study's "
                                    "statistics on /mri and /slab; umf: the fluidization curve) on RUN_DIR's files; "
                                    "writes RUN_DIR/analysis and updates summary.json. On a sweep folder of mri or "
-                                   "umf runs: the cases side by side (mri_compare.*, umf_compare.*).")
-    a.add_argument("run_dir", help="output folder of a run, or of a sweep (mri, umf: its cases side by side)")
+                                   "umf runs: the cases side by side (mri_compare.*, umf_compare.*). On several "
+                                   "run folders of one case (mri): their analysed windows pooled as realisations of "
+                                   "one operating point, e.g. the GPU sessions of one drag law, into --out.")
+    a.add_argument("run_dir", nargs="+", help="output folder of a run, or of a sweep (mri, umf: its cases side by "
+                   "side); several run folders of one case (mri) are pooled into --out")
+    a.add_argument("--out", help="with several run folders: the folder for the pooled analysis (analysis/, "
+                   "pooled.json)")
     a.add_argument("--kind", choices=("boyce", "verma", "mri", "umf"), help="override the run's probes.analysis")
     a.add_argument("--plot", metavar="FIGURE", help="on a sweep folder: plot this summary figure against the swept "
                    "keys from sweep.csv (DIR/FIGURE.png), the cases not run again")
@@ -282,9 +288,9 @@ def main(argv: list[str] | None = None) -> int:
                                   hint="scenes: " + ", ".join(sc.name for sc in SCENES))
             return stress(args.out, args.scenes, args.arch, args.limit)
         if args.command == "analyze":
-            from .postprocess import analyze
+            from .postprocess import analyze_command
 
-            return analyze(args.run_dir, args.kind, args.plot)
+            return analyze_command(args.run_dir, args.out, args.kind, args.plot)
         if args.command == "rcfd":
             from .rcfd.cli import main as rcfd_main
 

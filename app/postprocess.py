@@ -1,5 +1,5 @@
-"""`fbed analyze`: a finished run's analysis (probes.analysis) and a sweep's cases side by side; the
-analysis a run does at its end. The analyses themselves live in app/analysis/."""
+"""`fbed analyze`: a finished run's analysis (probes.analysis), a sweep's cases side by side, several runs of one
+case pooled; the analysis a run does at its end. The analyses themselves live in app/analysis/."""
 from __future__ import annotations
 
 import csv
@@ -111,4 +111,53 @@ def analyze_sweep(d: pathlib.Path, kind: str | None = None) -> int:
         if (cd / "run.h5").exists() and not (cd / "analysis" / f"{which}.json").exists():
             analyze(str(cd), which)
     print(importlib.import_module(f".analysis.{which}", "app").compare(d).read_text())
+    return EXIT_OK
+
+
+def analyze_command(run_dirs: list[str], out: str | None, kind: str | None, plot: str | None) -> int:
+    """`fbed analyze`: one run or sweep folder (:func:`analyze`), or several runs of one case pooled
+    (:func:`analyze_pooled`)."""
+    if len(run_dirs) == 1 and out is None:
+        return analyze(run_dirs[0], kind, plot)
+    if plot is not None:
+        raise ConfigError("--plot draws a sweep's figure, not pooled runs'", "", "--plot",
+                          hint="drop --plot, or give the sweep folder alone")
+    return analyze_pooled(run_dirs, out, kind)
+
+
+def analyze_pooled(run_dirs: list[str], out: str | None, kind: str | None = None) -> int:
+    """`fbed analyze RUN RUN ... --out DIR`: the mri analysis of several runs of one case pooled as realisations of
+    one operating point (``analysis.mri.summarize_pooled``) into DIR/analysis and DIR/pooled.json."""
+    dirs = [pathlib.Path(d) for d in run_dirs]
+    if len(dirs) < 2:
+        raise ConfigError("--out is for pooling several runs of one case: give two run folders or more", "", "--out",
+                          hint=f"analyze one run in its own folder: fbed analyze {run_dirs[0]}")
+    if out is None:
+        raise ConfigError("several run folders are pooled into a folder of their own: name it", "", "--out",
+                          hint=f"e.g. fbed analyze {' '.join(run_dirs)} --out runs/pooled")
+    for d in dirs:
+        if not (d / "run.h5").exists() or not (d / "config.toml").exists():
+            raise ConfigError("not a run folder (no run.h5 / config.toml)", str(d), "RUN_DIR",
+                              hint="give the output folders of fbed runs of one case")
+        refuse_live_folder(d, "RUN_DIR")
+    o = pathlib.Path(out)
+    if len({d.resolve() for d in dirs}) < len(dirs):
+        raise ConfigError("a run folder is given twice: its frames would count twice", out, "RUN_DIR")
+    if any(o.resolve() == d.resolve() for d in dirs) or (o / "run.h5").exists():
+        raise ConfigError("--out is a run folder: the pooled analysis would replace its own", out, "--out",
+                          hint="name a new folder, e.g. runs/pooled")
+    kinds = {kind or cfgmod.load(d / "config.toml").probes.analysis for d in dirs}
+    if kinds != {"mri"}:
+        raise ConfigError(f"pooling runs is written for the mri analysis, not {sorted(kinds)}", str(dirs[0]),
+                          "probes.analysis", hint="analyze each run folder on its own: fbed analyze DIR")
+    from .analysis import mri
+
+    o.mkdir(parents=True, exist_ok=True)
+    try:
+        figures = mri.summarize_pooled(dirs, o)
+    except ValueError as err:
+        raise ConfigError(str(err), out, "RUN_DIR") from None
+    log(f"fbed: {len(dirs)} runs pooled: the mri analysis written to {o / 'analysis'}")
+    for k, v in figures.items():
+        print(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}")
     return EXIT_OK

@@ -45,7 +45,8 @@ import numpy as np
 from scipy import ndimage, signal, stats
 
 from .mri_stats import (CI_MAX, CV_MAX, GRADIENT_MIN, KS_MIN, N_BOOT, THRESHOLDS, V_RANGE,  # noqa: F401
-                        block_bootstrap, block_frames, bootstrap, choose_threshold, gradient_quality, halves)
+                        block_bootstrap, block_frames, bootstrap, choose_threshold, gradient_quality, halves,
+                        sessions_agree, spans)
 from .mri_report import COMPARE_KEYS, SOURCES, _steady_line, compare, write  # noqa: F401
 
 MIN_AREA = 4.0e-6         # m^2: smallest bubble (the study's 4 mm^2)
@@ -102,13 +103,18 @@ def bubbles(solid: np.ndarray, dx: float, dz: float, mask: np.ndarray | None = N
 
 
 # ---------------------------------------------------------------- tracking
-def track(frames: list[list[dict]], times: np.ndarray, max_disp: float) -> list[dict]:
+def track(frames: list[list[dict]], times: np.ndarray, max_disp: float, breaks=()) -> list[dict]:
     """Nearest-centroid tracks over consecutive frames (greedy: the nearest pairs are linked first, each bubble
-    at most once). Returns tracks of >= 2 frames: dicts with frames, times, x, z, diameters, and the
-    least-squares velocities vx, vz, speed [m/s]."""
+    at most once); no track links across a frame in ``breaks`` (the first frame of another run, pooled). Returns
+    tracks of >= 2 frames: dicts with frames, times, x, z, diameters, and the least-squares velocities vx, vz,
+    speed [m/s]."""
     open_tracks: dict[int, dict] = {}
     done = []
+    breaks = set(int(b) for b in breaks)
     for f, bs in enumerate(frames):
+        if f in breaks:
+            done += list(open_tracks.values())
+            open_tracks = {}
         new_open = {}
         prev = list(open_tracks.items())
         if prev and bs:
@@ -177,12 +183,20 @@ def radial_profiles(alpha: np.ndarray, heights: np.ndarray, dz: float, static_he
     return pw, ps
 
 
-def spectrum(series: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, float]:
+def spectrum(series: np.ndarray, dt: float, segments=None) -> tuple[np.ndarray, np.ndarray, float]:
     """(frequencies [Hz], power, the dominant frequency [Hz]) of a time series: the periodogram of the series
     minus its linear trend with a Hann window; the peak (above the lowest bin) refined by a parabola through
-    the log power of its neighbours."""
+    the log power of its neighbours. A series pooled from several runs (``segments``: their first frames): each
+    run's periodogram on the longest run's frequencies (zero-padded), averaged weighted by its frames."""
     x = np.asarray(series, float)
-    f, p = signal.periodogram(x, fs=1.0 / dt, window="hann", detrend="linear")
+    sp = spans(x.size, segments)
+    if len(sp) == 1:
+        f, p = signal.periodogram(x, fs=1.0 / dt, window="hann", detrend="linear")
+    else:
+        n = max(e - a for a, e in sp)
+        parts = [(e - a) * signal.periodogram(x[a:e], fs=1.0 / dt, window="hann", detrend="linear", nfft=n)[1]
+                 for a, e in sp if e - a > 1]
+        f, p = np.fft.rfftfreq(n, dt), np.sum(parts, 0) / sum(e - a for a, e in sp if e - a > 1)
     if p.size < 3:
         return f, p, math.nan
     k = 1 + int(np.argmax(p[1:]))
@@ -196,17 +210,21 @@ def spectrum(series: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, flo
 
 def analyse(void: np.ndarray, times: np.ndarray, dx: float, dz: float, mask: np.ndarray | None = None,
             static_height: float = STATIC_HEIGHT, thresholds=THRESHOLDS, n_boot: int = N_BOOT,
-            axis: float | None = None) -> dict:
+            axis: float | None = None, segments=None) -> dict:
     """The whole pipeline on one image series of void fraction (nt, nx, nz) (z the second image axis, from the
     floor; x from the image's left edge; ``axis`` [m from that edge] is the vessel's axis, default the image's
     centre). Returns per-threshold statistics, the chosen threshold per metric,
-    and the final metrics at it (see the module doc)."""
+    and the final metrics at it (see the module doc). ``segments``: the first frames of the runs a series pools
+    (:func:`summarize_pooled`): no track links two runs, no block spans two, the spectrum is the runs' mean, and
+    ``sessions`` says whether the runs' bed heights agree."""
     alpha = solid_images(void)
     times = np.asarray(times, float)
     nt, nx, nz = alpha.shape
-    frame_dt = float(np.median(np.diff(times))) if nt > 1 else 1.0
+    sp = spans(nt, segments)
+    steps = np.concatenate([np.diff(times[a:e]) for a, e in sp])
+    frame_dt = float(np.median(steps)) if steps.size else 1.0
     max_disp = max_displacement(frame_dt, dx, dz)
-    per = {thr: _at_threshold(alpha, thr, times, dx, dz, mask, max_disp) for thr in thresholds}
+    per = {thr: _at_threshold(alpha, thr, times, dx, dz, mask, max_disp, [a for a, _ in sp]) for thr in thresholds}
     table, chosen = _threshold_table(per, thresholds, n_boot)
     # the final metrics, each at its own threshold
     hb = per[chosen["bed_height"]]["height"]
@@ -218,25 +236,29 @@ def analyse(void: np.ndarray, times: np.ndarray, dx: float, dz: float, mask: np.
     below = zc < static_height
     m = np.ones((nx, nz), bool) if mask is None else mask
     mid = np.where(m[None] & below[None, None, :], 1.0 - alpha, 0.0).sum((1, 2)) / max(1, (m & below[None]).sum())
-    f, p, f_peak = spectrum(mid, frame_dt)
+    f, p, f_peak = spectrum(mid, frame_dt, segments)
     db = [b for bs in per[dthr]["frames"] for b in bs]
-    blk = block_frames(hb)  # the frames are correlated: intervals also over blocks of frames (block_bootstrap)
-    hstat = bootstrap(hb, n_boot) | block_bootstrap([[h] for h in hb], blk, n_boot)
+    blk = block_frames(hb, segments)  # the frames are correlated: intervals also over blocks of frames
+
+    def blocks(groups):
+        return block_bootstrap(groups, blk, n_boot, segments=segments)
+
+    hstat = bootstrap(hb, n_boot) | blocks([[h] for h in hb])
     athr = chosen["aspect_ratio"]
     return dict(table=table, chosen=chosen, frame_dt=frame_dt, max_disp=max_disp, block_frames=blk,
-                height_halves=halves(hb, blk),
+                height_halves=halves(hb, blk), segments=[a for a, _ in sp],
+                sessions=sessions_agree(hb, segments, blk) if len(sp) > 1 else None,
                 height=hb, height_stats=hstat, expansion_ratio=hstat["mean"] / static_height,
                 expansion_ratio_max=hstat["max"] / static_height,
-                diameter_stats=bootstrap(per[dthr]["diameter"], n_boot) | block_bootstrap(
-                    [[b["diameter"] for b in bs] for bs in per[dthr]["frames"]], blk, n_boot),
-                aspect_stats=bootstrap(per[athr]["aspect"], n_boot) | block_bootstrap(
-                    [[b["aspect"] for b in bs] for bs in per[athr]["frames"]], blk, n_boot),
-                velocity_stats=bootstrap(per[vthr]["velocity"], n_boot) | block_bootstrap(
-                    _by_start(per[vthr]["tracks"], nt), blk, n_boot),
+                diameter_stats=bootstrap(per[dthr]["diameter"], n_boot) | blocks(
+                    [[b["diameter"] for b in bs] for bs in per[dthr]["frames"]]),
+                aspect_stats=bootstrap(per[athr]["aspect"], n_boot) | blocks(
+                    [[b["aspect"] for b in bs] for bs in per[athr]["frames"]]),
+                velocity_stats=bootstrap(per[vthr]["velocity"], n_boot) | blocks(_by_start(per[vthr]["tracks"], nt)),
                 x=xc, radial_whole=pw, radial_static=ps, diameter_height=diameter_vs_height(db, nz * dz),
-                velocity_classes=velocity_classes(per[vthr]["tracks"], n_boot, nt, blk),
-                mid_void=mid, freq=f, power=p, f_peak=f_peak, f_resolution=1.0 / (nt * frame_dt),
-                static_height=static_height,
+                velocity_classes=velocity_classes(per[vthr]["tracks"], n_boot, nt, blk, segments),
+                mid_void=mid, freq=f, power=p, f_peak=f_peak,
+                f_resolution=1.0 / (max(e - a for a, e in sp) * frame_dt), static_height=static_height,
                 bubbles_at_diameter_threshold=db, times=times)
 
 
@@ -244,12 +266,14 @@ METRICS = {"bed_height": "height", "bubble_diameter": "diameter", "aspect_ratio"
            "bubble_velocity": "velocity"}  # metric name: its key in a threshold's results
 
 
-def _at_threshold(alpha: np.ndarray, thr: float, times: np.ndarray, dx: float, dz: float, mask, max_disp: float):
-    """One threshold over the series: bed heights, bubbles per frame, tracks, and the per-metric samples."""
+def _at_threshold(alpha: np.ndarray, thr: float, times: np.ndarray, dx: float, dz: float, mask, max_disp: float,
+                  breaks=()):
+    """One threshold over the series: bed heights, bubbles per frame, tracks (none across ``breaks``), and the
+    per-metric samples."""
     solid = binarise(alpha, thr)
     h = np.array([bed_height(solid[t], dz, mask) for t in range(len(alpha))])
     frames = [bubbles(solid[t], dx, dz, mask, surface=h[t]) for t in range(len(alpha))]
-    tracks = track(frames, times, max_disp)
+    tracks = track(frames, times, max_disp, breaks)
     return dict(height=h, frames=frames, tracks=tracks,
                 diameter=np.array([b["diameter"] for bs in frames for b in bs]),
                 aspect=np.array([b["aspect"] for bs in frames for b in bs]),
@@ -296,7 +320,7 @@ def diameter_vs_height(found: list[dict], top: float) -> list[dict]:
     return out
 
 
-def velocity_classes(tracks: list[dict], n_boot: int, frames: int = 0, block: int = 1) -> list[dict]:
+def velocity_classes(tracks: list[dict], n_boot: int, frames: int = 0, block: int = 1, segments=None) -> list[dict]:
     """Rise velocity (bootstrap statistics of vz) per bubble-diameter class of SIZE_CLASSES (track mean diameter);
     with ``frames`` (the record's), also the interval over blocks of ``block`` frames (each track under the frame
     it starts in), as for the metrics."""
@@ -306,7 +330,7 @@ def velocity_classes(tracks: list[dict], n_boot: int, frames: int = 0, block: in
         if mine:
             row = dict(d_lo=a, d_hi=b, **bootstrap([t["vz"] for t in mine], n_boot))
             if frames:
-                row |= block_bootstrap(_by_start(mine, frames), block, n_boot)
+                row |= block_bootstrap(_by_start(mine, frames), block, n_boot, segments=segments)
             out.append(row)
     return out
 
@@ -339,6 +363,26 @@ def read_images(run_dir: pathlib.Path, source: str):
         return void, times, dx, dz, tuple(float(v) for v in g.attrs["origin"]), mask
 
 
+def _window(run_dir: pathlib.Path, cfg, source: str):
+    """(void, times, dx, dz, origin, mask) of a run's /mri or /slab from output.average_from on (negative: the second
+    half; the transient before it is not analysed), the slab's closed cells as gas; None without the record."""
+    img = read_images(run_dir, source)
+    if img is None:
+        return None
+    void, times, dx, dz, origin, mask = img
+    t0 = cfg.output.average_from if cfg.output.average_from >= 0 else 0.5 * (times[0] + times[-1])
+    keep = times >= t0 - 1e-9
+    if keep.sum() < 2:
+        raise ValueError(f"fewer than 2 /{source} frames after output.average_from = {t0:g} s in {run_dir}")
+    floor = cfg.vessel.floor if cfg.vessel.floor is not None else cfg.domain.lo[2]
+    if abs(origin[1] - floor) > 1e-9:
+        raise ValueError(f"/{source} images start at z = {origin[1]} m, not at the floor {floor} m")
+    void = void[keep]
+    if source == "slab" and mask is not None:
+        void = np.where(mask[None], void, 1.0)
+    return void, times[keep], dx, dz, origin, mask
+
+
 def summarize(run_dir) -> dict:
     """The pipeline on a finished run's /mri and /slab records from output.average_from on (negative: the second
     half); tables and figures under analysis/<source>; returns key figures (SI) prefixed mri_ and slab_ for
@@ -348,27 +392,62 @@ def summarize(run_dir) -> dict:
     run_dir = pathlib.Path(run_dir)
     cfg = cfgmod.load(run_dir / "config.toml")
     static = cfg.probes.mri_static_height or STATIC_HEIGHT
-    floor = cfg.vessel.floor if cfg.vessel.floor is not None else cfg.domain.lo[2]
     figures, found = {}, False
     for source, label in SOURCES:
-        img = read_images(run_dir, source)
+        img = _window(run_dir, cfg, source)
         if img is None:
             continue
         found = True
         void, times, dx, dz, origin, mask = img
-        t0 = cfg.output.average_from if cfg.output.average_from >= 0 else 0.5 * (times[0] + times[-1])
-        keep = times >= t0 - 1e-9  # the analysed window: output.average_from on (the transient before it is not)
-        if keep.sum() < 2:
-            raise ValueError(f"fewer than 2 /{source} frames after output.average_from = {t0:g} s")
-        void, times = void[keep], times[keep]
-        if abs(origin[1] - floor) > 1e-9:
-            raise ValueError(f"/{source} images start at z = {origin[1]} m, not at the floor {floor} m")
-        if source == "slab":
-            void = np.where(mask[None], void, 1.0) if mask is not None else void
         res = analyse(void, times, dx, dz, mask, static, axis=cfg.vessel.center[0] - origin[0])
         figs = write(res, run_dir / "analysis" / source, f"{cfg.run.name or run_dir.name}: {label}")
         figures.update({f"{source}_{k}": v for k, v in figs.items()})
     if not found:
         raise ValueError("run.h5 holds neither /mri nor /slab: set probes.mri_interval or probes.slab_interval")
     (run_dir / "analysis" / "mri.json").write_text(json.dumps(figures, indent=2) + "\n")
+    return figures
+
+
+def summarize_pooled(run_dirs, out_dir) -> dict:
+    """The pipeline on the analysed windows of several runs of one case (``pooling.check_same_case``), pooled as
+    realisations of one operating point: the frames of all, each run a segment (``analyse``'s ``segments``), laid
+    end to end in time (each run's times shifted by a constant, which leaves its velocities alone). Tables and
+    figures under OUT/analysis/<source>, the figures in OUT/analysis/mri.json and OUT/pooled.json with the runs,
+    their frames and the session keys that differ."""
+    from .. import config as cfgmod
+    from .pooling import check_same_case
+
+    run_dirs, out_dir = [pathlib.Path(d) for d in run_dirs], pathlib.Path(out_dir)
+    cfgs = [cfgmod.load(d / "config.toml") for d in run_dirs]
+    wins = {src: [_window(d, c, src) for d, c in zip(run_dirs, cfgs)] for src, _ in SOURCES}
+    wins = {src: w for src, w in wins.items() if any(x is not None for x in w)}
+    if not wins:
+        raise ValueError("the runs' run.h5 hold neither /mri nor /slab: set probes.mri_interval or probes.slab_interval")
+    for src, w in wins.items():
+        if any(x is None for x in w):
+            raise ValueError(f"/{src} is missing in {run_dirs[[x is None for x in w].index(True)]}: pool runs that "
+                             "recorded the same images")
+    first = next(iter(wins.values()))
+    notes = check_same_case(run_dirs, [(float(x[1][0]), float(x[1][-1])) for x in first])
+    static = cfgs[0].probes.mri_static_height or STATIC_HEIGHT
+    figures, frames = {}, {}
+    for (src, label) in ((s, lab) for s, lab in SOURCES if s in wins):
+        w = wins[src]
+        if len({(x[0].shape[1:], x[2], x[3], x[4], None if x[5] is None else x[5].tobytes()) for x in w}) > 1:
+            raise ValueError(f"the runs' /{src} images differ in shape, pixel, origin or mask: pool runs of one case")
+        dt = float(np.median(np.diff(w[0][1])))
+        times, t_next = [], float(w[0][1][0])
+        for x in w:
+            times.append(x[1] - x[1][0] + t_next)
+            t_next = float(times[-1][-1]) + dt
+        lengths = [x[0].shape[0] for x in w]
+        segments = np.cumsum([0] + lengths[:-1])
+        res = analyse(np.concatenate([x[0] for x in w]), np.concatenate(times), w[0][2], w[0][3], w[0][5], static,
+                      axis=cfgs[0].vessel.center[0] - w[0][4][0], segments=segments)
+        figs = write(res, out_dir / "analysis" / src, f"{len(run_dirs)} runs pooled: {label}")
+        figures.update({f"{src}_{k}": v for k, v in figs.items()})
+        frames[src] = lengths
+    (out_dir / "analysis" / "mri.json").write_text(json.dumps(figures, indent=2) + "\n")
+    (out_dir / "pooled.json").write_text(json.dumps(dict(runs=[str(d) for d in run_dirs], frames=frames,
+                                                         session_differences=notes, figures=figures), indent=2) + "\n")
     return figures

@@ -56,7 +56,7 @@ def write(res: dict, out: pathlib.Path, title: str = "") -> dict:
           f"mean_hi_blocks: blocks of {res['block_frames']} consecutive frames resampled (two integral times of the "
           "bed height): the frames are correlated, so the study's interval is too narrow; compare runs with these.\n",
           _md(summary, skeys),
-          _steady_line(res["height_halves"]),
+          _steady_line(res["height_halves"]), _sessions_lines(res.get("sessions")),
           f"Expansion ratio: mean {res['expansion_ratio']:.4g}, max {res['expansion_ratio_max']:.4g}. "
           f"Dominant frequency of the void fraction below the static height: {res['f_peak']:.4g} Hz (resolution "
           f"{res['f_resolution']:.3g} Hz: the record's length sets it).\n",
@@ -76,7 +76,7 @@ def write(res: dict, out: pathlib.Path, title: str = "") -> dict:
                 bed_height_halves_z_mean=res["height_halves"]["z"]["mean"],
                 bed_height_halves_z_std=res["height_halves"]["z"]["std"],
                 bubble_velocity_mean=vs["mean"], bubble_tracks=vs["n"], aspect_ratio_mean=res["aspect_stats"]["mean"],
-                void_frequency=res["f_peak"])
+                void_frequency=res["f_peak"]) | _sessions_figures(res.get("sessions"))
 
 
 def _steady_line(hv: dict) -> str:
@@ -89,6 +89,25 @@ def _steady_line(hv: dict) -> str:
             f"({1e3 * a['mean_se']:.2f}) and {1e3 * b['mean']:.2f} ({1e3 * b['mean_se']:.2f}) mm, std "
             f"{1e3 * a['std']:.2f} ({1e3 * a['std_se']:.2f}) and {1e3 * b['std']:.2f} ({1e3 * b['std_se']:.2f}) mm "
             f"(block standard errors): z {z['mean']:.1f} (mean), {z['std']:.1f} (std), {words}.\n")
+
+
+def _sessions_lines(ss: dict | None) -> str:
+    """Pooled runs (``mri.summarize_pooled``): each run's bed height with its block error, and whether they agree."""
+    if not ss:
+        return ""
+    rows = [dict(run=i, first_frame=r["first"], frames=r["frames"], blocks=r["blocks"], mean=r["mean"],
+                 mean_se=r["mean_se"], std=r["std"]) for i, r in enumerate(ss["rows"])]
+    p = ss["p"]
+    words = ("too short to tell: a run holds fewer than two blocks" if not math.isfinite(p) else
+             "they differ (p < 0.01): not one steady operating point; read each run's window (one may still be "
+             "settling) before pooling them" if p < 0.01 else "consistent with one operating point")
+    return ("## The pooled runs: bed height (m) each, errors over blocks of frames\n\n" + _md(rows, list(rows[0]))
+            + f"\nchi^2 = {ss['chi2']:.3g} on {ss['dof']} degrees of freedom about their weighted mean "
+            f"{ss['weighted_mean']:.4g} m: p = {p:.3g}, {words}.\n")
+
+
+def _sessions_figures(ss: dict | None) -> dict:
+    return {} if not ss else dict(runs=len(ss["rows"]), runs_height_chi2=ss["chi2"], runs_height_p=ss["p"])
 
 
 SOURCES = (("mri", "synthetic MRI (grain volume on the MRI pixels)"),

@@ -55,10 +55,21 @@ def integral_time(x, dt: float = 1.0) -> float:
     return float(ac[:end].sum() * dt)
 
 
-def block_frames(series) -> int:
+def spans(nf: int, segments=None) -> list[tuple[int, int]]:
+    """The (first, end) frames of each segment of a record of ``nf`` frames pooled from several runs, ``segments``
+    their first frames (None: one segment, the whole record)."""
+    starts = sorted({0, *(int(s) for s in (segments if segments is not None else ()) if 0 < s < nf)})
+    return list(zip(starts, starts[1:] + [nf]))
+
+
+def block_frames(series, segments=None) -> int:
     """Frames per block for :func:`block_bootstrap`: two integral times of ``series`` (one value a frame, e.g. the bed
-    height), so that blocks are near independent; at least 1."""
-    return max(1, int(round(2.0 * integral_time(series))))
+    height), so that blocks are near independent; at least 1. Pooled segments (``segments``: their first frames):
+    the segments' integral times, weighted by their lengths (the jump between two runs is no correlation)."""
+    x = np.asarray(series, np.float64)
+    sp = spans(x.size, segments)
+    t = sum((b - a) * integral_time(x[a:b]) for a, b in sp) / max(1, x.size)
+    return max(1, int(round(2.0 * t)))
 
 
 def block_stats(h: np.ndarray, block: int) -> dict:
@@ -90,27 +101,57 @@ def halves(series, block: int) -> dict:
     return {"first": first, "second": second, "z": z_between(first, second)}
 
 
-def block_bootstrap(groups, block: int, n_boot: int = N_BOOT, seed: int = 0) -> dict:
+def block_bootstrap(groups, block: int, n_boot: int = N_BOOT, seed: int = 0, segments=None) -> dict:
     """95% interval of the mean of the values in ``groups`` (one array of values a frame, in frame order) over
     n_boot moving-block resamples: blocks of ``block`` consecutive frames drawn with replacement until they hold as
     many frames as the record. Frames 4 ms apart see the same bubbles and the same surge of the bed, so resampling
     frames (or bubbles) one by one, as :func:`bootstrap` and the study do, gives intervals too narrow by about the
-    square root of the frames a value stays correlated over; this is the interval that allows for it."""
+    square root of the frames a value stays correlated over; this is the interval that allows for it. A record pooled
+    from several runs (``segments``: their first frames) draws only blocks within one run (a run shorter than a
+    block adds none)."""
     counts = np.array([np.size(g) for g in groups], np.float64)
     sums = np.array([np.sum(g) if np.size(g) else 0.0 for g in groups], np.float64)
     nf = counts.size
     out = dict(block_frames=int(block))
     if nf == 0 or counts.sum() == 0:
         return out | dict(mean_lo_blocks=math.nan, mean_hi_blocks=math.nan)
-    b = max(1, min(int(block), nf))
+    sp = spans(nf, segments)
+    b = max(1, min(int(block), max(e - a for a, e in sp)))
     cs, cc = np.concatenate([[0.0], np.cumsum(sums)]), np.concatenate([[0.0], np.cumsum(counts)])
     bs, bc = cs[b:] - cs[:-b], cc[b:] - cc[:-b]  # each block start's sum and count
+    ok = block_starts(nf, b, segments)
+    bs, bc = bs[ok], bc[ok]
     k = int(math.ceil(nf / b))
     rng = np.random.default_rng(seed)
     starts = rng.integers(0, bs.size, size=(n_boot, k))
     num, den = bs[starts].sum(1), bc[starts].sum(1)
     means = num[den > 0] / den[den > 0]
     return out | dict(mean_lo_blocks=float(np.percentile(means, 2.5)), mean_hi_blocks=float(np.percentile(means, 97.5)))
+
+
+def block_starts(nf: int, block: int, segments=None) -> np.ndarray:
+    """The first frames of the blocks of ``block`` frames that lie within one segment (all nf - block + 1 starts
+    for one segment)."""
+    return np.concatenate([np.arange(a, e - block + 1) for a, e in spans(nf, segments)] + [np.zeros(0, int)])
+
+
+def sessions_agree(series, segments, block: int) -> dict:
+    """Do runs pooled as realisations of one case agree? Each segment's :func:`block_stats` of ``series`` (e.g. the
+    bed height), their mean weighted by 1 / se^2, and chi^2 = sum ((mean_i - weighted mean) / se_i)^2 with its
+    p-value on (segments - 1) degrees of freedom: a small p (< 0.01) says the runs are not one steady operating point
+    (one still settling, or another case). NaN without two blocks in every segment."""
+    x = np.asarray(series, np.float64)
+    rows = [block_stats(x[a:e], block) | dict(first=a, frames=e - a) for a, e in spans(x.size, segments)]
+    se = np.array([r["mean_se"] for r in rows])
+    m = np.array([r["mean"] for r in rows])
+    if len(rows) < 2 or not np.all(np.isfinite(se) & (se > 0)):
+        return dict(rows=rows, weighted_mean=math.nan, chi2=math.nan, dof=len(rows) - 1, p=math.nan)
+    w = 1.0 / se ** 2
+    mw = float((w * m).sum() / w.sum())
+    chi2 = float((((m - mw) / se) ** 2).sum())
+    from scipy import stats
+
+    return dict(rows=rows, weighted_mean=mw, chi2=chi2, dof=len(rows) - 1, p=float(stats.chi2.sf(chi2, len(rows) - 1)))
 
 
 def gradient_quality(values: list[float], thresholds=THRESHOLDS) -> list[float]:
