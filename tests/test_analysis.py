@@ -14,6 +14,7 @@ within 0.03 %, and the centroid of a cell-averaged sphere followed through 3-D f
 import csv
 import json
 import math
+import pathlib
 
 import h5py
 import numpy as np
@@ -462,3 +463,32 @@ def test_an_analysis_of_a_run_that_ended_before_its_first_record_says_so(tmp_pat
         f["series/time"] = [0.0, 0.001]
     why = post_process(analysis, tmp_path)["analysis_error"]
     assert why.startswith("ValueError: the run ended at t = 0.001 s, before the first record of") and said in why, why
+
+
+@pytest.mark.parametrize("average_from,window", [(0.02, 0.02), (0.3, 0.3), (-1.0, 0.8)])
+def test_the_run_analysis_starts_at_output_average_from(tmp_path, average_from, window):
+    """At a run's end (and in `fbed analyze`) the window is the preset's own, as the MRI analysis: a Verma session
+    going on from a carried fluidized state (benchmarks/device_run.sh VERMA_FROM: average_from 0.02, 3 s) discarded
+    its first 1 s, whatever the preset said. Negative: the second half of the records."""
+    from app import config as cfgmod
+
+    run_dir = tmp_path / "run"
+    write_synthetic_run(run_dir)
+    root = pathlib.Path(__file__).resolve().parents[1]
+    cfg = cfgmod.load(root / "presets" / "verma_small.toml", [f"output.average_from={average_from}"])
+    (run_dir / "config.toml").write_text(cfgmod.dump(cfg))
+    fig = verma.summarize(run_dir)
+    assert fig["verma_analysed_from"] == pytest.approx(window)
+    assert verma.analyze(run_dir, out_dir=tmp_path / "alone", reference=None)["t_cut"] == pytest.approx(0.8)
+
+
+def test_an_average_from_after_the_records_is_refused_naming_it(tmp_path):
+    from app import config as cfgmod
+
+    run_dir = tmp_path / "run"
+    write_synthetic_run(run_dir)
+    root = pathlib.Path(__file__).resolve().parents[1]
+    (run_dir / "config.toml").write_text(cfgmod.dump(cfgmod.load(root / "presets" / "verma_small.toml",
+                                                                 ["output.average_from=2.0"])))
+    with pytest.raises(ValueError, match="output.average_from = 2 s"):
+        verma.summarize(run_dir)

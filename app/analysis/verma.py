@@ -20,7 +20,9 @@ Run file layout (names are the module constants below):
 The recipe (``postprocessing`` in the reference json): porosity > 0.7 after 4x linear sub-grid
 interpolation, regions below 2 h^2 dropped, number-average of sqrt(4 A / pi); rise velocity =
 pair spacing / lag of the peak of the area-weighted cross-correlation (parabolic sub-sample
-peak); PDF bins of 0.04. The first ``t_discard`` seconds are discarded (clipped to half the run).
+peak); PDF bins of 0.04. The analysed window: at the end of a run and in `fbed analyze`, from the run's
+``output.average_from`` (negative: the second half of the records), as the MRI analysis; ``analyze`` called alone
+discards the first ``t_discard`` seconds (clipped to half the run).
 
 Because the correlation lag mixes every porosity change between the planes (bubble noses, tails,
 the bed surface's rise and fall), ``rise_velocity.csv`` / ``.md`` give each pair's velocity two
@@ -121,8 +123,9 @@ def _discard_time(times, t_discard: float) -> float:
     return t0 + min(float(t_discard), 0.5 * (t1 - t0))
 
 
-def _read_run(path: pathlib.Path, t_discard: float):
-    """Read the run file; porosity arrays are cut at the discard time."""
+def _read_run(path: pathlib.Path, t_discard: float, t_from: float | None = None):
+    """Read the run file; porosity arrays are cut at the window's start: ``t_from`` [s] where given (negative: the
+    middle of the records), else the discard time."""
     with h5py.File(path, "r") as f:
         planes_raw, mask = {}, None
         if PLANES in f:
@@ -141,7 +144,14 @@ def _read_run(path: pathlib.Path, t_discard: float):
         if p3 is not None:
             times.append(np.asarray(p3[TIME][()], float))
         times.append(series_t)
-        t_cut = _discard_time(times, t_discard)
+        if t_from is None or t_from < 0:  # the discard time, or the middle of the records
+            t_cut = _discard_time(times, t_discard if t_from is None else math.inf)
+        else:
+            t_cut = float(t_from)
+            last = max((float(t[-1]) for t in times if t is not None and len(t)), default=-math.inf)
+            if t_cut > last:
+                raise ValueError(f"the records end at t = {last:.6g} s, before output.average_from = {t_cut:g} s: "
+                                 "lower output.average_from or run longer")
 
         planes = {}
         for name, grp in planes_raw.items():
@@ -208,7 +218,7 @@ def _nearest(items, H, tol):
 
 
 def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
-            threshold: float = bb.THRESHOLD, factor: int = bb.FACTOR) -> dict:
+            threshold: float = bb.THRESHOLD, factor: int = bb.FACTOR, t_from: float | None = None) -> dict:
     """Verma et al. (2014) analysis of a run folder; see the module docstring.
 
     Parameters
@@ -218,6 +228,8 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
     reference : path of ``verma2014.json``; default ``default_reference()``; None for no
         reference (the table then has only the fbed column and the figures no measured data).
     t_discard : start time discarded [s] (clipped to half the run when the run is shorter).
+    t_from : the analysed window's start [s] instead (negative: the middle of the records), e.g. the run's
+        output.average_from (``summarize``).
 
     Returns
     -------
@@ -234,7 +246,7 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
 
     summary = json.loads((run_dir / SUMMARY_FILE).read_text())
     weight = float(summary[BED_WEIGHT_KEY])
-    run = _read_run(run_dir / RUN_FILE, t_discard)
+    run = _read_run(run_dir / RUN_FILE, t_discard, t_from)
     if not run["planes"] and run["vol"] is None:  # a table of dashes beside the X-ray's, said to be "written"
         raise ValueError("run.h5 holds neither /planes nor /porosity3d: the bubble statistics need "
                          "probes.planes with probes.planes_interval, or probes.volume_interval")
@@ -425,9 +437,15 @@ def main(argv=None) -> int:
 
 def summarize(run_dir) -> dict:
     """Run ``analyze`` on a finished run (files in run_dir/analysis) and return the fbed column as
-    flat summary.json figures: verma_<row key> (SI; the diameters in m)."""
-    res = analyze(run_dir)
-    out = {}
+    flat summary.json figures: verma_<row key> (SI; the diameters in m), and ``verma_analysed_from`` [s]: the window
+    starts at the run's output.average_from (a session going on from a carried state analyses from 0.02 s; the
+    first 1 s was discarded whatever the preset said, before 2026-12-07)."""
+    from .. import config as cfgmod
+
+    run_dir = pathlib.Path(run_dir)
+    t_from = cfgmod.load(run_dir / "config.toml").output.average_from if (run_dir / "config.toml").exists() else None
+    res = analyze(run_dir, t_from=t_from)
+    out = {"verma_analysed_from": float(res["t_cut"])}
     for key, _, kind, _ in ROWS:
         v = res["table"].get(key, {}).get("fbed")
         if v is None or (isinstance(v, float) and not np.isfinite(v)):

@@ -137,8 +137,8 @@ class OutputConfig:
     checkpoint_wall_interval: float = spec(300.0, unit="s", doc="wall-clock interval of checkpoints (0: off)", lo=0.0)
     save_bed: bool = spec(True, doc="write bed.h5 (the final grains, reusable as particles.initial_state)")
     log_interval: float = spec(5.0, unit="s", doc="wall-clock interval of log lines when not on a terminal", lo=0.1)
-    average_from: float = spec(-1.0, unit="s", doc="start of the time means in summary.json (negative: the second "
-                               "half of the run)")
+    average_from: float = spec(-1.0, unit="s", doc="start of the time means in summary.json and of the window the "
+                               "mri and verma analyses read (negative: the second half of the run)")
 
 
 @dataclass(frozen=True)
