@@ -22,6 +22,7 @@ import pytest
 from scipy import ndimage
 
 from app.analysis import bubbles as bb
+from app.analysis import rise
 from app.analysis import verma
 
 pytestmark = pytest.mark.unit
@@ -162,15 +163,15 @@ def sphere_planes(v, z_lo, z_up, dt, nt, n_bubbles, seed, sub=4):
 def test_rise_velocity_spheres():
     v, dt, spacing = 0.6, 0.002, 0.011
     lo, up, mask = sphere_planes(v, 0.050, 0.050 + spacing, dt, nt=1000, n_bubbles=12, seed=3)
-    vel, lag = bb.rise_velocity(lo, up, dt, spacing, mask=mask)
+    vel, lag = rise.rise_velocity(lo, up, dt, spacing, mask=mask)
     assert lag == pytest.approx(spacing / v, rel=REL)
     assert vel == pytest.approx(v, rel=REL)
     # reversed planes: the bubbles would move down, no peak at a positive lag
-    vel_r, lag_r = bb.rise_velocity(up, lo, dt, spacing, mask=mask, max_lag=5)
+    vel_r, lag_r = rise.rise_velocity(up, lo, dt, spacing, mask=mask, max_lag=5)
     assert math.isnan(vel_r) and math.isnan(lag_r)
     # pure noise-free constant field: no correlation at all
     flat = np.full((50, 4, 4), 0.4)
-    assert math.isnan(bb.rise_velocity(flat, flat, dt, spacing)[0])
+    assert math.isnan(rise.rise_velocity(flat, flat, dt, spacing)[0])
 
 
 def stretching_plug_planes(v_nose, v_tail, z_lo, z_up, dt, T=3.0, L0=0.02, D=0.030, seed=5):
@@ -203,14 +204,14 @@ def test_edge_velocities_stretching_bubbles():
     whole signal lands between them."""
     v_nose, v_tail, dt, spacing = 0.8, 0.5, 0.002, 0.011
     lo, up, mask = stretching_plug_planes(v_nose, v_tail, 0.050, 0.050 + spacing, dt)
-    e = bb.edge_velocities(lo, up, dt, spacing, mask=mask)
+    e = rise.edge_velocities(lo, up, dt, spacing, mask=mask)
     assert e["nose"]["count"] > 500 and e["tail"]["count"] > 500   # ten plugs of about 70 cells
     assert e["nose"]["velocity"] == pytest.approx(v_nose, rel=REL)
     assert e["tail"]["velocity"] == pytest.approx(v_tail, rel=REL)
-    corr, _ = bb.rise_velocity(lo, up, dt, spacing, mask=mask)
+    corr, _ = rise.rise_velocity(lo, up, dt, spacing, mask=mask)
     assert v_tail * (1 - REL) < corr < v_nose * (1 + REL)
     # planes swapped: every upper crossing comes first, nothing pairs within the window
-    none = bb.edge_velocities(up, lo, dt, spacing, mask=mask, min_velocity=0.2)
+    none = rise.edge_velocities(up, lo, dt, spacing, mask=mask, min_velocity=0.2)
     assert none["nose"]["count"] < 0.05 * e["nose"]["count"]
 
 

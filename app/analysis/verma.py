@@ -27,7 +27,7 @@ discards the first ``t_discard`` seconds (clipped to half the run).
 Because the correlation lag mixes every porosity change between the planes (bubble noses, tails,
 the bed surface's rise and fall), ``rise_velocity.csv`` / ``.md`` give each pair's velocity two
 other ways beside it: bubble noses and tails timed cell by cell between the planes
-(``bubbles.edge_velocities``) and the centroids of bubbles followed through the 3-D frames
+(``rise.edge_velocities``) and the centroids of bubbles followed through the 3-D frames
 (``bubbles.track_bubbles``).
 """
 from __future__ import annotations
@@ -42,6 +42,7 @@ import h5py
 import numpy as np
 
 from app.analysis import bubbles as bb
+from app.analysis import rise
 from app.analysis import verma_figures as vfig
 
 # ---- run folder layout ------------------------------------------------------------------------
@@ -305,8 +306,8 @@ def _pair_velocities(run: dict, threshold: float) -> dict:
         if nt >= 4:
             dt = float(np.median(np.diff(lo["time"][:nt])))
             m = _mask_for(run["mask"], lo["porosity"].shape[1:])
-            v, lag = bb.rise_velocity(lo["porosity"][:nt], up["porosity"][:nt], dt, spacing, mask=m)
-            edges = bb.edge_velocities(lo["porosity"][:nt], up["porosity"][:nt], dt, spacing, threshold, mask=m)
+            v, lag = rise.rise_velocity(lo["porosity"][:nt], up["porosity"][:nt], dt, spacing, mask=m)
+            edges = rise.edge_velocities(lo["porosity"][:nt], up["porosity"][:nt], dt, spacing, threshold, mask=m)
         pairs[label] = {"z": lo["z"], "spacing": spacing, "velocity": v, "lag": lag, **edges}
     return pairs
 
