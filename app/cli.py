@@ -5,7 +5,7 @@
     fbed view PRESET [--set ...]      (the run in a window with live controls)
     fbed analyze RUN_DIR              (the preset's bubble analysis on a finished run; on a sweep folder
                                       of mri or umf runs, the cases side by side)
-    fbed analyze RUN_DIR RUN_DIR... --out DIR   (mri: several runs of one case pooled, e.g. GPU sessions)
+    fbed analyze RUN_DIR RUN_DIR... --out DIR   (mri, verma: several runs of one case pooled, e.g. GPU sessions)
     fbed bench stress [--out DIR]     (hostile scenes: finish clean or stop with a clear message)
     fbed bench accuracy|stiffness [--size small|full] [--arch cpu|cuda] [--out DIR] [--resume]
                                       (error against cost; --resume goes on from the rows in --out)
@@ -77,10 +77,11 @@ def _add_analyze(sub) -> None:
                                    "statistics on /mri and /slab; umf: the fluidization curve) on RUN_DIR's files; "
                                    "writes RUN_DIR/analysis and updates summary.json. On a sweep folder of mri or "
                                    "umf runs: the cases side by side (mri_compare.*, umf_compare.*). On several "
-                                   "run folders of one case (mri): their analysed windows pooled as realisations of "
-                                   "one operating point, e.g. the GPU sessions of one drag law, into --out.")
+                                   "run folders of one case (mri, verma): their analysed windows pooled as "
+                                   "realisations of one operating point, e.g. the GPU sessions of one drag law, "
+                                   "into --out.")
     a.add_argument("run_dir", nargs="+", help="output folder of a run, or of a sweep (mri, umf: its cases side by "
-                   "side); several run folders of one case (mri) are pooled into --out")
+                   "side); several run folders of one case (mri, verma) are pooled into --out")
     a.add_argument("--out", help="with several run folders: the folder for the pooled analysis (analysis/, "
                    "pooled.json)")
     a.add_argument("--kind", choices=("boyce", "verma", "mri", "umf"), help="override the run's probes.analysis")

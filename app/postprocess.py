@@ -125,9 +125,14 @@ def analyze_command(run_dirs: list[str], out: str | None, kind: str | None, plot
     return analyze_pooled(run_dirs, out, kind)
 
 
+#: the analyses that pool several runs of one case, and their modules
+POOLED = {"mri": ".analysis.mri", "verma": ".analysis.verma_pool"}
+
+
 def analyze_pooled(run_dirs: list[str], out: str | None, kind: str | None = None) -> int:
-    """`fbed analyze RUN RUN ... --out DIR`: the mri analysis of several runs of one case pooled as realisations of
-    one operating point (``analysis.mri.summarize_pooled``) into DIR/analysis and DIR/pooled.json."""
+    """`fbed analyze RUN RUN ... --out DIR`: the mri or verma analysis of several runs of one case pooled as
+    realisations of one operating point (``summarize_pooled`` of ``analysis.mri``, ``analysis.verma_pool``) into
+    DIR/analysis and DIR/pooled.json."""
     dirs = [pathlib.Path(d) for d in run_dirs]
     if len(dirs) < 2:
         raise ConfigError("--out is for pooling several runs of one case: give two run folders or more", "", "--out",
@@ -147,17 +152,16 @@ def analyze_pooled(run_dirs: list[str], out: str | None, kind: str | None = None
         raise ConfigError("--out is a run folder: the pooled analysis would replace its own", out, "--out",
                           hint="name a new folder, e.g. runs/pooled")
     kinds = {kind or cfgmod.load(d / "config.toml").probes.analysis for d in dirs}
-    if kinds != {"mri"}:
-        raise ConfigError(f"pooling runs is written for the mri analysis, not {sorted(kinds)}", str(dirs[0]),
-                          "probes.analysis", hint="analyze each run folder on its own: fbed analyze DIR")
-    from .analysis import mri
-
+    if len(kinds) != 1 or next(iter(kinds)) not in POOLED:
+        raise ConfigError(f"pooling runs is written for the {' and '.join(POOLED)} analyses, not {sorted(kinds)}",
+                          str(dirs[0]), "probes.analysis", hint="analyze each run folder on its own: fbed analyze DIR")
+    which = next(iter(kinds))
     o.mkdir(parents=True, exist_ok=True)
     try:
-        figures = mri.summarize_pooled(dirs, o)
+        figures = importlib.import_module(POOLED[which], "app").summarize_pooled(dirs, o)
     except ValueError as err:
         raise ConfigError(str(err), out, "RUN_DIR") from None
-    log(f"fbed: {len(dirs)} runs pooled: the mri analysis written to {o / 'analysis'}")
+    log(f"fbed: {len(dirs)} runs pooled: the {which} analysis written to {o / 'analysis'}")
     for k, v in figures.items():
         print(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}")
     return EXIT_OK

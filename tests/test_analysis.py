@@ -493,3 +493,71 @@ def test_an_average_from_after_the_records_is_refused_naming_it(tmp_path):
                                                                  ["output.average_from=2.0"])))
     with pytest.raises(ValueError, match="output.average_from = 2 s"):
         verma.summarize(run_dir)
+
+
+# ---- several runs of one case pooled (fbed analyze RUN RUN --out DIR on verma runs) ---------------------------
+def test_pooled_correlation_ignores_the_jump_between_runs():
+    """Two runs whose emulsion sits at different porosity (0.15 apart). Each run's correlation formed alone (its own
+    means subtracted) and summed: the offset cancels exactly and the lag is the bubbles'. Correlated as one record,
+    the step between the runs enters the correlation and moves the velocity."""
+    v, dt, spacing = 0.6, 0.002, 0.011
+    lo1, up1, mask = sphere_planes(v, 0.050, 0.050 + spacing, dt, nt=600, n_bubbles=7, seed=3)
+    lo2, up2, _ = sphere_planes(v, 0.050, 0.050 + spacing, dt, nt=400, n_bubbles=5, seed=4)
+    plain = [np.concatenate([x, y]).astype(float) for x, y in ((lo1, lo2), (up1, up2))]
+    step = [np.concatenate([x, np.where(mask, y + 0.15, y)]).astype(float) for x, y in ((lo1, lo2), (up1, up2))]
+    vel, lag = rise.rise_velocity(*step, dt, spacing, mask=mask, segments=[0, 600])
+    assert vel == pytest.approx(v, rel=REL)
+    # (to 1e-7: the offset was added in float32, whose rounding of the values is 6e-8)
+    assert vel == pytest.approx(rise.rise_velocity(*plain, dt, spacing, mask=mask, segments=[0, 600])[0], rel=1e-7)
+    naive = [rise.rise_velocity(*x, dt, spacing, mask=mask)[0] for x in (plain, step)]
+    assert abs(naive[1] - naive[0]) > 1e-3 * v
+
+
+def test_noses_pair_within_one_run():
+    """A nose in the lower plane at the end of one run and one in the upper plane at the start of the next are two
+    bubbles, not one 4 ms apart."""
+    lo, up = np.full((20, 1, 1), 0.4), np.full((20, 1, 1), 0.4)
+    lo[8:10], up[11:14] = 0.9, 0.9
+    assert rise.edge_velocities(lo, up, 0.002, 0.011)["nose"]["count"] == 1
+    assert rise.edge_velocities(lo, up, 0.002, 0.011, segments=[0, 10])["nose"]["count"] == 0
+
+
+def _verma_session(run_dir, seed, overrides):
+    from app import config as cfgmod
+
+    write_synthetic_run(run_dir, seed=seed)
+    root = pathlib.Path(__file__).resolve().parents[1]
+    cfg = cfgmod.load(root / "presets" / "verma_small.toml", overrides)
+    (run_dir / "config.toml").write_text(cfgmod.dump(cfg))
+    return run_dir
+
+
+def test_fbed_analyze_pools_verma_sessions(tmp_path, capsys):
+    """Two sessions (the second going on from the first's packed state: another duration, inlet at full speed from
+    0, analysed from 0.02 s): their frames pool. Bubbles per plane add up, the pressure drop over the weight is the
+    frame-weighted mean, the velocities are the plugs' 0.55 m/s."""
+    from app.cli import main
+
+    a = _verma_session(tmp_path / "a", 7, ["output.average_from=0.3"])
+    b = _verma_session(tmp_path / "b", 8, ["output.average_from=0.02", "run.duration=3.0", "particles.count=0",
+                                            "particles.bed_height=0.0", 'particles.initial_state="state.h5"',
+                                            "boundary.bottom.schedule=[[0.0,1.0]]"])
+    (tmp_path / "b" / "state.h5").write_bytes(b"")
+    one = [verma.analyze(d, out_dir=tmp_path / f"{d.name}-alone", reference=None,
+                         t_from=0.3 if d is a else 0.02) for d in (a, b)]
+    out = tmp_path / "pooled"
+    assert main(["analyze", str(a), str(b), "--out", str(out)]) == 0, capsys.readouterr().err
+    pooled = json.loads((out / "pooled.json").read_text())
+    nf = [int(round((1.6 - 0.3) / SYN["dt"])) + 1, int(round((1.6 - 0.02) / SYN["dt"])) + 1]
+    assert pooled["frames"]["planes"] == nf
+    assert any(n.startswith("particles.initial_state") for n in pooled["session_differences"])
+    with open(out / verma.ANALYSIS_DIR / verma.TABLE_CSV) as fh:
+        rows = {r["quantity"]: r for r in csv.DictReader(fh)}
+    for key in ("rise_velocity_at_0.05m_m_s", "rise_velocity_at_0.10m_m_s"):
+        assert float(rows[key]["fbed"]) == pytest.approx(SYN["v"], rel=REL)
+    for key in ("De_at_H_0.05m_mm", "De_at_H_0.10m_mm"):
+        assert float(rows[key]["fbed"]) == pytest.approx(1e3 * SYN["D"], rel=REL)
+    assert pooled["bubbles_per_plane"] == {n: sum(r["planes"][n]["count"] for r in one) for n in one[0]["planes"]}
+    dpw = [r["dp_over_weight"] for r in one]
+    assert pooled["figures"]["verma_mean_dP_over_bed_weight_per_area"] == pytest.approx(
+        (nf[0] * dpw[0] + nf[1] * dpw[1]) / sum(nf), rel=1e-6)

@@ -422,7 +422,8 @@ def summarize_pooled(run_dirs, out_dir) -> dict:
     wins = {src: [_window(d, c, src) for d, c in zip(run_dirs, cfgs)] for src, _ in SOURCES}
     wins = {src: w for src, w in wins.items() if any(x is not None for x in w)}
     if not wins:
-        raise ValueError("the runs' run.h5 hold neither /mri nor /slab: set probes.mri_interval or probes.slab_interval")
+        raise ValueError("the runs' run.h5 hold neither /mri nor /slab: set probes.mri_interval or "
+                         "probes.slab_interval")
     for src, w in wins.items():
         if any(x is None for x in w):
             raise ValueError(f"/{src} is missing in {run_dirs[[x is None for x in w].index(True)]}: pool runs that "

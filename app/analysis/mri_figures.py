@@ -27,7 +27,8 @@ def plot(res: dict, out: pathlib.Path, title: str = "") -> None:
     ax[0, 0].axhline(1e3 * res["static_height"], color="0.5", ls="--", label="static")
     for a in res.get("segments", [0])[1:]:  # pooled runs: where the next begins (laid end to end in time)
         ax[0, 0].axvline(t[a], color="tab:red", lw=0.6, ls=":")
-    ax[0, 0].set(xlabel="t [s]" if len(res.get("segments", [0])) < 2 else "t [s], the runs end to end (red: a run begins)",
+    pooled = len(res.get("segments", [0])) > 1
+    ax[0, 0].set(xlabel="t [s], the runs end to end (red: a run begins)" if pooled else "t [s]",
                  ylabel="bed height [mm]", title=f"bed height (threshold {res['chosen']['bed_height']})")
     ax[0, 0].legend(fontsize=8)
     d = np.array([b["diameter"] for b in res["bubbles_at_diameter_threshold"]])

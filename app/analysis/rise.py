@@ -11,8 +11,14 @@ import numpy as np
 from .bubbles import THRESHOLD, _as_frames, _check_mask
 
 
+def spans(nt: int, segments=None) -> list[tuple[int, int]]:
+    """(first, end) frames of each run of a record pooled from several (``segments``: their first frames)."""
+    starts = sorted({0, *(int(s) for s in (segments if segments is not None else ()) if 0 < s < nt)})
+    return list(zip(starts, starts[1:] + [nt]))
+
+
 def rise_velocity(lower, upper, dt: float, spacing: float, mask=None,
-                  max_lag: int | None = None) -> tuple[float, float]:
+                  max_lag: int | None = None, segments=None) -> tuple[float, float]:
     """Bubble rise velocity between two horizontal planes by cross-correlation.
 
     lower, upper: (nt, nx, ny) porosity of the lower and upper plane, sampled every ``dt`` [s];
@@ -26,7 +32,9 @@ def rise_velocity(lower, upper, dt: float, spacing: float, mask=None,
     later), up to ``max_lag`` samples (default nt // 2). The peak is refined by a parabola
     through C(k-1), C(k), C(k+1). Returns (velocity [m/s], lag [s]) = (spacing / lag, lag);
     (nan, nan) when the correlation has no positive peak at a positive lag (peak value <= 0,
-    peak at the end of the search window, or refined lag <= 0).
+    peak at the end of the search window, or refined lag <= 0). A record pooled from several runs (``segments``:
+    their first frames): each run's means subtracted and its correlation formed alone, the correlations summed
+    (no product pairs frames of two runs); lags up to half the longest run.
     """
     a = _as_frames(lower).astype(float)
     b = _as_frames(upper).astype(float)
@@ -40,16 +48,20 @@ def rise_velocity(lower, upper, dt: float, spacing: float, mask=None,
     m = _check_mask(mask, a.shape[1:])
     if m is not None:
         w = w * m
-    a = np.nan_to_num(a - np.nanmean(a, axis=0))
-    b = np.nan_to_num(b - np.nanmean(b, axis=0))
-    nfft = 1 << int(math.ceil(math.log2(2 * nt)))
-    fa = np.fft.rfft(a, n=nfft, axis=0)
-    fb = np.fft.rfft(b, n=nfft, axis=0)
-    spec = np.einsum("tij,tij,ij->t", np.conj(fa), fb, w)
-    c = np.fft.irfft(spec, n=nfft)  # c[k] = sum a(t) b(t+k); c[-k] at index nfft-k
+    sp = [(i, e) for i, e in spans(nt, segments) if e - i >= 4]
+    if not sp:
+        return nan
+    longest = max(e - i for i, e in sp)
+    nfft = 1 << int(math.ceil(math.log2(2 * longest)))
+    c = np.zeros(nfft)
+    for i, e in sp:
+        sa = np.nan_to_num(a[i:e] - np.nanmean(a[i:e], axis=0))
+        sb = np.nan_to_num(b[i:e] - np.nanmean(b[i:e], axis=0))
+        spec = np.einsum("tij,tij,ij->t", np.conj(np.fft.rfft(sa, n=nfft, axis=0)), np.fft.rfft(sb, n=nfft, axis=0), w)
+        c += np.fft.irfft(spec, n=nfft)  # c[k] = sum a(t) b(t+k); c[-k] at index nfft-k
     if max_lag is None:
-        max_lag = nt // 2
-    max_lag = int(min(max_lag, nt - 2))
+        max_lag = longest // 2
+    max_lag = int(min(max_lag, longest - 2))
     k = int(np.argmax(c[: max_lag + 1]))
     if c[k] <= 0.0 or k == max_lag:
         return nan
@@ -78,7 +90,7 @@ def _interquartile_mean(x: np.ndarray) -> float:
 
 
 def edge_velocities(lower, upper, dt: float, spacing: float, threshold: float = THRESHOLD, mask=None,
-                    min_velocity: float = 0.05) -> dict:
+                    min_velocity: float = 0.05, segments=None) -> dict:
     """Rise velocities of bubble noses and tails between two horizontal planes, by time of flight.
 
     A check on ``rise_velocity`` (which correlates the whole porosity signal): in every cell
@@ -93,7 +105,8 @@ def edge_velocities(lower, upper, dt: float, spacing: float, threshold: float = 
     Returns {"nose": {...}, "tail": {...}}, each with ``velocity`` [m/s] = spacing / lag, where
     ``lag`` [s] is the mean of the paired lags between their quartiles (robust to the few
     mispaired events), and ``count``, the number of paired events; velocity and lag are nan
-    when no event pairs.
+    when no event pairs. A record pooled from several runs (``segments``: their first frames): crossings are
+    paired within one run only.
     """
     a = _as_frames(lower).astype(float)
     b = _as_frames(upper).astype(float)
@@ -105,9 +118,9 @@ def edge_velocities(lower, upper, dt: float, spacing: float, threshold: float = 
     out = {}
     for kind, rising in (("nose", True), ("tail", False)):
         lags = []
-        for i, j in cells:
-            ta = _crossings(a[:, i, j], threshold, rising)
-            tb = _crossings(b[:, i, j], threshold, rising)
+        for (i, j), (s0, s1) in ((c, r) for c in cells for r in spans(a.shape[0], segments)):
+            ta = _crossings(a[s0:s1, i, j], threshold, rising)
+            tb = _crossings(b[s0:s1, i, j], threshold, rising)
             if not ta.size or not tb.size:
                 continue
             nxt = np.append(ta[1:], np.inf)  # the next lower crossing after each

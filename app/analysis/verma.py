@@ -22,7 +22,8 @@ interpolation, regions below 2 h^2 dropped, number-average of sqrt(4 A / pi); ri
 pair spacing / lag of the peak of the area-weighted cross-correlation (parabolic sub-sample
 peak); PDF bins of 0.04. The analysed window: at the end of a run and in `fbed analyze`, from the run's
 ``output.average_from`` (negative: the second half of the records), as the MRI analysis; ``analyze`` called alone
-discards the first ``t_discard`` seconds (clipped to half the run).
+discards the first ``t_discard`` seconds (clipped to half the run). Several runs of the case (GPU sessions going on
+from each other's packed states) are pooled by ``verma_pool`` through ``analyze_records``.
 
 Because the correlation lag mixes every porosity change between the planes (bubble noses, tails,
 the bed surface's rise and fall), ``rise_velocity.csv`` / ``.md`` give each pair's velocity two
@@ -240,14 +241,18 @@ def analyze(run_dir, out_dir=None, reference=_DEFAULT, t_discard: float = 1.0,
     """
     run_dir = pathlib.Path(run_dir)
     out = pathlib.Path(out_dir) if out_dir is not None else run_dir / ANALYSIS_DIR
+    weight = float(json.loads((run_dir / SUMMARY_FILE).read_text())[BED_WEIGHT_KEY])
+    return analyze_records(_read_run(run_dir / RUN_FILE, t_discard, t_from), weight, out, reference, threshold, factor)
+
+
+def analyze_records(run: dict, weight: float, out: pathlib.Path, reference=_DEFAULT,
+                    threshold: float = bb.THRESHOLD, factor: int = bb.FACTOR) -> dict:
+    """``analyze`` on records read (``_read_run``'s dict; with ``segments``, {"planes": [...], "vol": [...]}: the first
+    frames of the runs a pooled record holds, ``verma_pool``), the bed's weight per area ``weight`` [Pa]."""
     out.mkdir(parents=True, exist_ok=True)
     if reference is _DEFAULT:
         reference = default_reference()
     ref = json.loads(pathlib.Path(reference).read_text()) if reference is not None else None
-
-    summary = json.loads((run_dir / SUMMARY_FILE).read_text())
-    weight = float(summary[BED_WEIGHT_KEY])
-    run = _read_run(run_dir / RUN_FILE, t_discard, t_from)
     if not run["planes"] and run["vol"] is None:  # a table of dashes beside the X-ray's, said to be "written"
         raise ValueError("run.h5 holds neither /planes nor /porosity3d: the bubble statistics need "
                          "probes.planes with probes.planes_interval, or probes.volume_interval")
@@ -306,8 +311,10 @@ def _pair_velocities(run: dict, threshold: float) -> dict:
         if nt >= 4:
             dt = float(np.median(np.diff(lo["time"][:nt])))
             m = _mask_for(run["mask"], lo["porosity"].shape[1:])
-            v, lag = rise.rise_velocity(lo["porosity"][:nt], up["porosity"][:nt], dt, spacing, mask=m)
-            edges = rise.edge_velocities(lo["porosity"][:nt], up["porosity"][:nt], dt, spacing, threshold, mask=m)
+            seg = run.get("segments", {}).get("planes")
+            v, lag = rise.rise_velocity(lo["porosity"][:nt], up["porosity"][:nt], dt, spacing, mask=m, segments=seg)
+            edges = rise.edge_velocities(lo["porosity"][:nt], up["porosity"][:nt], dt, spacing, threshold, mask=m,
+                                         segments=seg)
         pairs[label] = {"z": lo["z"], "spacing": spacing, "velocity": v, "lag": lag, **edges}
     return pairs
 
@@ -326,8 +333,10 @@ def _volume_bubbles(run: dict, threshold: float, factor: int):
         z, De, cnt = bb.diameter_profile(eps, h3, zc, threshold, factor, mask=m3,
                                          max_area=_max_area(m3, eps.shape[1:3], h3))
         profile = {"z": z, "De": De, "count": cnt}
-        if len(eps) >= 2:
-            tracks = bb.track_bubbles(eps, vol["time"], h3, threshold, mask=m3)
+        parts = [bb.track_bubbles(eps[a:e], vol["time"][a:e], h3, threshold, mask=m3)
+                 for a, e in rise.spans(len(eps), run.get("segments", {}).get("vol")) if e - a >= 2]
+        if parts:  # each run's frames alone: no bubble is followed from one run into the next
+            tracks = {k: np.concatenate([t[k] for t in parts]) for k in parts[0]}
             tracks["z"] = tracks["z"] + z0
     return profile, tracks
 
@@ -446,7 +455,12 @@ def summarize(run_dir) -> dict:
     run_dir = pathlib.Path(run_dir)
     t_from = cfgmod.load(run_dir / "config.toml").output.average_from if (run_dir / "config.toml").exists() else None
     res = analyze(run_dir, t_from=t_from)
-    out = {"verma_analysed_from": float(res["t_cut"])}
+    return {"verma_analysed_from": float(res["t_cut"])} | summary_figures(res)
+
+
+def summary_figures(res: dict) -> dict:
+    """The fbed column of an analysis (``analyze_records``' result) as flat summary.json figures."""
+    out = {}
     for key, _, kind, _ in ROWS:
         v = res["table"].get(key, {}).get("fbed")
         if v is None or (isinstance(v, float) and not np.isfinite(v)):
