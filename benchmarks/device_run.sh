@@ -44,6 +44,7 @@
 # full speed from 0, analysed from 0.02 s): carry [".devkit", "runs/mri_state_<law>.h5"] with validation/,
 # benchmarks/accuracy, benchmarks/stiffness and docs/ moved aside (8.0 MB left for it; `benchmarks/device_carry.py
 # --aside validation benchmarks/accuracy benchmarks/stiffness docs --carry .devkit runs/mri_state_<law>.h5`).
+# Back here, one law's sessions are analysed together: `fbed analyze RUN_1 RUN_2 ... --out runs/<law>-pooled`.
 # Keep LIMIT_<stage> at least 40 s under the call's timeout: the packing below needs the time.
 # The accuracy and stiffness stages resume (--resume): to go on from rows already committed, copy them first,
 # e.g. `mkdir -p runs/accuracy_full && cp benchmarks/accuracy/full_gpu/accuracy.csv runs/accuracy_full/`, and
@@ -73,7 +74,8 @@ pack_moving() {
 # A Verma run that outlasts a session goes on in the next: `verma_pack` packs its last state with the grains' speeds
 # into $OUT/verma_state.h5; carried back as runs/verma_state.h5 (present when this call starts), `verma` and
 # `verma_start` go on from it, fluidized: the inlet at full speed from 0, 3 s analysed from 0.02 s (VERMA_SET can
-# set run.duration to what the first session left of the preset's 1.0-6.5 s window)
+# set run.duration to what the first session left of the preset's 1.0-6.5 s window); back here, the sessions'
+# tables are one: `fbed analyze runs/verma runs/verma-2 ... --out runs/verma-pooled`
 VERMA_FROM=()
 [ -f runs/verma_state.h5 ] && VERMA_FROM=(--set particles.count=0 \
   --set "particles.initial_state=\"$PWD/runs/verma_state.h5\"" --set 'boundary.bottom.schedule=[[0.0,1.0]]' \
