@@ -6,6 +6,7 @@
     fbed analyze RUN_DIR              (the preset's bubble analysis on a finished run; on a sweep folder
                                       of mri or umf runs, the cases side by side)
     fbed analyze RUN_DIR RUN_DIR... --out DIR   (mri, verma: several runs of one case pooled, e.g. GPU sessions)
+    fbed analyze DIR DIR... --compare --out DIR (mri: cases side by side, labelled by the keys they differ by)
     fbed bench stress [--out DIR]     (hostile scenes: finish clean or stop with a clear message)
     fbed bench accuracy|stiffness [--size small|full] [--arch cpu|cuda] [--out DIR] [--resume]
                                       (error against cost; --resume goes on from the rows in --out)
@@ -83,7 +84,9 @@ def _add_analyze(sub) -> None:
     a.add_argument("run_dir", nargs="+", help="output folder of a run, or of a sweep (mri, umf: its cases side by "
                    "side); several run folders of one case (mri, verma) are pooled into --out")
     a.add_argument("--out", help="with several run folders: the folder for the pooled analysis (analysis/, "
-                   "pooled.json)")
+                   "pooled.json), or with --compare for the table")
+    a.add_argument("--compare", action="store_true", help="mri: several cases (run folders, or pooled folders of "
+                   "--out) side by side in --out (mri_compare.*), labelled by the keys they differ by, as a sweep's")
     a.add_argument("--kind", choices=("boyce", "verma", "mri", "umf"), help="override the run's probes.analysis")
     a.add_argument("--plot", metavar="FIGURE", help="on a sweep folder: plot this summary figure against the swept "
                    "keys from sweep.csv (DIR/FIGURE.png), the cases not run again")
@@ -291,7 +294,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "analyze":
             from .postprocess import analyze_command
 
-            return analyze_command(args.run_dir, args.out, args.kind, args.plot)
+            return analyze_command(args.run_dir, args.out, args.kind, args.plot, args.compare)
         if args.command == "rcfd":
             from .rcfd.cli import main as rcfd_main
 

@@ -114,15 +114,53 @@ def analyze_sweep(d: pathlib.Path, kind: str | None = None) -> int:
     return EXIT_OK
 
 
-def analyze_command(run_dirs: list[str], out: str | None, kind: str | None, plot: str | None) -> int:
-    """`fbed analyze`: one run or sweep folder (:func:`analyze`), or several runs of one case pooled
-    (:func:`analyze_pooled`)."""
-    if len(run_dirs) == 1 and out is None:
+def analyze_command(run_dirs: list[str], out: str | None, kind: str | None, plot: str | None,
+                    compare: bool = False) -> int:
+    """`fbed analyze`: one run or sweep folder (:func:`analyze`), several runs of one case pooled
+    (:func:`analyze_pooled`), or several cases side by side (:func:`analyze_compare`)."""
+    if len(run_dirs) == 1 and out is None and not compare:
         return analyze(run_dirs[0], kind, plot)
     if plot is not None:
-        raise ConfigError("--plot draws a sweep's figure, not pooled runs'", "", "--plot",
+        raise ConfigError("--plot draws a sweep's figure, not pooled or compared runs'", "", "--plot",
                           hint="drop --plot, or give the sweep folder alone")
-    return analyze_pooled(run_dirs, out, kind)
+    return analyze_compare(run_dirs, out, kind) if compare else analyze_pooled(run_dirs, out, kind)
+
+
+def analyze_compare(dirs_given: list[str], out: str | None, kind: str | None = None) -> int:
+    """`fbed analyze DIR DIR ... --compare --out OUT`: the mri figures of several cases side by side, as of a sweep's
+    (OUT/mri_compare.{csv,md,png}): run folders (analysed first where they are not yet) or pooled folders (their
+    first run's preset names the case), labelled by the case keys they differ by (e.g. coupling.drag): four drag laws
+    run in separate GPU sessions make the sweep's table."""
+    from .analysis import mri_report, pooling
+
+    dirs = [pathlib.Path(d) for d in dirs_given]
+    if len(dirs) < 2 or out is None:
+        raise ConfigError("--compare puts several cases side by side into a folder of their own", "", "--out" if
+                          out is None else "RUN_DIR", hint="e.g. fbed analyze runs/a runs/b --compare --out runs/cmp")
+    cfgs, status = [], []
+    for d in dirs:
+        if (d / "pooled.json").exists():
+            runs = json.loads((d / "pooled.json").read_text())["runs"]
+            cfg_dir, what = pathlib.Path(runs[0]), f"{len(runs)} runs pooled"
+        elif (d / "run.h5").exists() and (d / "config.toml").exists():
+            cfg_dir, what = d, "run"
+            if not (d / "analysis" / "mri.json").exists() and analyze(str(d), kind) != EXIT_OK:
+                return EXIT_INPUT
+        else:
+            raise ConfigError("neither a run folder nor a pooled one (no run.h5 and config.toml, no pooled.json)",
+                              str(d), "RUN_DIR", hint="give fbed runs' folders or `fbed analyze ... --out` folders")
+        if not (cfg_dir / "config.toml").exists() or not (d / "analysis" / "mri.json").exists():
+            raise ConfigError("no mri analysis here (analysis/mri.json) or its run's config.toml is gone", str(d),
+                              "RUN_DIR", hint="--compare is written for the mri analysis")
+        cfgs.append(cfgmod.load(cfg_dir / "config.toml"))
+        status.append(what)
+    keys = pooling.keys_that_differ(cfgs)
+    flats = [pooling.flat(c) for c in cfgs]
+    table = [mri_report.compare_row(d.name, {k: f.get(k) for k in keys}, st, d) for d, f, st in zip(dirs, flats, status)]
+    o = pathlib.Path(out)
+    o.mkdir(parents=True, exist_ok=True)
+    print(mri_report.write_compare(o, table, keys, f"{len(dirs)} cases").read_text())
+    return EXIT_OK
 
 
 #: the analyses that pool several runs of one case, and their modules

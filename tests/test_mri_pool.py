@@ -175,3 +175,26 @@ def test_bad_pooling_invocations_name_the_flag(sessions, capsys):
                        (["analyze", str(a), str(b), "--out", str(root / "x"), "--plot", "f"], "--plot")):
         assert main(argv) == 2
         assert flag in capsys.readouterr().err
+
+
+def test_cases_run_apart_side_by_side_as_a_sweep(sessions, capsys):
+    """The four laws run in separate GPU sessions (benchmarks/device_run.sh mri_law), some pooled: `fbed analyze ...
+    --compare --out` makes the sweep's table, each case labelled by the keys it differs by (coupling.drag)."""
+    import csv
+
+    root, a, b = sessions
+    pooled, other = root / "cmp-pooled", root / "cmp-beetstra"
+    assert main(["analyze", str(a), str(b), "--out", str(pooled)]) == 0
+    _run(other, NEXT + ["coupling.drag=beetstra"], mri.read_images(b, "mri")[0], 0.004)
+    out = root / "cmp"
+    assert main(["analyze", str(pooled), str(other), "--compare", "--out", str(out)]) == 0
+    with open(out / "mri_compare.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [(r["case"], r["coupling.drag"], r["status"]) for r in rows] == [
+        ("cmp-pooled", "koch_hill", "2 runs pooled"), ("cmp-beetstra", "beetstra", "run")]
+    assert list(rows[0])[:3] == ["case", "coupling.drag", "status"]  # the session keys (run.duration, ...) are not
+    fig = json.loads((pooled / "pooled.json").read_text())["figures"]
+    assert float(rows[0]["mri_bed_height_mean"]) == pytest.approx(fig["mri_bed_height_mean"], rel=1e-5)
+    assert (out / "mri_compare.png").exists() and "beetstra" in (out / "mri_compare.md").read_text()
+    assert main(["analyze", str(other), "--compare", "--out", str(out)]) == 2
+    assert "--compare" in capsys.readouterr().err

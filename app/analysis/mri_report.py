@@ -128,19 +128,23 @@ def compare(sweep_dir) -> pathlib.Path:
         rows = list(csv.DictReader(f))
     cols = list(rows[0]) if rows else []
     swept = cols[1:cols.index("status")] if "status" in cols else []  # sweep.csv: case, the swept keys, status
-    table = []
-    for r in rows:
-        j = d / r["case"] / "analysis" / "mri.json"
-        fig = json.loads(j.read_text()) if j.exists() else {}
-        row = {"case": r["case"], **{k: r[k] for k in swept}, "status": r.get("status", "")}
-        for src, _ in SOURCES:
-            for k in COMPARE_KEYS:
-                if f"{src}_{k}" in fig:
-                    row[f"{src}_{k}"] = fig[f"{src}_{k}"]
-        table.append(row)
+    table = [compare_row(r["case"], {k: r[k] for k in swept}, r.get("status", ""), d / r["case"]) for r in rows]
+    return write_compare(d, table, swept, "the sweep's cases")
+
+
+def compare_row(case: str, keys: dict, status: str, folder: pathlib.Path) -> dict:
+    """One case's row: its name, the keys it differs by, its status and the COMPARE_KEYS of its analysis/mri.json."""
+    j = folder / "analysis" / "mri.json"
+    fig = json.loads(j.read_text()) if j.exists() else {}
+    return {"case": case, **keys, "status": status, **{f"{src}_{k}": fig[f"{src}_{k}"] for src, _ in SOURCES
+                                                       for k in COMPARE_KEYS if f"{src}_{k}" in fig}}
+
+
+def write_compare(d: pathlib.Path, table: list[dict], swept: list[str], what: str) -> pathlib.Path:
+    """``table`` (``compare_row``s) into d/mri_compare.{csv,md,png}, ``swept`` the keys the cases differ by."""
     keys = list(dict.fromkeys(k for r in table for k in r))
     _write_csv(d / "mri_compare.csv", table, keys)
-    (d / "mri_compare.md").write_text("# MRI figures of the sweep's cases (m, m/s, Hz)\n\nIntervals: 95%; _lo, _hi "
+    (d / "mri_compare.md").write_text(f"# MRI figures of {what} (m, m/s, Hz)\n\nIntervals: 95%; _lo, _hi "
                                       "the study's (frames resampled one by one), _lo_blocks, _hi_blocks over blocks "
                                       "of correlated frames: cases differ where these do not overlap.\n\n"
                                       + _md(table, keys))

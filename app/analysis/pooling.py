@@ -95,3 +95,12 @@ def check_same_case(run_dirs: list[pathlib.Path], windows: list[tuple[float, flo
                               "and overrides; how each session starts, how long it runs and what else it records "
                               "may differ); compare different cases with `fbed sweep` and `fbed analyze SWEEP_DIR`")
     return notes
+
+
+def keys_that_differ(cfgs) -> list[str]:
+    """The case keys (not ``SESSION``'s, not an inlet's time law) whose values differ between the configs: what
+    tells cases apart in a side-by-side table."""
+    flats = [flat(c) for c in cfgs]
+    keys = sorted(set().union(*flats))
+    return [k for k in keys if not _session_key(k) and not (k.startswith("boundary.") and
+            k.rsplit(".", 1)[1] in INLET_LAW) and len({repr(f.get(k)) for f in flats}) > 1]
