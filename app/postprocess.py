@@ -156,7 +156,8 @@ def analyze_compare(dirs_given: list[str], out: str | None, kind: str | None = N
         status.append(what)
     keys = pooling.keys_that_differ(cfgs)
     flats = [pooling.flat(c) for c in cfgs]
-    table = [mri_report.compare_row(d.name, {k: f.get(k) for k in keys}, st, d) for d, f, st in zip(dirs, flats, status)]
+    table = [mri_report.compare_row(d.name, {k: f.get(k) for k in keys}, st, d)
+             for d, f, st in zip(dirs, flats, status)]
     o = pathlib.Path(out)
     o.mkdir(parents=True, exist_ok=True)
     print(mri_report.write_compare(o, table, keys, f"{len(dirs)} cases").read_text())
