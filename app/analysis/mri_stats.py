@@ -1,11 +1,15 @@
 """The statistics of the MRI pipeline (``app.analysis.mri``; seed 002, Section 3.3.3 and 3.3.7): bootstrap
 intervals, the gradient quality score and the choice of a threshold per metric from the study's acceptance
-criteria alone. Plain numpy; also reachable as ``app.analysis.mri.bootstrap`` etc."""
+criteria alone; runs pooled (their agreement, blocks within one run). Plain numpy and scipy; also reachable as
+``app.analysis.mri.bootstrap`` etc."""
 from __future__ import annotations
 
 import math
 
 import numpy as np
+from scipy import stats
+
+from .pooling import spans  # noqa: F401  (mri_stats.spans, as the analysis reads it)
 
 THRESHOLDS = (0.15, 0.20, 0.25, 0.30, 0.35, 0.40)  # solid-fraction thresholds of the study (Step 4)
 N_BOOT = 10_000           # bootstrap resamples
@@ -53,13 +57,6 @@ def integral_time(x, dt: float = 1.0) -> float:
     zero = np.nonzero(ac <= 0)[0]
     end = int(zero[0]) if zero.size else ac.size
     return float(ac[:end].sum() * dt)
-
-
-def spans(nf: int, segments=None) -> list[tuple[int, int]]:
-    """The (first, end) frames of each segment of a record of ``nf`` frames pooled from several runs, ``segments``
-    their first frames (None: one segment, the whole record)."""
-    starts = sorted({0, *(int(s) for s in (segments if segments is not None else ()) if 0 < s < nf)})
-    return list(zip(starts, starts[1:] + [nf]))
 
 
 def block_frames(series, segments=None) -> int:
@@ -149,8 +146,6 @@ def sessions_agree(series, segments, block: int) -> dict:
     w = 1.0 / se ** 2
     mw = float((w * m).sum() / w.sum())
     chi2 = float((((m - mw) / se) ** 2).sum())
-    from scipy import stats
-
     return dict(rows=rows, weighted_mean=mw, chi2=chi2, dof=len(rows) - 1, p=float(stats.chi2.sf(chi2, len(rows) - 1)))
 
 

@@ -24,6 +24,13 @@ SESSION = ("run.duration", "run.start_from", "run.name", "run.seed", "run.thread
 INLET_LAW = ("schedule", "start", "ramp")
 
 
+def spans(nf: int, segments=None) -> list[tuple[int, int]]:
+    """The (first, end) frames of each segment of a record of ``nf`` frames pooled from several runs, ``segments``
+    their first frames (None: one segment, the whole record)."""
+    starts = sorted({0, *(int(s) for s in (segments if segments is not None else ()) if 0 < s < nf)})
+    return list(zip(starts, starts[1:] + [nf]))
+
+
 def flat(cfg) -> dict:
     """'section.key' (boundary faces as 'boundary.FACE.key') -> value of a loaded config."""
     out = {}

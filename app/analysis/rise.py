@@ -9,12 +9,7 @@ import math
 import numpy as np
 
 from .bubbles import THRESHOLD, _as_frames, _check_mask
-
-
-def spans(nt: int, segments=None) -> list[tuple[int, int]]:
-    """(first, end) frames of each run of a record pooled from several (``segments``: their first frames)."""
-    starts = sorted({0, *(int(s) for s in (segments if segments is not None else ()) if 0 < s < nt)})
-    return list(zip(starts, starts[1:] + [nt]))
+from .pooling import spans  # noqa: F401  (rise.spans: verma reads it)
 
 
 def rise_velocity(lower, upper, dt: float, spacing: float, mask=None,
