@@ -561,3 +561,7 @@ def test_fbed_analyze_pools_verma_sessions(tmp_path, capsys):
     dpw = [r["dp_over_weight"] for r in one]
     assert pooled["figures"]["verma_mean_dP_over_bed_weight_per_area"] == pytest.approx(
         (nf[0] * dpw[0] + nf[1] * dpw[1]) / sum(nf), rel=1e-6)
+    # the synthetic pressure drop is one periodic signal in both: the runs agree
+    agree = pooled["runs_dp_over_weight"]
+    assert [r["frames"] for r in agree["rows"]] == nf and agree["p"] > 0.01
+    assert agree["rows"][0]["mean"] == pytest.approx(dpw[0], rel=1e-9)

@@ -7,7 +7,9 @@ Each run's records from its own window start (output.average_from) are laid end 
 shifted by one constant, so intervals and velocities are its own). The frame-by-frame figures (bubble diameters,
 porosity PDFs, the diameter profile, the pressure drop over the weight) pool as the frames do; the plane pairs'
 correlation is each run's own summed (``rise.rise_velocity``'s ``segments``), noses and tails pair within a run,
-and no bubble is followed from one run into the next. Plain numpy, no Taichi.
+and no bubble is followed from one run into the next. Whether the runs are one operating point: their pressure drops
+over the weight against each other, with errors over blocks of correlated steps (``mri_stats.sessions_agree``).
+Plain numpy, no Taichi.
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ import pathlib
 import numpy as np
 
 from . import verma
+from .mri_stats import block_frames, sessions_agree
 
 
 def _shifted(run: dict, shift: float) -> dict:
@@ -70,11 +73,13 @@ def merge(runs: list[dict]) -> dict:
     n_planes = [len(next(iter(s["planes"].values()))["time"]) if names else 0 for s in shifted]
     n_vol = [len(s["vol"]["time"]) for s in shifted] if vol is not None else []
     series = [s for s in shifted if s["series_t"] is not None]
+    n_series = [len(s["series_t"]) for s in series]
     return dict(first, planes=planes, vol=vol, t_cut=runs[0]["t_cut"],
                 series_t=cat("series_t", series) if len(series) == len(shifted) else None,
                 dp=cat("dp", series) if len(series) == len(shifted) and all(s["dp"] is not None for s in series)
                 else None,
-                segments={"planes": np.cumsum([0] + n_planes[:-1]), "vol": np.cumsum([0] + n_vol[:-1])},
+                segments={"planes": np.cumsum([0] + n_planes[:-1]), "vol": np.cumsum([0] + n_vol[:-1]),
+                          "series": np.cumsum([0] + n_series[:-1])},
                 frames={"planes": n_planes, "porosity3d": n_vol})
 
 
@@ -97,8 +102,13 @@ def summarize_pooled(run_dirs, out_dir) -> dict:
     merged = merge(runs)
     res = verma.analyze_records(merged, float(np.mean(weights)), out_dir / verma.ANALYSIS_DIR)
     figs = {"verma_runs": len(run_dirs)} | verma.summary_figures(res)
+    agree = None
+    if merged["dp"] is not None:  # do the runs' pressure drops agree within their errors (blocks of correlated steps)?
+        x, seg = merged["dp"] / float(np.mean(weights)), merged["segments"]["series"]
+        agree = sessions_agree(x, seg, block_frames(x, seg))
+        figs |= {"verma_runs_dp_chi2": agree["chi2"], "verma_runs_dp_p": agree["p"]}
     record = dict(runs=[str(d) for d in run_dirs], frames=merged["frames"], windows=[_window(r) for r in runs],
                   bubbles_per_plane={n: p["count"] for n, p in res["planes"].items()}, session_differences=notes,
-                  figures=figs)
+                  runs_dp_over_weight=agree, figures=figs)
     (out_dir / "pooled.json").write_text(json.dumps(record, indent=2) + "\n")
     return figs
