@@ -71,6 +71,15 @@ pack_moving() {
   [ $# -gt 0 ] || set -- --resolution 2e-6 --speed-resolution 1e-2
   [ -f "$src" ] && python3 -m app pack "$src" "$out" "$@" && cp "$out" "$OUT/"
 }
+# keep_records RUN_DIR NAME GROUP... [--quantize]: the run's analysis records (those run.h5 groups), its config.toml
+# and summary.json in $OUT/NAME (benchmarks/run_records.py, under 16 MiB), so that a case's sessions can be pooled
+# back here: `python3 benchmarks/run_records.py unpack NAME runs/DIR` for each, then `fbed analyze DIR DIR --out`
+keep_records() {
+  local run=$1 name=$2
+  shift 2
+  [ -n "${OUT:-}" ] && [ -f "$run/run.h5" ] && python3 benchmarks/run_records.py pack "$run" "$OUT/$name" --groups "$@"
+  return 0
+}
 # A Verma run that outlasts a session goes on in the next: `verma_pack` packs its last state with the grains' speeds
 # into $OUT/verma_state.h5; carried back as runs/verma_state.h5 (present when this call starts), `verma` and
 # `verma_start` go on from it, fluidized: the inlet at full speed from 0, 3 s analysed from 0.02 s (VERMA_SET can
@@ -165,8 +174,10 @@ for stage in "$@"; do
         ${VERMA_SET:-} ;;
     verma_resume)
       $T python3 -m app run --resume runs/verma --arch cuda ;;
-    verma_pack)  # the run's last state with its grains' speeds, for a later session (carry it as runs/verma_state.h5)
-      pack_moving runs/verma runs/verma_state.h5 ;;
+    verma_pack)  # the run's last state with its grains' speeds, for a later session (carry it as runs/verma_state.h5),
+      # and its planes and series (quantized: 3 s of planes are 17 MB lossless) for pooling the sessions' tables
+      pack_moving runs/verma runs/verma_state.h5
+      keep_records runs/verma verma_records.h5 planes series --quantize ;;
     verma_start)
       # a guard stop skips the automatic analysis: run it on the data up to the stop
       setsid nohup bash -c "python3 -m app run presets/verma.toml --arch cuda --out runs/verma --overwrite \
@@ -212,6 +223,7 @@ for stage in "$@"; do
         # its end state with the grains' speeds (bed.h5, or the checkpoint of a run cut at its limit), for a later
         # session to go on from: carry it back as runs/mri_state_<law>.h5 (about 5 MB; MRI_PACK sets the packing)
         pack_moving "runs/mri_$law" "runs/mri_state_$law.h5" ${MRI_PACK:-}
+        keep_records "runs/mri_$law" "mri_records_$law.h5" mri slab  # its images, for pooling its sessions
       else
         setsid nohup python3 -m app sweep presets/mri_poppy.toml --arch cuda --out runs/mri_poppy-sweep --overwrite \
           --set coupling.drag=koch_hill,di_felice,gidaspow,beetstra "${FROM[@]}" ${MRI_SET:-} \

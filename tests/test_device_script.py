@@ -152,12 +152,15 @@ def test_a_law_run_packs_its_moving_end_and_a_later_session_goes_on_from_it(tmp_
     from 0 and the analysis from 0.02 s. Without a moving state the carried bed is used, as before."""
     for end in ("bed.h5", "checkpoint.h5"):
         calls = record(tmp_path / end, ["mri_law"], {"MRI_LAW": "gidaspow"}, bed=True,
-                       files=[f"runs/mri_gidaspow/{end}", "runs/mri_state_gidaspow.h5"])
-        run, pack = calls
+                       files=[f"runs/mri_gidaspow/{end}", "runs/mri_state_gidaspow.h5", "runs/mri_gidaspow/run.h5"])
+        run, pack, keep = calls
         assert any(a.endswith('runs/mri_state_gidaspow.h5"') for a in run), run
         assert "boundary.bottom.schedule=[[0.0,1.0]]" in run and "output.average_from=0.02" in run
         assert pack == ["-m", "app", "pack", f"runs/mri_gidaspow/{end}", "runs/mri_state_gidaspow.h5",
                         "--resolution", "2e-6", "--speed-resolution", "1e-2"], pack
+        # and its images, config and summary, for pooling the law's sessions back here (benchmarks/run_records.py)
+        assert keep == ["benchmarks/run_records.py", "pack", "runs/mri_gidaspow",
+                        str(tmp_path / end / "out" / "mri_records_gidaspow.h5"), "--groups", "mri", "slab"], keep
         check_all(calls, monkeypatch)
         assert (tmp_path / end / "out" / "mri_state_gidaspow.h5").exists()
     calls = record(tmp_path / "first", ["mri_law"], {"MRI_LAW": "gidaspow"}, bed=True)
@@ -169,13 +172,15 @@ def test_a_verma_run_packs_its_end_and_a_later_session_goes_on_from_it(tmp_path,
     runs/verma_state.h5 runs verma (and verma_start, through its bash -c) from it, fluidized, its own window analysed;
     without it, the preset as it is."""
     calls = record(tmp_path / "on", ["verma", "verma_start", "verma_pack"], {}, bed=False,
-                   files=["runs/verma_state.h5", "runs/verma/checkpoint.h5"])
-    run, start, pack = calls
+                   files=["runs/verma_state.h5", "runs/verma/checkpoint.h5", "runs/verma/run.h5"])
+    run, start, pack, keep = calls
     for c in (run, start):
         assert "particles.count=0" in c and "boundary.bottom.schedule=[[0.0,1.0]]" in c, c
         assert any(a.startswith("particles.initial_state=") and a.endswith('runs/verma_state.h5"') for a in c), c
     assert pack == ["-m", "app", "pack", "runs/verma/checkpoint.h5", "runs/verma_state.h5", "--resolution", "2e-6",
                     "--speed-resolution", "1e-2"], pack
+    assert keep[:3] == ["benchmarks/run_records.py", "pack", "runs/verma"] and keep[4:] == [
+        "--groups", "planes", "series", "--quantize"], keep
     check_all(calls, monkeypatch)
     assert (tmp_path / "on" / "out" / "verma_state.h5").exists()
     run, start = record(tmp_path / "off", ["verma", "verma_start"], {}, bed=False)

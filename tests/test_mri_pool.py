@@ -198,3 +198,35 @@ def test_cases_run_apart_side_by_side_as_a_sweep(sessions, capsys):
     assert (out / "mri_compare.png").exists() and "beetstra" in (out / "mri_compare.md").read_text()
     assert main(["analyze", str(other), "--compare", "--out", str(out)]) == 2
     assert "--compare" in capsys.readouterr().err
+
+
+def _run_records():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("run_records", ROOT / "benchmarks" / "run_records.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_a_sessions_records_come_back_small_and_pool_as_the_run_would(sessions, tmp_path):
+    """A GPU session returns no run.h5 (benchmarks/device_run.sh); it keeps its images, config and summary in one
+    file (benchmarks/run_records.py). Unpacked here, the sessions pool to the very figures of the runs themselves;
+    quantized, each value is kept within half a step of 1/65535; a file over the size limit is not kept."""
+    rr = _run_records()
+    root, a, b = sessions
+    back = []
+    for d in (a, b):
+        assert rr.pack(d, tmp_path / f"{d.name}.h5", ["mri"]) > 0
+        rr.unpack(tmp_path / f"{d.name}.h5", tmp_path / f"{d.name}-back")
+        back.append(tmp_path / f"{d.name}-back")
+        assert (back[-1] / "config.toml").read_text() == (d / "config.toml").read_text()
+    assert main(["analyze", str(a), str(b), "--out", str(tmp_path / "orig")]) == 0
+    assert main(["analyze", *map(str, back), "--out", str(tmp_path / "back")]) == 0
+    figs = [json.loads((tmp_path / x / "pooled.json").read_text())["figures"] for x in ("orig", "back")]
+    assert figs[0] == figs[1]
+    assert rr.pack(a, tmp_path / "q.h5", ["mri"], quantize=True) > 0
+    rr.unpack(tmp_path / "q.h5", tmp_path / "q")
+    orig, again = mri.read_images(a, "mri")[0], mri.read_images(tmp_path / "q", "mri")[0]
+    assert np.abs(again - orig).max() <= 0.5 * rr.STEP + 1e-7  # (+ float32's rounding of the value near 1)
+    assert rr.pack(a, tmp_path / "big.h5", ["mri"], max_mb=1e-3) == 0 and not (tmp_path / "big.h5").exists()
