@@ -466,8 +466,7 @@ def test_an_analysis_of_a_run_that_ended_before_its_first_record_says_so(tmp_pat
     assert why.startswith("ValueError: the run ended at t = 0.001 s, before the first record of") and said in why, why
 
 
-@pytest.mark.parametrize("average_from,window", [(0.02, 0.02), (0.3, 0.3), (-1.0, 0.8)])
-def test_the_run_analysis_starts_at_output_average_from(tmp_path, average_from, window):
+def test_the_run_analysis_starts_at_output_average_from(tmp_path):
     """At a run's end (and in `fbed analyze`) the window is the preset's own, as the MRI analysis: a Verma session
     going on from a carried fluidized state (benchmarks/device_run.sh VERMA_FROM: average_from 0.02, 3 s) discarded
     its first 1 s, whatever the preset said. Negative: the second half of the records."""
@@ -476,11 +475,11 @@ def test_the_run_analysis_starts_at_output_average_from(tmp_path, average_from, 
     run_dir = tmp_path / "run"
     write_synthetic_run(run_dir)
     root = pathlib.Path(__file__).resolve().parents[1]
-    cfg = cfgmod.load(root / "presets" / "verma_small.toml", [f"output.average_from={average_from}"])
+    cfg = cfgmod.load(root / "presets" / "verma_small.toml", ["output.average_from=0.02"])
     (run_dir / "config.toml").write_text(cfgmod.dump(cfg))
-    fig = verma.summarize(run_dir)
-    assert fig["verma_analysed_from"] == pytest.approx(window)
-    assert verma.analyze(run_dir, out_dir=tmp_path / "alone", reference=None)["t_cut"] == pytest.approx(0.8)
+    assert verma.summarize(run_dir)["verma_analysed_from"] == pytest.approx(0.02)
+    for t_from, window in ((0.3, 0.3), (-1.0, 0.8), (None, 0.8)):  # None: analyze() alone, its first 1 s clipped
+        assert verma._read_run(run_dir / verma.RUN_FILE, 1.0, t_from)["t_cut"] == pytest.approx(window)
 
 
 def test_an_average_from_after_the_records_is_refused_naming_it(tmp_path):
@@ -543,8 +542,9 @@ def test_fbed_analyze_pools_verma_sessions(tmp_path, capsys):
                                             "particles.bed_height=0.0", 'particles.initial_state="state.h5"',
                                             "boundary.bottom.schedule=[[0.0,1.0]]"])
     (tmp_path / "b" / "state.h5").write_bytes(b"")
-    one = [verma.analyze(d, out_dir=tmp_path / f"{d.name}-alone", reference=None,
-                         t_from=0.3 if d is a else 0.02) for d in (a, b)]
+    alone = [verma._read_run(d / verma.RUN_FILE, 1.0, t) for d, t in ((a, 0.3), (b, 0.02))]
+    one = [{"planes": verma._plane_bubbles(r, bb.THRESHOLD, bb.FACTOR),
+            "dp_over_weight": verma._dp_over_weight(r, SYN["W"], r["t_cut"])} for r in alone]
     out = tmp_path / "pooled"
     assert main(["analyze", str(a), str(b), "--out", str(out)]) == 0, capsys.readouterr().err
     pooled = json.loads((out / "pooled.json").read_text())

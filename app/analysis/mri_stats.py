@@ -86,7 +86,9 @@ def block_stats(h: np.ndarray, block: int) -> dict:
 
 def z_between(a: dict, b: dict) -> dict:
     """How many standard errors apart two :func:`block_stats` are, in mean and in std (NaN without errors)."""
-    return {k: float(abs(a[k] - b[k]) / np.hypot(a[f"{k}_se"], b[f"{k}_se"])) for k in ("mean", "std")}
+    with np.errstate(invalid="ignore", divide="ignore"):  # equal values without errors (a constant series): 0
+        return {k: 0.0 if a[k] == b[k] else float(abs(a[k] - b[k]) / np.hypot(a[f"{k}_se"], b[f"{k}_se"]))
+                for k in ("mean", "std")}
 
 
 def halves(series, block: int) -> dict:
