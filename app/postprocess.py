@@ -129,8 +129,8 @@ def analyze_command(run_dirs: list[str], out: str | None, kind: str | None, plot
 def analyze_compare(dirs_given: list[str], out: str | None, kind: str | None = None) -> int:
     """`fbed analyze DIR DIR ... --compare --out OUT`: the mri figures of several cases side by side, as of a sweep's
     (OUT/mri_compare.{csv,md,png}): run folders (analysed first where they are not yet) or pooled folders (their
-    first run's preset names the case), labelled by the case keys they differ by (e.g. coupling.drag): four drag laws
-    run in separate GPU sessions make the sweep's table."""
+    case.toml, their first run's preset, names the case), labelled by the case keys they differ by (e.g.
+    coupling.drag): four drag laws run in separate GPU sessions make the sweep's table."""
     from .analysis import mri_report, pooling
 
     dirs = [pathlib.Path(d) for d in dirs_given]
@@ -139,20 +139,19 @@ def analyze_compare(dirs_given: list[str], out: str | None, kind: str | None = N
                           out is None else "RUN_DIR", hint="e.g. fbed analyze runs/a runs/b --compare --out runs/cmp")
     cfgs, status = [], []
     for d in dirs:
-        if (d / "pooled.json").exists():
-            runs = json.loads((d / "pooled.json").read_text())["runs"]
-            cfg_dir, what = pathlib.Path(runs[0]), f"{len(runs)} runs pooled"
+        if (d / "pooled.json").exists() and (d / CASE_FILE).exists():
+            case, what = d / CASE_FILE, f"{len(json.loads((d / 'pooled.json').read_text())['runs'])} runs pooled"
         elif (d / "run.h5").exists() and (d / "config.toml").exists():
-            cfg_dir, what = d, "run"
+            case, what = d / "config.toml", "run"
             if not (d / "analysis" / "mri.json").exists() and analyze(str(d), kind) != EXIT_OK:
                 return EXIT_INPUT
         else:
-            raise ConfigError("neither a run folder nor a pooled one (no run.h5 and config.toml, no pooled.json)",
+            raise ConfigError(f"neither a run folder (run.h5, config.toml) nor a pooled one (pooled.json, {CASE_FILE})",
                               str(d), "RUN_DIR", hint="give fbed runs' folders or `fbed analyze ... --out` folders")
-        if not (cfg_dir / "config.toml").exists() or not (d / "analysis" / "mri.json").exists():
-            raise ConfigError("no mri analysis here (analysis/mri.json) or its run's config.toml is gone", str(d),
-                              "RUN_DIR", hint="--compare is written for the mri analysis")
-        cfgs.append(cfgmod.load(cfg_dir / "config.toml"))
+        if not (d / "analysis" / "mri.json").exists():
+            raise ConfigError("no mri analysis here (analysis/mri.json)", str(d), "RUN_DIR",
+                              hint="--compare is written for the mri analysis")
+        cfgs.append(cfgmod.load(case))
         status.append(what)
     keys = pooling.keys_that_differ(cfgs)
     flats = [pooling.flat(c) for c in cfgs]
@@ -166,6 +165,8 @@ def analyze_compare(dirs_given: list[str], out: str | None, kind: str | None = N
 
 #: the analyses that pool several runs of one case, and their modules
 POOLED = {"mri": ".analysis.mri", "verma": ".analysis.verma_pool"}
+#: a pooled folder's copy of its first run's resolved preset: the case it holds (read by --compare)
+CASE_FILE = "case.toml"
 
 
 def analyze_pooled(run_dirs: list[str], out: str | None, kind: str | None = None) -> int:
@@ -200,6 +201,7 @@ def analyze_pooled(run_dirs: list[str], out: str | None, kind: str | None = None
         figures = importlib.import_module(POOLED[which], "app").summarize_pooled(dirs, o)
     except ValueError as err:
         raise ConfigError(str(err), out, "RUN_DIR") from None
+    (o / CASE_FILE).write_text((dirs[0] / "config.toml").read_text())
     log(f"fbed: {len(dirs)} runs pooled: the {which} analysis written to {o / 'analysis'}")
     for k, v in figures.items():
         print(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}")

@@ -185,6 +185,7 @@ def test_cases_run_apart_side_by_side_as_a_sweep(sessions, capsys):
     root, a, b = sessions
     pooled, other = root / "cmp-pooled", root / "cmp-beetstra"
     assert main(["analyze", str(a), str(b), "--out", str(pooled)]) == 0
+    assert (pooled / "case.toml").read_text() == (a / "config.toml").read_text()  # the case, if the runs move
     _run(other, NEXT + ["coupling.drag=beetstra"], mri.read_images(b, "mri")[0], 0.004)
     out = root / "cmp"
     assert main(["analyze", str(pooled), str(other), "--compare", "--out", str(out)]) == 0
