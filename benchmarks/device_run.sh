@@ -73,7 +73,7 @@ pack_moving() {
 }
 # keep_records RUN_DIR NAME GROUP... [--quantize]: the run's analysis records (those run.h5 groups), its config.toml
 # and summary.json in $OUT/NAME (benchmarks/run_records.py, under 16 MiB), so that a case's sessions can be pooled
-# back here: `python3 benchmarks/run_records.py unpack NAME runs/DIR` for each, then `fbed analyze DIR DIR --out`
+# back here: `python3 benchmarks/pool_sessions.py S1/NAME S2/NAME ... --out runs/DIR` unpacks, pools and compares
 keep_records() {
   local run=$1 name=$2
   shift 2

@@ -231,3 +231,30 @@ def test_a_sessions_records_come_back_small_and_pool_as_the_run_would(sessions, 
     orig, again = mri.read_images(a, "mri")[0], mri.read_images(tmp_path / "q", "mri")[0]
     assert np.abs(again - orig).max() <= 0.5 * rr.STEP + 1e-7  # (+ float32's rounding of the value near 1)
     assert rr.pack(a, tmp_path / "big.h5", ["mri"], max_mb=1e-3) == 0 and not (tmp_path / "big.h5").exists()
+
+
+def test_the_sessions_records_back_here_become_pooled_cases_side_by_side(sessions, tmp_path, capsys):
+    """benchmarks/pool_sessions.py: records of two Koch & Hill sessions and one Beetstra session give the Koch & Hill
+    pair pooled, the Beetstra run analysed, and the two cases side by side, named by their law."""
+    import csv
+    import importlib.util
+
+    rr = _run_records()
+    root, a, b = sessions
+    c = root / "pool-beetstra"
+    if not c.exists():
+        _run(c, NEXT + ["coupling.drag=beetstra"], mri.read_images(b, "mri")[0], 0.004)
+    files = []
+    for d in (a, b, c):
+        assert rr.pack(d, tmp_path / f"{d.name}.h5", ["mri"]) > 0
+        files.append(str(tmp_path / f"{d.name}.h5"))
+    spec = importlib.util.spec_from_file_location("pool_sessions", ROOT / "benchmarks" / "pool_sessions.py")
+    ps = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ps)
+    out = tmp_path / "laws"
+    assert ps.main([*files, "--out", str(out)]) == 0
+    assert len(json.loads((out / "koch_hill" / "pooled.json").read_text())["runs"]) == 2
+    assert (out / "beetstra" / "analysis" / "mri.json").exists()
+    with open(out / "compare" / "mri_compare.csv", newline="") as f:
+        assert [(r["case"], r["coupling.drag"]) for r in csv.DictReader(f)] == [("koch_hill", "koch_hill"),
+                                                                                ("beetstra", "beetstra")]
