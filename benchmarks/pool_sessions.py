@@ -45,9 +45,13 @@ def groups_of(run_dirs: list[pathlib.Path]) -> dict[str, list[pathlib.Path]]:
     keys = pooling.keys_that_differ(cfgs)
     flats = [pooling.flat(c) for c in cfgs]
     out: dict[str, list[pathlib.Path]] = {}
+    names: dict[tuple, str] = {}
     for d, f in zip(run_dirs, flats):
-        name = "-".join(str(f.get(k)) for k in keys) or "case"
-        out.setdefault("".join(c if c.isalnum() or c in "._-" else "_" for c in name), []).append(d)
+        values = tuple(repr(f.get(k)) for k in keys)
+        if values not in names:  # named by its values where that reads well, else numbered
+            name = "".join(c if c.isalnum() or c in "._-" else "_" for c in "-".join(str(f.get(k)) for k in keys))
+            names[values] = name if 0 < len(name) <= 60 and name not in names.values() else f"case-{len(names) + 1}"
+        out.setdefault(names[values], []).append(d)
     return out
 
 
