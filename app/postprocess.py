@@ -135,14 +135,18 @@ def analyze_compare(dirs_given: list[str], out: str | None, kind: str | None = N
 
     dirs = [pathlib.Path(d) for d in dirs_given]
     if len(dirs) < 2 or out is None:
-        raise ConfigError("--compare puts several cases side by side into a folder of their own", "", "--out" if
-                          out is None else "RUN_DIR", hint="e.g. fbed analyze runs/a runs/b --compare --out runs/cmp")
+        raise ConfigError("puts several cases side by side into a folder of their own: give two folders or more and "
+                          "--out", "", "--compare", hint="e.g. fbed analyze runs/a runs/b --compare --out runs/cmp")
     cfgs, status = [], []
     for d in dirs:
         if (d / "pooled.json").exists() and (d / CASE_FILE).exists():
             case, what = d / CASE_FILE, f"{len(json.loads((d / 'pooled.json').read_text())['runs'])} runs pooled"
         elif (d / "run.h5").exists() and (d / "config.toml").exists():
             case, what = d / "config.toml", "run"
+            if (kind or cfgmod.load(case).probes.analysis) != "mri":  # before analysing it: nothing is rewritten
+                raise ConfigError("--compare is written for the mri analysis; this run names "
+                                  f"{cfgmod.load(case).probes.analysis!r}", str(case), "probes.analysis",
+                                  hint="compare mri runs, or pooled folders of them")
             if not (d / "analysis" / "mri.json").exists() and analyze(str(d), kind) != EXIT_OK:
                 return EXIT_INPUT
         else:
@@ -192,7 +196,10 @@ def analyze_pooled(run_dirs: list[str], out: str | None, kind: str | None = None
         raise ConfigError("--out is a run folder: the pooled analysis would replace its own", out, "--out",
                           hint="name a new folder, e.g. runs/pooled")
     kinds = {kind or cfgmod.load(d / "config.toml").probes.analysis for d in dirs}
-    if len(kinds) != 1 or next(iter(kinds)) not in POOLED:
+    if len(kinds) > 1:
+        raise ConfigError(f"the runs name different analyses ({', '.join(sorted(kinds))}): they are not one case",
+                          str(dirs[0]), "probes.analysis", hint="pool the sessions of one case")
+    if next(iter(kinds)) not in POOLED:
         raise ConfigError(f"pooling runs is written for the {' and '.join(POOLED)} analyses, not {sorted(kinds)}",
                           str(dirs[0]), "probes.analysis", hint="analyze each run folder on its own: fbed analyze DIR")
     which = next(iter(kinds))

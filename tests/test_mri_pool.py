@@ -199,6 +199,13 @@ def test_cases_run_apart_side_by_side_as_a_sweep(sessions, capsys):
     assert (out / "mri_compare.png").exists() and "beetstra" in (out / "mri_compare.md").read_text()
     assert main(["analyze", str(other), "--compare", "--out", str(out)]) == 2
     assert "--compare" in capsys.readouterr().err
+    # a run of another analysis is refused before it is analysed: nothing in it rewritten
+    verma_run = root / "cmp-verma"
+    _run(verma_run, NEXT + ['probes.analysis="verma"'], mri.read_images(b, "mri")[0], 0.004)
+    assert main(["analyze", str(other), str(verma_run), "--compare", "--out", str(out)]) == 2
+    assert "probes.analysis" in capsys.readouterr().err and not (verma_run / "analysis").exists()
+    assert main(["analyze", str(other), str(verma_run), "--out", str(root / "mixed")]) == 2
+    assert "different analyses (mri, verma)" in capsys.readouterr().err
 
 
 def _run_records():
