@@ -143,10 +143,10 @@ def analyze_compare(dirs_given: list[str], out: str | None, kind: str | None = N
             case, what = d / CASE_FILE, f"{len(json.loads((d / 'pooled.json').read_text())['runs'])} runs pooled"
         elif (d / "run.h5").exists() and (d / "config.toml").exists():
             case, what = d / "config.toml", "run"
-            if (kind or cfgmod.load(case).probes.analysis) != "mri":  # before analysing it: nothing is rewritten
-                raise ConfigError("--compare is written for the mri analysis; this run names "
-                                  f"{cfgmod.load(case).probes.analysis!r}", str(case), "probes.analysis",
-                                  hint="compare mri runs, or pooled folders of them")
+            named = cfgmod.load(case).probes.analysis
+            if (kind or named) != "mri":  # before analysing it: nothing is rewritten
+                raise ConfigError(f"--compare is written for the mri analysis; this run names {named!r}", str(case),
+                                  "probes.analysis", hint="compare mri runs, or pooled folders of them")
             if not (d / "analysis" / "mri.json").exists() and analyze(str(d), kind) != EXIT_OK:
                 return EXIT_INPUT
         else:

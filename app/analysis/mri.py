@@ -429,7 +429,7 @@ def summarize_pooled(run_dirs, out_dir) -> dict:
             raise ValueError(f"/{src} is missing in {run_dirs[[x is None for x in w].index(True)]}: pool runs that "
                              "recorded the same images")
     first = next(iter(wins.values()))
-    notes = check_same_case(run_dirs, [(float(x[1][0]), float(x[1][-1])) for x in first])
+    notes = check_same_case(run_dirs, [(float(x[1][0]), float(x[1][-1])) for x in first], cfgs)
     static = cfgs[0].probes.mri_static_height or STATIC_HEIGHT
     figures, frames = {}, {}
     for (src, label) in ((s, lab) for s, lab in SOURCES if s in wins):

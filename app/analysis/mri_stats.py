@@ -9,7 +9,7 @@ import math
 import numpy as np
 from scipy import stats
 
-from .pooling import spans  # noqa: F401  (mri_stats.spans, as the analysis reads it)
+from .pooling import spans
 
 THRESHOLDS = (0.15, 0.20, 0.25, 0.30, 0.35, 0.40)  # solid-fraction thresholds of the study (Step 4)
 N_BOOT = 10_000           # bootstrap resamples

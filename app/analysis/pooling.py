@@ -63,12 +63,17 @@ def _session_key(key: str) -> bool:
     return any(key.startswith(s) if s.endswith((".", "_")) else key == s for s in SESSION)
 
 
-def check_same_case(run_dirs: list[pathlib.Path], windows: list[tuple[float, float]]) -> list[str]:
+def _inlet_law(key: str) -> bool:
+    return key.startswith("boundary.") and key.rsplit(".", 1)[1] in INLET_LAW
+
+
+def check_same_case(run_dirs: list[pathlib.Path], windows: list[tuple[float, float]], cfgs=None) -> list[str]:
     """Raise ConfigError naming the first key that makes the runs different cases (or an inlet that changes within
-    an analysed window [s]); return notes on the session keys that differ (they are allowed)."""
+    an analysed window [s]); return notes on the session keys that differ (they are allowed). ``cfgs``: the runs'
+    loaded config.toml, where the caller has them."""
     from .. import config as cfgmod
 
-    cfgs = [cfgmod.load(d / "config.toml") for d in run_dirs]
+    cfgs = cfgs if cfgs is not None else [cfgmod.load(d / "config.toml") for d in run_dirs]
     flats = [flat(c) for c in cfgs]
     first, notes = flats[0], []
     for d, c, fl, (t0, t1) in zip(run_dirs, cfgs, flats, windows):
@@ -80,7 +85,7 @@ def check_same_case(run_dirs: list[pathlib.Path], windows: list[tuple[float, flo
                                   "(output.average_from) and analyse it again, or leave the run out")
         for key in sorted(set(first) | set(fl)):
             a, b = first.get(key), fl.get(key)
-            law = key.startswith("boundary.") and key.rsplit(".", 1)[1] in INLET_LAW
+            law = _inlet_law(key)
             if law:
                 face = key.split(".")[1]
                 spec0, spec = dict(cfgs[0].boundary).get(face), dict(c.boundary).get(face)
@@ -109,5 +114,4 @@ def keys_that_differ(cfgs) -> list[str]:
     tells cases apart in a side-by-side table."""
     flats = [flat(c) for c in cfgs]
     keys = sorted(set().union(*flats))
-    return [k for k in keys if not _session_key(k) and not (k.startswith("boundary.") and
-            k.rsplit(".", 1)[1] in INLET_LAW) and len({repr(f.get(k)) for f in flats}) > 1]
+    return [k for k in keys if not _session_key(k) and not _inlet_law(k) and len({repr(f.get(k)) for f in flats}) > 1]

@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from .bubbles import THRESHOLD, _as_frames, _check_mask
-from .pooling import spans  # noqa: F401  (rise.spans: verma reads it)
+from .pooling import spans
 
 
 def rise_velocity(lower, upper, dt: float, spacing: float, mask=None,
@@ -110,10 +110,11 @@ def edge_velocities(lower, upper, dt: float, spacing: float, threshold: float = 
     m = _check_mask(mask, a.shape[1:])
     cells = np.argwhere(m) if m is not None else np.argwhere(np.ones(a.shape[1:], bool))
     max_lag = spacing / min_velocity / dt  # samples
+    runs = spans(a.shape[0], segments)
     out = {}
     for kind, rising in (("nose", True), ("tail", False)):
         lags = []
-        for (i, j), (s0, s1) in ((c, r) for c in cells for r in spans(a.shape[0], segments)):
+        for (i, j), (s0, s1) in ((c, r) for c in cells for r in runs):
             ta = _crossings(a[s0:s1, i, j], threshold, rising)
             tb = _crossings(b[s0:s1, i, j], threshold, rising)
             if not ta.size or not tb.size:

@@ -45,6 +45,7 @@ import numpy as np
 from app.analysis import bubbles as bb
 from app.analysis import rise
 from app.analysis import verma_figures as vfig
+from app.analysis.pooling import spans
 
 # ---- run folder layout ------------------------------------------------------------------------
 RUN_FILE = "run.h5"
@@ -334,7 +335,7 @@ def _volume_bubbles(run: dict, threshold: float, factor: int):
                                          max_area=_max_area(m3, eps.shape[1:3], h3))
         profile = {"z": z, "De": De, "count": cnt}
         parts = [bb.track_bubbles(eps[a:e], vol["time"][a:e], h3, threshold, mask=m3)
-                 for a, e in rise.spans(len(eps), run.get("segments", {}).get("vol")) if e - a >= 2]
+                 for a, e in spans(len(eps), run.get("segments", {}).get("vol")) if e - a >= 2]
         if parts:  # each run's frames alone: no bubble is followed from one run into the next
             tracks = {k: np.concatenate([t[k] for t in parts]) for k in parts[0]}
             tracks["z"] = tracks["z"] + z0

@@ -90,12 +90,12 @@ def summarize_pooled(run_dirs, out_dir) -> dict:
     from .pooling import check_same_case
 
     run_dirs, out_dir = [pathlib.Path(d) for d in run_dirs], pathlib.Path(out_dir)
-    runs = [verma._read_run(d / verma.RUN_FILE, 1.0, cfgmod.load(d / "config.toml").output.average_from)
-            for d in run_dirs]
+    cfgs = [cfgmod.load(d / "config.toml") for d in run_dirs]
+    runs = [verma._read_run(d / verma.RUN_FILE, 1.0, c.output.average_from) for d, c in zip(run_dirs, cfgs)]
     for d, r in zip(run_dirs, runs):
         if not r["planes"] and r["vol"] is None:
             raise ValueError(f"{d}/run.h5 holds neither /planes nor /porosity3d")
-    notes = check_same_case(run_dirs, [_window(r) for r in runs])
+    notes = check_same_case(run_dirs, [_window(r) for r in runs], cfgs)
     weights = [float(json.loads((d / verma.SUMMARY_FILE).read_text())[verma.BED_WEIGHT_KEY]) for d in run_dirs]
     if max(weights) - min(weights) > 1e-6 * max(weights):  # the grains lost through the outlet differ
         notes.append(f"bed weight per area {min(weights):.6g}-{max(weights):.6g} Pa over the runs: their mean is used")
