@@ -40,14 +40,16 @@ def _window(run: dict) -> tuple[float, float]:
 
 def merge(runs: list[dict]) -> dict:
     """One record of several runs' windows (``verma._read_run``'s dicts, in order) with their first frames under
-    ``segments``; planes, masks and 3-D grids must match (else ValueError naming the record)."""
+    ``segments``; planes and 3-D grids must match (else ValueError naming the record; the vessel's mask is the
+    first run's, one case's: ``pooling.check_same_case`` compared the vessels)."""
     names = set(runs[0]["planes"])
     if any(set(r["planes"]) != names for r in runs) or any((r["vol"] is None) != (runs[0]["vol"] is None)
                                                           for r in runs):
         raise ValueError("the runs recorded different planes or 3-D frames: pool runs of one case")
-    step = min([float(np.median(np.diff(p["time"]))) for r in runs for p in r["planes"].values() if len(p["time"]) > 1]
-               + [float(np.median(np.diff(r["vol"]["time"]))) for r in runs if r["vol"] is not None
-                  and len(r["vol"]["time"]) > 1] + [1e-3])
+    steps = ([float(np.median(np.diff(p["time"]))) for r in runs for p in r["planes"].values() if len(p["time"]) > 1]
+             + [float(np.median(np.diff(r["vol"]["time"]))) for r in runs if r["vol"] is not None
+                and len(r["vol"]["time"]) > 1])
+    step = min(steps) if steps else 1e-3  # [s] between one run's last record and the next one's first
     shifted, offset = [], runs[0]["t_cut"]
     for r in runs:
         t0, t1 = _window(r)
