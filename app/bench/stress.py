@@ -147,6 +147,20 @@ def preset_text(s: Scene, bed_path: str = "") -> str:
     return text
 
 
+def energy_growth(config: pathlib.Path, series: dict, radii) -> float:
+    """The largest growth of the grains' kinetic energy from one guard check to the next, as the guard measures
+    it: from the energy of the check before, or from its floor where that is larger (the scenes' series rows
+    are the guard's own, both every 2 ms). The figure guard.max_energy_growth's documentation quotes."""
+    from ..callbacks.guard import Guard  # the run's own guard, built as `fbed run` builds it
+
+    cfg = load(config)
+    derived = derive(cfg, str(config))
+    guard = Guard.of(cfg, derived, derived.mass(2.0 * radii), radii)
+    t, energy = series["time"], series["kinetic_energy"]
+    base = np.maximum(energy[:-1], [guard.floor_at(x) for x in t[1:]])
+    return round(float(np.max(energy[1:] / base)), 3)
+
+
 def judge(s: Scene, rc: int | None, out: pathlib.Path, log: str, wall: float) -> dict:
     """The scene's outcome and whether it meets the contract."""
     row = {"scene": s.name, "what": s.what, "exit": rc, "wall_s": round(wall, 1)}
@@ -165,9 +179,12 @@ def judge(s: Scene, rc: int | None, out: pathlib.Path, log: str, wall: float) ->
             series = {k: f["series"][k][...] for k in f["series"]} if "series" in f else {}
             snaps = f.get("particles")
             last = snaps[str(len(snaps) - 1)]["position"][...] if snaps is not None and len(snaps) else None
+            radii = snaps["0"]["radius"][...] if snaps is not None and len(snaps) else None
         bad = [k for k, v in series.items() if not np.all(np.isfinite(v))]
         if bad:
             problems.append(f"non-finite series in run.h5: {bad}")
+        if radii is not None and len(series.get("kinetic_energy", ())) > 1:
+            row["max_growth"] = energy_growth(out / "config.toml", series, radii)
         if "divergence_residual" in series and len(series["divergence_residual"]):
             row["max_divergence"] = float(np.max(series["divergence_residual"]))
         if last is not None:  # no grain through a wall: inside the cylinder and above the floor
@@ -231,7 +248,7 @@ def run_scene(s: Scene, out_dir: pathlib.Path, arch: str, limit: float) -> dict:
 
 def table(rows: list[dict]) -> str:
     cols = ["scene", "what", "outcome", "reached_s", "unstable_at", "wall_s", "grains_removed_top", "max_divergence",
-            "ok", "message", "problems"]
+            "max_growth", "ok", "message", "problems"]
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in rows:
         vals = []

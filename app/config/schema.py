@@ -224,8 +224,9 @@ class GuardConfig:
                                     "from one guard check to the next (measured from at least the energy of every "
                                     "grain moving at sqrt(g d), or at the speed the inlet's gas carries it, its "
                                     "superficial speed less the grain's terminal slip, where faster: from rest any "
-                                    "factor is physical). Measured per check: "
-                                    "forced DEM-step blow-ups 2.4e3-9.3e4x, a 100 m/s jet into a bed 30x (it runs "
+                                    "factor is physical; while a jet blows, plus the smaller of its work over two "
+                                    "checks / (this - 1) and its column of grains at its speed). Measured per check: "
+                                    "forced DEM-step blow-ups 2.4e3-9.3e4x, a 100 m/s jet into a bed 7.3x (it runs "
                                     "on), grains started at 20% overlap 2.4e3x (stopped)", lo=1.0, lo_open=True)
     max_gas_speed: float = spec(300.0, unit="m/s", doc="stop when the gas moves faster than this anywhere (a gas "
                                 "step going unstable; jets of 50-100 m/s stay below it)", lo=0.0, lo_open=True)
