@@ -278,6 +278,30 @@ def test_gas_tracer_step_response_balances_and_gives_the_gas_volume_over_the_flo
     assert first_moment == pytest.approx(gas_volume / Q, rel=1e-3)  # ... and the column is full after 5 V/Q
 
 
+def test_upwind_gas_tracer_spreads_a_plug_flow_as_its_courant_number_says():
+    """Plug flow through N equal cells, one substep a frame at Courant number C: each substep a cell passes C of its
+    tracer on, so a tracer parcel's transit is a sum of N geometric waits and the step response's moments are
+    exact: tau = N V / Q, (sigma / tau)^2 = (1 - C) / N (upwind's numerical dispersion, none at C = 1). A shorter
+    substep (``max_substep``) lowers C and spreads the response more: why validation/rcfd/gas_rtd.py compares
+    frame intervals on a common substep."""
+    from app.rcfd.transport import rtd_moments, step_response
+
+    N, h, Q, eps = 20, 0.01, 2e-5, 0.5
+    V = eps * h ** 3  # [m^3] gas in a cell
+    open_v, e = np.ones((1, 1, N)), np.full((1, 1, N), eps)
+    fluxes = (np.zeros((2, 1, N)), np.zeros((1, 2, N)), np.full((1, 1, N + 1), Q))
+    for C, max_substep in ((0.9, None), (0.5, 1.0), (0.25, 1.0)):
+        dt = C * V / Q  # [s] a frame: one substep at Courant number C (the default takes 0.9)
+        frames = ((fluxes, e, e, None) for _ in range(int(6 * N / C)))
+        r = step_response(open_v, h, frames, dt, max_substep=max_substep and dt)
+        assert r["substeps"] == int(6 * N / C) and r["balance_error"] < 1e-12
+        m = rtd_moments(r["F"], dt)
+        assert m["tau"] == pytest.approx(N * V / Q, rel=1e-9)
+        assert (m["sigma"] / m["tau"]) ** 2 == pytest.approx((1 - C) / N, rel=1e-6)
+    two = step_response(open_v, h, ((fluxes, e, e, None) for _ in range(200)), 0.9 * V / Q, max_substep=0.45 * V / Q)
+    assert two["substeps"] == 400  # halved by max_substep: C = 0.45
+
+
 def test_face_void_fraction_is_the_two_cells_mean_and_the_cell_on_domain_faces():
     from app.rcfd_probe import face_eps
 

@@ -24,7 +24,7 @@ from .database import Database
 from .matching import GrainMatcher, grid_centres
 from .sequence import SequenceIndex
 from .stitch import LP_MAX_CELLS, Stitcher
-from .transport import GasTracer, GrainTracer, SolidsTracer, lacey_index
+from .transport import GrainTracer, SolidsTracer, lacey_index, step_response
 
 # 'auto' matches grains up to here and stitches above: the matching's dense assignment grows as the cube of the grains
 # that change half cell (0.08-1.3 s a jump at 3,400 grains, 800-1,900 of them; validation/rcfd/README.md, 0a)
@@ -175,25 +175,16 @@ class Engine:
 
     def gas_transport(self, path: pathmod.Path, c_in: float = 1.0) -> dict:
         """A gas tracer fed at c_in through the inlet from the path's start (a step input), on the recorded
-        fluxes: the outlet's mixing-cup c after each frame (the step response F(t)) and the tracer balance."""
-        db = self.db
-        fl = self.fluxes()
-        g = GasTracer(db.open_volume, db.h, 0.0)
-        jumps = {pos: (s_from, s_to) for pos, s_from, s_to, _ in path.jumps}
-        F = np.zeros(len(path.frames) + 1)
+        fluxes: the outlet's mixing-cup c after each frame (the step response F(t)) and the tracer balance
+        (transport.step_response; at a jump eps switches state and c is kept)."""
+        db, fl = self.db, self.fluxes()
+        jumps = {pos: s_from for pos, s_from, _, _ in path.jumps if pos > 0}
+        eps = (lambda b: db.eps[b].astype(np.float64))
+        frames = (([a[k].astype(np.float64) for a in fl], eps(db.b0[k]), eps(db.b1[k]),
+                   eps(jumps[i]) if i in jumps else None) for i, k in enumerate(path.frames))
         t = wallclock.perf_counter()
-        m_start = g.mass(db.eps[db.b0[path.frames[0]]])
-        for i, k in enumerate(path.frames):
-            if i in jumps and i > 0:
-                g.jump(db.eps[jumps[i][0]].astype(np.float64), db.eps[jumps[i][1]].astype(np.float64))
-            g.frame([a[k].astype(np.float64) for a in fl], db.eps[db.b0[k]].astype(np.float64),
-                    db.eps[db.b1[k]].astype(np.float64), db.frame_interval, c_in)
-            F[i + 1] = g.take_outlet()
-        m_end = g.mass(db.eps[db.b1[path.frames[-1]]].astype(np.float64))
-        balance = m_end - m_start - (g.inflow - g.outflow) - g.jump_mass
-        return {"F": F, "wall": wallclock.perf_counter() - t, "c_min": float(g.c.min()), "c_max": float(g.c.max()),
-                "balance_error": float(abs(balance) / max(g.inflow, 1e-300)),
-                "jump_share": float(abs(g.jump_mass) / max(g.inflow, 1e-300)), "substeps": g.substeps}
+        out = step_response(db.open_volume, db.h, frames, db.frame_interval, c_in)
+        return {**out, "wall": wallclock.perf_counter() - t}
 
     def path(self, n_frames: int, start_state: int, seed: tuple) -> pathmod.Path:
         return pathmod.markov_path(n_frames, start_state, self.st["R"], self.db.b0, self.db.b1, self.successor,

@@ -172,17 +172,21 @@ class GrainTracer:
 class GasTracer:
     """A gas-phase tracer c on the recorded frame-mean face fluxes: first-order upwind finite volumes,
     (theta V eps c)^{n+1} = (theta V eps c)^n - tau sum_faces F c_upwind, with eps linear in time within the frame
-    and tau a substep keeping every cell's outflow within its gas volume (Courant number <= ``cfl``). Where the
+    and tau a substep keeping every cell's outflow within its gas volume (Courant number <= ``cfl``; no longer than
+    ``max_substep`` [s] where given: upwind's numerical diffusion falls as the Courant number rises, so two
+    transports compare like for like on a common substep). Where the
     recorded fluxes satisfy continuity (analyze reports the residual), c stays within its inflow bounds. The
     bottom face takes c_in; the region's top face is the outlet (backflow takes the top cell's c); side faces are
     walls or cut faces (their flux is zero where closed). At a jump eps switches frame and c is kept: the tracer
     gas volume changes by sum c (eps_new - eps_old) theta V, reported as ``jump_mass``."""
 
-    def __init__(self, open_volume: np.ndarray, h: float, c0: np.ndarray | float = 0.0, cfl: float = 0.9):
+    def __init__(self, open_volume: np.ndarray, h: float, c0: np.ndarray | float = 0.0, cfl: float = 0.9,
+                 max_substep: float | None = None):
         self.V = np.asarray(open_volume, np.float64) * h ** 3
         self.gas = self.V > 0
         self.c = np.broadcast_to(np.asarray(c0, np.float64), self.V.shape).copy()
         self.cfl = cfl
+        self.max_substep = max_substep
         self.inflow = self.outflow = self.jump_mass = 0.0
         self.outlet_flow = 0.0
         self.outlet_c = 0.0
@@ -208,6 +212,8 @@ class GasTracer:
         gv = self.V * np.minimum(eps0, eps1)
         ratio = np.where(self.gas & (gv > 0), out * dt / np.maximum(gv, 1e-300), 0.0)
         n = max(1, int(np.ceil(ratio.max() / self.cfl)))
+        if self.max_substep:
+            n = max(n, int(np.ceil(dt / self.max_substep - 1e-9)))
         tau = dt / n
         self.substeps += n
         for s in range(n):
@@ -236,3 +242,42 @@ class GasTracer:
         v = self.outlet_c / self.outlet_flow if self.outlet_flow > 0 else float("nan")
         self.outlet_c = self.outlet_flow = 0.0
         return v
+
+
+def step_response(open_volume: np.ndarray, h: float, frames, dt: float, c_in: float = 1.0,
+                  max_substep: float | None = None) -> dict:
+    """A gas tracer fed at c_in through the inlet from the first frame on (a step input), clean gas before:
+    ``frames`` gives, frame by frame, (fluxes (fx, fy, fz), eps at its start, eps at its end, eps before a jump
+    into it or None), all float64. F: the outlet's mixing-cup c over each frame (F[0] = 0, the step response);
+    the tracer balance relative to the inflow; the volume moved at jumps; c's range; the substeps
+    (``max_substep``: GasTracer's)."""
+    g = GasTracer(open_volume, h, 0.0, max_substep=max_substep)
+    F, m_start, eps1 = [0.0], None, None
+    for fluxes, eps0, eps1, before in frames:
+        if m_start is None:
+            m_start = g.mass(eps0)
+        elif before is not None:
+            g.jump(before, eps0)
+        g.frame(fluxes, eps0, eps1, dt, c_in)
+        F.append(g.take_outlet())
+    balance = g.mass(eps1) - m_start - (g.inflow - g.outflow) - g.jump_mass
+    return {"F": np.asarray(F), "c_min": float(g.c.min()), "c_max": float(g.c.max()),
+            "balance_error": float(abs(balance) / max(g.inflow, 1e-300)),
+            "jump_share": float(abs(g.jump_mass) / max(g.inflow, 1e-300)), "substeps": g.substeps}
+
+
+def rtd_moments(F: np.ndarray, dt: float) -> dict:
+    """The residence time distribution's mean tau = int (1 - F) dt, spread sigma (int 2 t (1 - F) dt = tau^2 +
+    sigma^2) and median t50 [s], from a step response given as frame means over frames of dt [s] (F[0] = 0 at the
+    step, F[i] over frame i; times at the frames' middles, t50 interpolated between them), and F's last value."""
+    f = np.asarray(F[1:], np.float64)
+    mid = (np.arange(f.size) + 0.5) * dt
+    tau = float(np.sum(1.0 - f) * dt)
+    second = float(np.sum(2.0 * mid * (1.0 - f)) * dt)
+    above = np.nonzero(f >= 0.5)[0]
+    t50 = float("nan")
+    if above.size:
+        i = int(above[0])
+        t0, f0 = (mid[i - 1], f[i - 1]) if i > 0 else (0.0, 0.0)
+        t50 = float(t0 + (0.5 - f0) * (mid[i] - t0) / (f[i] - f0)) if f[i] > f0 else float(mid[i])
+    return {"tau": tau, "sigma": float(np.sqrt(max(second - tau * tau, 0.0))), "t50": t50, "F_end": float(f[-1])}
