@@ -122,30 +122,38 @@ def test_energy_floor_counts_a_jet_while_it_blows():
         no_sizes = Guard.of(cfg, der, masses)
         assert no_sizes.floor_at(0.25) == no_sizes.energy_floor  # no sizes: no jet floor
 
-def test_a_fine_powder_blown_by_a_jet_is_not_stopped_as_a_blow_up(tmp_path):
-    """100 grains of 10 um in 0.05 m/s gas, with a 20 m/s jet through the floor's central cell: the jet carries
-    the powder above it. Measured from the inlet's carried speed alone, the grains' energy grew 4.8e3x in 5 ms and
-    the run was stopped as a blow-up; with the jet's share of the floor it runs to its end. (The kernels of
-    fluidize.toml's scene serve it: the jet is the inlet's profile, set from the host.)"""
+def run_powder(tmp_path, inlet: tuple[str, str]) -> tuple[pathlib.Path, dict]:
+    """fluidize.toml as 100 grains of 10 um for 6 ms on one thread, its inlet edited (``inlet``: the text and its
+    replacement); the preset and summary.json. (One size: the kernels of fluidize.toml's scene, which other tests
+    compile, serve it; a jet is the inlet's profile, set from the host.)"""
     text = (PRESETS / "fluidize.toml").read_text()
     for a, b in (("count = 5000", "count = 100"), ("diameter = 2.0e-3", "diameter = 1.0e-5"),
-                 ("duration = 0.55", "duration = 0.006"),
-                 ("velocity = [0.0, 0.0, 1.1], start = 0.15, ramp = 0.05",
-                  "velocity = [0.0, 0.0, 0.05], start = 0.0, ramp = 0.001, jet_velocity = [0.0, 0.0, 20.0], "
-                  "jet_radius = 0.004, jet_ramp = 0.001"), ("[run]", "[run]\nthreads = 1")):
+                 ("duration = 0.55", "duration = 0.006"), inlet, ("[run]", "[run]\nthreads = 1")):
         assert a in text, a
         text = text.replace(a, b, 1)
-    preset = tmp_path / "jet.toml"
+    preset = tmp_path / "powder.toml"
     preset.write_text(text)
     r = subprocess.run([sys.executable, "-m", "app", "run", str(preset), "--out", str(tmp_path / "run")],
                        capture_output=True, text=True, cwd=ROOT, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["status"] == "finished" and summary["time"] == pytest.approx(0.006)
-    assert summary["max_speed"] > 1.0  # blown far faster than the 0.05 m/s around the jet
+    return preset, summary
+
+
+def test_a_fine_powder_blown_by_a_jet_is_not_stopped_as_a_blow_up(tmp_path):
+    """100 grains of 10 um in 0.05 m/s gas, with a 20 m/s jet through the floor's central cell: the jet carries
+    the powder above it. Measured from the inlet's carried speed alone, the grains' energy grew 4.8e3x in 5 ms and
+    the run was stopped as a blow-up; with the jet's share of the floor it runs to its end."""
     from app.callbacks.guard import carried_speed
     from app.config import load
     from app.config.derived import derive
+
+    preset, summary = run_powder(tmp_path, (
+        "velocity = [0.0, 0.0, 1.1], start = 0.15, ramp = 0.05",
+        "velocity = [0.0, 0.0, 0.05], start = 0.0, ramp = 0.001, jet_velocity = [0.0, 0.0, 20.0], "
+        "jet_radius = 0.004, jet_ramp = 0.001"))
+    assert summary["max_speed"] > 1.0  # blown far faster than the 0.05 m/s around the jet
     cfg = load(preset)
     der = derive(cfg)
     mass = der.mass(1e-5) * 100  # [kg]
@@ -157,21 +165,8 @@ def test_a_fine_powder_carried_by_the_gas_is_not_stopped_as_a_blow_up(tmp_path):
     """100 grains of 10 um in 1.1 m/s gas: the gas carries the powder at its own speed within a millisecond, 1.2e4
     times the energy of a fall through 10 um. The energy check stopped this run at its check of 5 ms (found by the
     schema's edges sweep, stop 54, with 300 grains of 10 um and 2 mm at half the mass each: all fine by number, a
-    2 mm grain weighs 8e6 of them); it now runs to its end. (One size: the kernels of fluidize.toml's scene, which
-    other tests compile, serve it.)"""
-    text = (PRESETS / "fluidize.toml").read_text()
-    for a, b in (("count = 5000", "count = 100"), ("diameter = 2.0e-3", "diameter = 1.0e-5"),
-                 ("duration = 0.55", "duration = 0.006"),
-                 ("start = 0.15, ramp = 0.05", "start = 0.0, ramp = 0.001"), ("[run]", "[run]\nthreads = 1")):
-        assert a in text, a
-        text = text.replace(a, b, 1)
-    preset = tmp_path / "powder.toml"
-    preset.write_text(text)
-    r = subprocess.run([sys.executable, "-m", "app", "run", str(preset), "--out", str(tmp_path / "run")],
-                       capture_output=True, text=True, cwd=ROOT, timeout=600)
-    assert r.returncode == 0, r.stderr[-2000:]
-    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
-    assert summary["status"] == "finished" and summary["time"] == pytest.approx(0.006)
+    2 mm grain weighs 8e6 of them); it now runs to its end."""
+    _, summary = run_powder(tmp_path, ("start = 0.15, ramp = 0.05", "start = 0.0, ramp = 0.001"))
     assert 1.0 < summary["max_speed"] < 1.3  # carried at the gas's speed (eps is about 1)
     mass = summary["bed_weight_per_area"] * summary["bed_area"] / 9.81  # [kg]
     assert summary["kinetic_energy"] > 1e3 * 0.5 * mass * 9.80665 * 1e-5  # the old floor's limit, passed for real
