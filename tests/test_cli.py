@@ -62,6 +62,7 @@ def test_bad_preset_clear_message_exit_2(case, tmp_path):
     (["rcfd", "run", "d", "--t0", "1"], "--t0: --t0 is for fbed rcfd validate, not run"),
     (["rcfd", "run", "d", "--set", "run.duration=1"], "--set: --set is for fbed rcfd validate, not run"),
     (["rcfd", "analyze", "d", "--arch", "cpu"], "--arch: --arch is for fbed rcfd validate, not analyze"),
+    (["rcfd", "analyze", "d", "--gas-scheme", "upwind"], "--gas-scheme: --gas-scheme is for fbed rcfd run, not analyze"),
     (["bench", "stress", "--cases", "x"], "--cases: --cases is for fbed bench accuracy, not stress"),
     (["bench", "accuracy", "--scenes", "x"], "--scenes: --scenes is for fbed bench stress, not accuracy"),
     (["bench", "stress", "--resume"], "--resume: --resume is for fbed bench accuracy and stiffness, not stress"),

@@ -302,6 +302,54 @@ def test_upwind_gas_tracer_spreads_a_plug_flow_as_its_courant_number_says():
     assert two["substeps"] == 400  # halved by max_substep: C = 0.45
 
 
+def test_fct_gas_tracer_is_sharper_than_upwind_and_as_bounded_and_conservative():
+    """Flux-corrected transport (scheme='fct'): in the plug flow above its spread is under 0.7 of upwind's at every
+    Courant number (measured 0.46-0.65); in a recirculating divergence-free 2-D flow (a random stream function on a
+    closed box with a uniform 2.1 m/s through-flow, void fractions 0.4-1) c stays in [0, 1] at every frame, the
+    tracer balance closes to round-off, the mean residence time is the gas volume over the flow, and the spread is
+    smaller than upwind's."""
+    from app.rcfd.transport import GasTracer, rtd_moments, step_response
+
+    N, h, Q, eps = 20, 0.01, 2e-5, 0.5
+    V = eps * h ** 3
+    open_v, e = np.ones((1, 1, N)), np.full((1, 1, N), eps)
+    fluxes = (np.zeros((2, 1, N)), np.zeros((1, 2, N)), np.full((1, 1, N + 1), Q))
+    for C in (0.9, 0.5, 0.1):
+        dt = C * V / Q
+        sig = {}
+        for scheme in ("upwind", "fct"):
+            r = step_response(open_v, h, ((fluxes, e, e, None) for _ in range(int(6 * N / C))), dt, max_substep=dt,
+                              scheme=scheme)
+            assert r["balance_error"] < 1e-12 and 0.0 <= min(r["F"]) and max(r["F"]) <= 1.0 + 1e-12
+            sig[scheme] = rtd_moments(r["F"], dt)["sigma"]
+        assert sig["fct"] < 0.7 * sig["upwind"], (C, sig)
+    nx, nz, h = 16, 24, 0.005
+    rng = np.random.default_rng(1)
+    psi = np.zeros((nx + 1, nz + 1))  # [m^3/s] at the cells' corners, zero on the box's boundary
+    psi[1:-1, 1:-1] = rng.normal(0.0, 3e-5, (nx - 1, nz - 1))
+    Q = 2.1 * nx * h * h
+    fx, fy, fz = np.zeros((nx + 1, 1, nz)), np.zeros((nx, 2, nz)), np.zeros((nx, 1, nz + 1))
+    fx[:, 0, :] = psi[:, 1:] - psi[:, :-1]
+    fz[:, 0, :] = Q / nx - (psi[1:, :] - psi[:-1, :])
+    assert np.abs(np.diff(fx, axis=0) + np.diff(fz, axis=2)).max() < 1e-18
+    eps = rng.uniform(0.4, 1.0, (nx, 1, nz))
+    sig = {}
+    for scheme in ("upwind", "fct"):
+        g = GasTracer(np.ones((nx, 1, nz)), h, 0.0, scheme=scheme)
+        F = [0.0]
+        for _ in range(300):
+            g.frame((fx, fy, fz), eps, eps, 1e-3, 1.0)
+            assert -1e-12 <= g.c.min() and g.c.max() <= 1.0 + 1e-12
+            F.append(g.take_outlet())
+        assert abs(g.mass(eps) - (g.inflow - g.outflow)) <= 1e-12 * g.inflow
+        m = rtd_moments(np.array(F), 1e-3)
+        assert m["tau"] == pytest.approx(float(np.sum(eps)) * h ** 3 / Q, rel=1e-9) and m["F_end"] > 1 - 1e-9
+        sig[scheme] = m["sigma"]
+    assert sig["fct"] < sig["upwind"]  # measured 6.6 against 8.3 ms
+    with pytest.raises(ValueError, match="scheme 'lw'"):
+        GasTracer(np.ones((1, 1, 2)), h, scheme="lw")
+
+
 def test_face_void_fraction_is_the_two_cells_mean_and_the_cell_on_domain_faces():
     from app.rcfd_probe import face_eps
 

@@ -105,6 +105,7 @@ def test_analyze_and_reproducible_paths(recorded):
     assert (runs[0] / "recurrence_path.png").exists() and (runs[0] / "mixing.png").exists()
     g = s["gas_tracer"]  # on the recorded fluxes: the balance closes; c exceeds 1 only by the continuity residual
     assert g["balance_error_max"] <= 1e-9 and g["c_min"] >= 0 and g["c_max"] <= 1 + 1e-4
+    assert g["scheme"] == "fct"  # the default
 
 
 def test_every_file_of_a_recording_run_is_one_fbed_knows_as_its_own(recorded):
@@ -138,7 +139,9 @@ def test_a_negative_seed_or_lag_and_a_horizon_beyond_memory_are_refused_naming_t
                        (["--name", "../../x"], "--name: --name must be one folder name"),
                        (["--tag", "z>100"], "--tag: --tag 'z>100' tags none of the grains at t = 0.4 s"),
                        (["--tag", "x<=1e9"], "--tag: --tag 'x<=1e9' tags all of the grains"),
-                       (["--horizon", "1e12"], "--horizon: --horizon 1e+12 s is 200,000,000,000,000 frames of 0.005 s")):
+                       (["--horizon", "1e12"], "--horizon: --horizon 1e+12 s is 200,000,000,000,000 frames of 0.005 s"),
+                       (["--gas-scheme", "upwind"], "--gas-scheme: --gas-scheme chooses the gas tracer's scheme, and "
+                                                    "--gas is not given")):
         r = fbed("rcfd", "run", recorded, "--horizon", "0.05", "--paths", "1", *args, "--out", tmp_path / "o")
         assert r.returncode == 2 and said in r.stderr and "Traceback" not in r.stderr, r.stderr[-2000:]
         assert not (tmp_path / "o").exists()

@@ -22,7 +22,7 @@ def _db_dir(target: str) -> pathlib.Path:
 #: the actions each flag of `fbed rcfd` is read by (its dest -> actions); given to another, it did nothing (app.cli
 #: refuses it)
 FLAG_ACTIONS = {"horizon": ("run",), "paths": ("run", "validate"), "seed": ("run", "validate"), "tag": ("run",),
-                "name": ("run",), "start": ("run",), "gas": ("run",), "jump": ("run",), "lag": ("run", "validate"),
+                "name": ("run",), "start": ("run",), "gas": ("run",), "gas_scheme": ("run",), "jump": ("run",), "lag": ("run", "validate"),
                 "t0": ("validate",), "t1": ("validate",), "t2": ("validate",), "continuations": ("validate",),
                 "sensitivity": ("validate",), "overrides": ("validate",), "arch": ("validate",)}
 
@@ -62,6 +62,9 @@ def main(args) -> int:
         if args.name is not None and (args.name in ("", ".", "..") or any(c in args.name for c in "/\\")):
             raise ConfigError(f"--name must be one folder name (made under RUN_DIR/rcfd), got {args.name!r}", "",
                               "--name", hint="to write elsewhere give --out FOLDER")  # '../../x' wrote outside the run
+        if args.gas_scheme is not None and not args.gas:  # it would have chosen the scheme of no tracer
+            raise ConfigError("--gas-scheme chooses the gas tracer's scheme, and --gas is not given", "",
+                              "--gas-scheme", hint="add --gas, or drop --gas-scheme")
         if args.tag is not None:
             from .database import parse_tag
 
@@ -71,7 +74,8 @@ def main(args) -> int:
                 raise ConfigError(str(err), "", "--tag") from None
         try:
             s = commands.run_paths(str(d), args.horizon, args.paths, args.seed, args.tag, args.name, args.out,
-                                   args.start, log=log, gas=args.gas, lag=args.lag, jump=args.jump)
+                                   args.start, log=log, gas=args.gas and (args.gas_scheme or "fct"), lag=args.lag,
+                                   jump=args.jump)
         except ValueError as err:
             key = next((k for k in ("--lag", "--horizon", "--tag") if k in str(err)),
                        "--jump" if str(err).startswith("jump") else "RUN_DIR")
@@ -88,8 +92,9 @@ def main(args) -> int:
               f"(database counted), {c['total_speedup_without_database']:.3g}x (not counted)")
         if "gas_tracer" in s:
             g = s["gas_tracer"]
-            print(f"gas tracer (step input): outlet F at {args.horizon:g} s {g['step_response_final']:.4f}, mean "
-                  f"residence time {g['mean_residence_time']:.4g} s, balance error {g['balance_error_max']:.2g}")
+            print(f"gas tracer (step input, {g['scheme']}): outlet F at {args.horizon:g} s "
+                  f"{g['step_response_final']:.4f}, mean residence time {g['mean_residence_time']:.4g} s (spread "
+                  f"{g['residence_time_spread']:.3g} s), balance error {g['balance_error_max']:.2g}")
         return 0
     _check_validate(args)
     from .validate import validate

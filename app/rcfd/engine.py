@@ -173,17 +173,17 @@ class Engine:
                 self._fluxes = [f[f"frame/flux_{a}"][: self.db.n_frames] for a in "xyz"]
         return self._fluxes
 
-    def gas_transport(self, path: pathmod.Path, c_in: float = 1.0) -> dict:
+    def gas_transport(self, path: pathmod.Path, c_in: float = 1.0, scheme: str = "fct") -> dict:
         """A gas tracer fed at c_in through the inlet from the path's start (a step input), on the recorded
         fluxes: the outlet's mixing-cup c after each frame (the step response F(t)) and the tracer balance
-        (transport.step_response; at a jump eps switches state and c is kept)."""
+        (transport.step_response by ``scheme``, GasTracer's; at a jump eps switches state and c is kept)."""
         db, fl = self.db, self.fluxes()
         jumps = {pos: s_from for pos, s_from, _, _ in path.jumps if pos > 0}
         eps = (lambda b: db.eps[b].astype(np.float64))
         frames = (([a[k].astype(np.float64) for a in fl], eps(db.b0[k]), eps(db.b1[k]),
                    eps(jumps[i]) if i in jumps else None) for i, k in enumerate(path.frames))
         t = wallclock.perf_counter()
-        out = step_response(db.open_volume, db.h, frames, db.frame_interval, c_in)
+        out = step_response(db.open_volume, db.h, frames, db.frame_interval, c_in, scheme=scheme)
         return {**out, "wall": wallclock.perf_counter() - t}
 
     def path(self, n_frames: int, start_state: int, seed: tuple) -> pathmod.Path:

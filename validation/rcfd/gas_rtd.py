@@ -1,9 +1,9 @@
 """The rCFD gas tracer against the run's own gas, fluid step by fluid step (issue 20; validation/rcfd/README.md).
 
-`fbed rcfd run --gas` carries a gas tracer on the frame-mean face fluxes of the database (first-order upwind,
-app.rcfd.transport.step_response). fbed's gas solver carries no tracer, so there was nothing to check it against.
-A recording whose frames are one fluid step long holds the very fluxes the gas solver used at each step: the
-tracer on it is the gas's own, up to the upwind scheme, which both sides share. Coarsening that recording to
+`fbed rcfd run --gas` carries a gas tracer on the frame-mean face fluxes of the database (finite volumes, upwind
+or flux-corrected: app.rcfd.transport.step_response). fbed's gas solver carries no tracer, so there was nothing
+to check it against. A recording whose frames are one fluid step long holds the very fluxes the gas solver used at each step: the
+tracer on it is the gas's own, up to the transport scheme, which both sides share. Coarsening that recording to
 frames of k steps (fluxes averaged over the k steps, the void fraction at every k-th boundary: exactly what a
 recording at k steps holds) leaves one error, the frame averaging, measured here from the same start times:
 
@@ -81,6 +81,7 @@ def main(argv=None) -> int:
     ap.add_argument("--factors", type=int, nargs="+", default=[1, 2, 5, 10])
     ap.add_argument("--substep", type=float, default=1e-4,
                     help="the common transport substep [s] (upwind's diffusion depends on it: see the docstring)")
+    ap.add_argument("--scheme", choices=("upwind", "fct"), default="upwind", help="the gas tracer's scheme")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
     a.factors = sorted(set(a.factors) | {1})  # 1: the reference
@@ -105,7 +106,8 @@ def main(argv=None) -> int:
         for k in a.factors:
             for mode in MODES:
                 r = step_response(db.open_volume, db.h, coarse_frames(fluxes, db.eps, db.b0, db.b1, s, n1 // k, k),
-                                  k * dt1, max_substep=a.substep if mode == "frame_averaging" else None)
+                                  k * dt1, max_substep=a.substep if mode == "frame_averaging" else None,
+                                  scheme=a.scheme)
                 coarse[k, mode].append(r["F"][1:])
                 worst = {"balance_error": max(worst["balance_error"], r["balance_error"]),
                          "c_min": min(worst["c_min"], r["c_min"]), "c_max": max(worst["c_max"], r["c_max"])}
@@ -115,7 +117,7 @@ def main(argv=None) -> int:
     b = slice(int(db.b0[starts[0]]), int(db.b1[starts[-1] + n1 - 1]) + 1)
     gas_volume = float(np.mean(np.sum(db.eps[b] * db.open_volume, axis=(1, 2, 3)))) * db.h ** 3
     inflow = float(np.mean(np.sum(np.maximum(fluxes[2][starts[0]:starts[-1] + n1, :, :, 0], 0), axis=(1, 2))))
-    out = {"run": str(a.run), "frame_interval_recorded": dt1, "starts": len(starts),
+    out = {"run": str(a.run), "scheme": a.scheme, "substep": a.substep, "frame_interval_recorded": dt1, "starts": len(starts),
            "first_start": float(t_start[starts[0]]), "last_start": float(t_start[starts[-1]]),
            "horizon": n1 * dt1, "gas_volume_over_flow": gas_volume / inflow, "tracer": worst, "factors": {}}
     for k in a.factors:
