@@ -158,7 +158,7 @@ def _add_rcfd(sub) -> None:
     rc.add_argument("--gas-scheme", choices=("fct", "upwind"), default=None,
                     help="run, with --gas: the gas tracer's scheme: fct (flux-corrected, second order where smooth, "
                          "bounded; the default) or upwind (first order, as CFDEM's rCFD; 4x cheaper, its RTD spread "
-                         "a third wider on the rcfd_bubbling bed: validation/rcfd/README.md, 0000)")
+                         "1.5x FCT's on the rcfd_bubbling bed: validation/rcfd/README.md, 0000)")
     rc.add_argument("--jump", choices=("match", "stitch"), default=None,
                     help="run: how the grain tracer crosses a jump: match (each grain takes the tag of one grain of "
                          "the state left, paired by position; stored in RUN_DIR/rcfd/matchings.h5 for later runs; the "

@@ -22,7 +22,8 @@ def _db_dir(target: str) -> pathlib.Path:
 #: the actions each flag of `fbed rcfd` is read by (its dest -> actions); given to another, it did nothing (app.cli
 #: refuses it)
 FLAG_ACTIONS = {"horizon": ("run",), "paths": ("run", "validate"), "seed": ("run", "validate"), "tag": ("run",),
-                "name": ("run",), "start": ("run",), "gas": ("run",), "gas_scheme": ("run",), "jump": ("run",), "lag": ("run", "validate"),
+                "name": ("run",), "start": ("run",), "gas": ("run",), "gas_scheme": ("run",), "jump": ("run",),
+                "lag": ("run", "validate"),
                 "t0": ("validate",), "t1": ("validate",), "t2": ("validate",), "continuations": ("validate",),
                 "sensitivity": ("validate",), "overrides": ("validate",), "arch": ("validate",)}
 

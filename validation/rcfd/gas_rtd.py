@@ -1,11 +1,11 @@
 """The rCFD gas tracer against the run's own gas, fluid step by fluid step (issue 20; validation/rcfd/README.md).
 
-`fbed rcfd run --gas` carries a gas tracer on the frame-mean face fluxes of the database (finite volumes, upwind
-or flux-corrected: app.rcfd.transport.step_response). fbed's gas solver carries no tracer, so there was nothing
-to check it against. A recording whose frames are one fluid step long holds the very fluxes the gas solver used at each step: the
-tracer on it is the gas's own, up to the transport scheme, which both sides share. Coarsening that recording to
-frames of k steps (fluxes averaged over the k steps, the void fraction at every k-th boundary: exactly what a
-recording at k steps holds) leaves one error, the frame averaging, measured here from the same start times:
+`fbed rcfd run --gas` carries a gas tracer on the frame-mean face fluxes of the database (finite volumes, upwind or
+flux-corrected: app.rcfd.transport.step_response). fbed's gas solver carries no tracer, so there was nothing to
+check it against. A recording whose frames are one fluid step long holds the very fluxes the gas solver used at
+each step: the tracer on it is the gas's own, up to the transport scheme, which both sides share. Coarsening that
+recording to frames of k steps (fluxes averaged over the k steps, the void fraction at every k-th boundary: exactly
+what a recording at k steps holds) leaves one error, the frame averaging, measured here from the same start times:
 
     python3 -m app run presets/rcfd_bubbling.toml --out runs/gas_rtd --set probes.rcfd_interval=1e-3 \
         --set probes.rcfd_grain_cells=false --set run.duration=3.5
