@@ -96,6 +96,10 @@ def main(args) -> int:
             print(f"gas tracer (step input, {g['scheme']}): outlet F at {args.horizon:g} s "
                   f"{g['step_response_final']:.4f}, mean residence time {g['mean_residence_time']:.4g} s (spread "
                   f"{g['residence_time_spread']:.3g} s), balance error {g['balance_error_max']:.2g}")
+            i = g["injected"]
+            print(f"gas residence times over {i['injections']} injections along the paths: mean "
+                  f"{i['mean_residence_time']:.4g} s, spread {i['residence_time_spread']:.3g} s, median "
+                  f"{i['median_residence_time']:.4g} s")
         return 0
     _check_validate(args)
     from .validate import validate

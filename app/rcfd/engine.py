@@ -173,15 +173,19 @@ class Engine:
                 self._fluxes = [f[f"frame/flux_{a}"][: self.db.n_frames] for a in "xyz"]
         return self._fluxes
 
-    def gas_transport(self, path: pathmod.Path, c_in: float = 1.0, scheme: str = "fct") -> dict:
-        """A gas tracer fed at c_in through the inlet from the path's start (a step input), on the recorded
-        fluxes: the outlet's mixing-cup c after each frame (the step response F(t)) and the tracer balance
-        (transport.step_response by ``scheme``, GasTracer's; at a jump eps switches state and c is kept)."""
+    def gas_transport(self, path: pathmod.Path, c_in: float = 1.0, scheme: str = "fct", first: int = 0,
+                      count: int | None = None) -> dict:
+        """A gas tracer fed at c_in through the inlet from the path's frame ``first`` on (a step input; ``count``
+        frames, default to the path's end), on the recorded fluxes: the outlet's mixing-cup c after each frame (the
+        step response F(t)) and the tracer balance (transport.step_response by ``scheme``, GasTracer's; at a jump
+        eps switches state and c is kept)."""
         db, fl = self.db, self.fluxes()
-        jumps = {pos: s_from for pos, s_from, _, _ in path.jumps if pos > 0}
+        jumps = {pos: s_from for pos, s_from, _, _ in path.jumps if pos > first}
         eps = (lambda b: db.eps[b].astype(np.float64))
+        stop = len(path.frames) if count is None else first + count
         frames = (([a[k].astype(np.float64) for a in fl], eps(db.b0[k]), eps(db.b1[k]),
-                   eps(jumps[i]) if i in jumps else None) for i, k in enumerate(path.frames))
+                   eps(jumps[i]) if i in jumps else None)
+                  for i, k in zip(range(first, stop), path.frames[first:stop]))
         t = wallclock.perf_counter()
         out = step_response(db.open_volume, db.h, frames, db.frame_interval, c_in, scheme=scheme)
         return {**out, "wall": wallclock.perf_counter() - t}
