@@ -291,7 +291,7 @@ def injected_rtd(eng: Engine, ps: list, od: pathlib.Path, scheme: str) -> dict:
     each path that leaves a window of half the path, its response over that window (jumps inside it included),
     averaged over injections and paths (rtd_injected.csv: the mean and the spread over injections), its moments."""
     n = len(ps[0].frames)
-    window = n // 2
+    window = max(1, n // 2)
     every = max(1, window // 4)
     curves, balance = [], 0.0
     for p in ps:
