@@ -116,7 +116,8 @@ def test_analyze_and_reproducible_paths(recorded):
     assert inj["mean_residence_time"] == pytest.approx(g["mean_residence_time"], rel=1e-2)
     r = fbed("rcfd", "run", recorded, "--horizon", "0.005", "--paths", "1", "--name", "one", "--gas")  # one frame
     assert r.returncode == 0, r.stderr[-3000:]  # its injection window was 0 frames: a TypeError
-    assert json.loads((recorded / "rcfd" / "one" / "summary.json").read_text())["gas_tracer"]["injected"]["injections"] == 1
+    one = json.loads((recorded / "rcfd" / "one" / "summary.json").read_text())
+    assert one["gas_tracer"]["injected"]["injections"] == 1
 
 
 def test_every_file_of_a_recording_run_is_one_fbed_knows_as_its_own(recorded):
