@@ -19,7 +19,7 @@ import numpy as np
 
 from .beds import load_bed
 from .config import ConfigError, resolve_path
-from .config.derived import Derived, derive, periodic_axes, smoothing_passes
+from .config.derived import Derived, derive, gas_shape, periodic_axes, smoothing_passes
 from .config.schema import Config
 from .io.store import available_memory
 from .schedule import InletSchedule
@@ -240,7 +240,7 @@ def dem_model(cfg: Config, der: Derived, n: int, walls: list, coupled: bool = Fa
 def flow_config(cfg: Config, walls: list):
     """The gas solver's set-up from [gas], [boundary], [domain] and the vessel walls."""
     g, d = cfg.gas, cfg.domain
-    shape = tuple(int(round((d.hi[a] - d.lo[a]) / g.cell_size)) for a in range(3))
+    shape = gas_shape(cfg)
     bcs = {face: BC(b.kind, tuple(b.velocity), b.pressure) for face, b in cfg.boundary}
     return FlowConfig(shape=shape, h=g.cell_size, origin=tuple(d.lo), rho=g.density, mu=g.viscosity,
                            gravity=tuple(d.gravity), bcs=bcs, walls=tuple(walls), pressure_form=g.pressure_form,

@@ -5,7 +5,7 @@ import math
 
 import numpy as np
 
-from ..config.derived import inlet_peak_speeds
+from ..config.derived import gas_shape, inlet_peak_speeds
 from ..schedule import FACE_AXES, jet_cells
 from ..sim.drag import terminal_slip
 from ..sim.simulation import Simulation, Unstable
@@ -48,8 +48,7 @@ def jet_floors(cfg, derived, radii, masses) -> list[tuple[float, float, float]]:
     radii, masses = np.asarray(radii, float), np.asarray(masses, float)
     if gas is None or not radii.size:
         return []
-    d, h = cfg.domain, gas.cell_size
-    shape = tuple(int(round((d.hi[a] - d.lo[a]) / h)) for a in range(3))
+    d, h, shape = cfg.domain, gas.cell_size, gas_shape(cfg)
     sizes, which = np.unique(radii, return_inverse=True)
     gravity = float(np.linalg.norm(d.gravity))
     floors = []

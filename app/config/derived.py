@@ -221,6 +221,12 @@ def periodic_axes(cfg: Config) -> tuple[bool, bool, bool]:
                  for ax in "xyz")
 
 
+def gas_shape(cfg: Config) -> tuple[int, int, int]:
+    """The gas grid's cells along x, y, z: the domain over gas.cell_size (the rules check it divides)."""
+    d = cfg.domain
+    return tuple(int(round((d.hi[a] - d.lo[a]) / cfg.gas.cell_size)) for a in range(3))
+
+
 def inlet_peak_speeds(face) -> tuple[float, float]:
     """A [boundary] face's fastest superficial speeds [m/s]: (its uniform velocity times the schedule's largest
     fraction, its jet's); (0, 0) for a face that is not a velocity inlet."""
