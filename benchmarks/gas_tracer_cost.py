@@ -25,17 +25,9 @@ sys.path.insert(0, str(ROOT))
 
 from app.bench.common import append_results  # noqa: E402
 from app.rcfd.database import load  # noqa: E402
-from app.rcfd.transport import rtd_moments, step_response  # noqa: E402
+from app.rcfd.transport import GasTracer, recorded_frames, rtd_moments, step_response  # noqa: E402
 
-SCHEMES = ("upwind", "fct")
-
-
-def frames(fluxes, db, start: int, n: int, k: int):
-    """n frames of k recorded frames each from frame ``start`` (fluxes averaged, eps at the ends)."""
-    for g in range(n):
-        a = start + g * k
-        yield ([f[a:a + k].astype(np.float64).mean(0) for f in fluxes], db.eps[db.b0[a]].astype(np.float64),
-               db.eps[db.b1[a + k - 1]].astype(np.float64), None)
+SCHEMES = GasTracer.SCHEMES  # upwind first: the ratio is to it
 
 
 def main(argv=None) -> int:
@@ -59,7 +51,8 @@ def main(argv=None) -> int:
     for _ in range(a.repeats):
         for s in SCHEMES:
             t = time.perf_counter()
-            last[s] = step_response(db.open_volume, db.h, frames(fluxes, db, start, n, a.factor), dt, scheme=s)
+            frames = recorded_frames(db, fluxes, start, n, a.factor)
+            last[s] = step_response(db.open_volume, db.h, frames, dt, scheme=s)
             walls[s].append(time.perf_counter() - t)
     rows = []
     for s in SCHEMES:

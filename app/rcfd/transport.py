@@ -325,6 +325,19 @@ def step_response(open_volume: np.ndarray, h: float, frames, dt: float, c_in: fl
             "jump_share": float(abs(g.jump_mass) / max(g.inflow, 1e-300)), "substeps": g.substeps}
 
 
+def recorded_frames(db, fluxes, start: int, n: int, k: int = 1):
+    """n frames of k recorded frames each from frame ``start`` on, in recorded order, as ``step_response`` takes
+    them: (fluxes averaged over the k frames, eps at the first's start, eps at the last's end, None), float64. A
+    recording at k times the interval holds exactly these. ``fluxes``: the database's (flux_x, flux_y, flux_z);
+    ValueError where the k frames are not consecutive (a gap in the recording)."""
+    for g in range(n):
+        a = start + g * k
+        if np.any(db.b1[a:a + k - 1] != db.b0[a + 1:a + k]):
+            raise ValueError(f"frames {a}-{a + k - 1} are not consecutive (a gap in the recording)")
+        yield ([f[a:a + k].astype(np.float64).mean(0) for f in fluxes], db.eps[db.b0[a]].astype(np.float64),
+               db.eps[db.b1[a + k - 1]].astype(np.float64), None)
+
+
 def rtd_moments(F: np.ndarray, dt: float) -> dict:
     """The residence time distribution's mean tau = int (1 - F) dt, spread sigma (int 2 t (1 - F) dt = tau^2 +
     sigma^2) and median t50 [s], from a step response given as frame means over frames of dt [s] (F[0] = 0 at the

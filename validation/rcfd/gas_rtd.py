@@ -30,18 +30,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from app.rcfd.database import load  # noqa: E402
-from app.rcfd.transport import rtd_moments, step_response  # noqa: E402
-
-
-def coarse_frames(fluxes, eps, b0, b1, start: int, n: int, k: int):
-    """Frames of k recorded frames from frame ``start`` on, n of them: (fluxes averaged, eps at the first's start,
-    eps at the last's end, None)."""
-    for g in range(n):
-        a = start + g * k
-        if np.any(b1[a:a + k - 1] != b0[a + 1:a + k]):
-            raise ValueError(f"frames {a}-{a + k - 1} are not consecutive (a gap in the recording)")
-        flux = [f[a:a + k].astype(np.float64).mean(0) for f in fluxes]
-        yield flux, eps[b0[a]].astype(np.float64), eps[b1[a + k - 1]].astype(np.float64), None
+from app.rcfd.transport import GasTracer, recorded_frames, rtd_moments, step_response  # noqa: E402
 
 
 #: frame_averaging: every transport on the common substep (--substep), so that only the fluxes differ;
@@ -81,7 +70,7 @@ def main(argv=None) -> int:
     ap.add_argument("--factors", type=int, nargs="+", default=[1, 2, 5, 10])
     ap.add_argument("--substep", type=float, default=1e-4,
                     help="the common transport substep [s] (upwind's diffusion depends on it: see the docstring)")
-    ap.add_argument("--scheme", choices=("upwind", "fct"), default="upwind", help="the gas tracer's scheme")
+    ap.add_argument("--scheme", choices=GasTracer.SCHEMES, default="upwind", help="the gas tracer's scheme")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
     a.factors = sorted(set(a.factors) | {1})  # 1: the reference
@@ -105,7 +94,7 @@ def main(argv=None) -> int:
     for s in starts:
         for k in a.factors:
             for mode in MODES:
-                r = step_response(db.open_volume, db.h, coarse_frames(fluxes, db.eps, db.b0, db.b1, s, n1 // k, k),
+                r = step_response(db.open_volume, db.h, recorded_frames(db, fluxes, s, n1 // k, k),
                                   k * dt1, max_substep=a.substep if mode == "frame_averaging" else None,
                                   scheme=a.scheme)
                 coarse[k, mode].append(r["F"][1:])
@@ -117,8 +106,8 @@ def main(argv=None) -> int:
     b = slice(int(db.b0[starts[0]]), int(db.b1[starts[-1] + n1 - 1]) + 1)
     gas_volume = float(np.mean(np.sum(db.eps[b] * db.open_volume, axis=(1, 2, 3)))) * db.h ** 3
     inflow = float(np.mean(np.sum(np.maximum(fluxes[2][starts[0]:starts[-1] + n1, :, :, 0], 0), axis=(1, 2))))
-    out = {"run": str(a.run), "scheme": a.scheme, "substep": a.substep, "frame_interval_recorded": dt1, "starts": len(starts),
-           "first_start": float(t_start[starts[0]]), "last_start": float(t_start[starts[-1]]),
+    out = {"run": str(a.run), "scheme": a.scheme, "substep": a.substep, "frame_interval_recorded": dt1,
+           "starts": len(starts), "first_start": float(t_start[starts[0]]), "last_start": float(t_start[starts[-1]]),
            "horizon": n1 * dt1, "gas_volume_over_flow": gas_volume / inflow, "tracer": worst, "factors": {}}
     for k in a.factors:
         out["factors"][str(k)] = {mode: compare(fine, np.asarray(coarse[k, mode]), k, dt1) for mode in MODES}
