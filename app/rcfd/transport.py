@@ -169,6 +169,14 @@ class GrainTracer:
         return max(abs(m - self.m0) / self.m0 if self.m0 else 0.0, abs(u - self.u0) / self.u0 if self.u0 else 0.0)
 
 
+def _sides(axis: int) -> tuple[tuple, tuple]:
+    """Index tuples of the cells left and right of the interior faces normal to ``axis`` (all but the last, all but
+    the first along it)."""
+    left, right = [slice(None)] * 3, [slice(None)] * 3
+    left[axis], right[axis] = slice(None, -1), slice(1, None)
+    return tuple(left), tuple(right)
+
+
 class GasTracer:
     """A gas-phase tracer c on the recorded frame-mean face fluxes: first-order upwind finite volumes,
     (theta V eps c)^{n+1} = (theta V eps c)^n - tau sum_faces F c_upwind, with eps linear in time within the frame
@@ -255,40 +263,29 @@ class GasTracer:
         low = np.where(ok, mass_low / np.maximum(gas_b, 1e-300), 0.0)  # upwind's result
         hi, lo = np.where(ok, np.maximum(c, low), -np.inf), np.where(ok, np.minimum(c, low), np.inf)
         c_max, c_min = hi.copy(), lo.copy()
+        sides = [_sides(a) for a in range(3)]  # the cells left and right of each axis's interior faces
         A = []
-        for a, F in enumerate(fluxes):
-            n = c.shape[a]
-            Fi = np.take(F, range(1, n), axis=a)  # interior faces: between cells k-1 and k
-            cL, cR = np.take(c, range(0, n - 1), axis=a), np.take(c, range(1, n), axis=a)
-            gL, gR = np.take(gas_a, range(0, n - 1), axis=a), np.take(gas_a, range(1, n), axis=a)
-            g_up = np.where(Fi > 0, gL, gR)
+        for (L, R), F in zip(sides, fluxes):
+            Fi = F[R][L]  # the interior faces: F's 1..n-1 along the axis
+            g_up = np.where(Fi > 0, gas_a[L], gas_a[R])
             courant = np.clip(np.abs(Fi) * tau / np.maximum(g_up, 1e-300), 0.0, 1.0)
-            A.append(np.where(g_up > 0, 0.5 * np.abs(Fi) * (1.0 - courant) * (cR - cL), 0.0))
-            for ext, f in ((c_max, np.maximum), (c_min, np.minimum)):  # the neighbours' range across this axis
-                src = hi if f is np.maximum else lo
-                left, right = [slice(None)] * 3, [slice(None)] * 3
-                left[a], right[a] = slice(0, n - 1), slice(1, n)
-                ext[tuple(left)] = f(ext[tuple(left)], src[tuple(right)])
-                ext[tuple(right)] = f(ext[tuple(right)], src[tuple(left)])
+            A.append(np.where(g_up > 0, 0.5 * np.abs(Fi) * (1.0 - courant) * (c[R] - c[L]), 0.0))
+            for ext, src, f in ((c_max, hi, np.maximum), (c_min, lo, np.minimum)):  # the neighbours' range, in place:
+                f(ext[L], src[R], out=ext[L])                                       # each cell takes both sides
+                f(ext[R], src[L], out=ext[R])
         p_in, p_out = np.zeros_like(c), np.zeros_like(c)  # antidiffusive inflow and outflow of each cell
-        for a, Aa in enumerate(A):
-            n = c.shape[a]
-            left, right = [slice(None)] * 3, [slice(None)] * 3
-            left[a], right[a] = slice(0, n - 1), slice(1, n)
-            p_in[tuple(right)] += np.maximum(Aa, 0.0)
-            p_out[tuple(left)] += np.maximum(Aa, 0.0)
-            p_in[tuple(left)] += np.maximum(-Aa, 0.0)
-            p_out[tuple(right)] += np.maximum(-Aa, 0.0)
+        for (L, R), Aa in zip(sides, A):
+            p_in[R] += np.maximum(Aa, 0.0)
+            p_out[L] += np.maximum(Aa, 0.0)
+            p_in[L] += np.maximum(-Aa, 0.0)
+            p_out[R] += np.maximum(-Aa, 0.0)
         room_up = np.where(ok, np.maximum(gas_b * (c_max - low), 0.0), 0.0)
         room_down = np.where(ok, np.maximum(gas_b * (low - c_min), 0.0), 0.0)
         r_up = np.where(p_in > 0, np.minimum(1.0, room_up / np.maximum(tau * p_in, 1e-300)), 0.0)
         r_down = np.where(p_out > 0, np.minimum(1.0, room_down / np.maximum(tau * p_out, 1e-300)), 0.0)
         div = np.zeros_like(c)
-        for a, Aa in enumerate(A):
-            n = c.shape[a]
-            rL_up, rR_up = np.take(r_up, range(0, n - 1), axis=a), np.take(r_up, range(1, n), axis=a)
-            rL_dn, rR_dn = np.take(r_down, range(0, n - 1), axis=a), np.take(r_down, range(1, n), axis=a)
-            q = Aa * np.where(Aa > 0, np.minimum(rR_up, rL_dn), np.minimum(rL_up, rR_dn))
+        for a, ((L, R), Aa) in enumerate(zip(sides, A)):
+            q = Aa * np.where(Aa > 0, np.minimum(r_up[R], r_down[L]), np.minimum(r_up[L], r_down[R]))
             zero = np.zeros(q.shape[:a] + (1,) + q.shape[a + 1:])
             div += np.diff(np.concatenate([zero, q, zero], axis=a), axis=a)
         return div
