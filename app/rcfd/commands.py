@@ -265,16 +265,9 @@ def _gas_paths(eng: Engine, ps: list, od: pathlib.Path, time: np.ndarray, horizo
         f.write("time," + ",".join(f"path{i}" for i in range(len(ps))) + ",mean\n")
         for j in range(time.size):
             f.write(f"{time[j]:.6g}," + ",".join(f"{v:.6f}" for v in Fs[:, j]) + f",{Fm[j]:.6f}\n")
-    Fz = np.nan_to_num(Fm)
-    m = rtd_moments(Fz, eng.db.frame_interval)
-    done = Fz[-1] > 0.99  # the moments of a response that has not come through are not its distribution's
-    injected = injected_rtd(eng, ps, od, scheme)
-    balance = max([g["balance_error"] for g in gr] + [injected.pop("balance_error_max")])
-    return {"scheme": scheme, "step_response_final": float(Fz[-1]),
-            "mean_residence_time": m["tau"] if done else float("nan"),
-            "residence_time_spread": m["sigma"] if done else float("nan"), "median_residence_time": m["t50"],
-            "injected": injected,
-            "balance_error_max": balance,
+    injected, balance = injected_rtd(eng, ps, od, scheme)
+    return {"scheme": scheme, **rtd_summary(np.nan_to_num(Fm), eng.db.frame_interval), "injected": injected,
+            "balance_error_max": max([g["balance_error"] for g in gr] + [balance]),
             "jump_mass_share_max": max(g["jump_share"] for g in gr),
             "c_min": min(g["c_min"] for g in gr), "c_max": max(g["c_max"] for g in gr),
             "wall_per_simulated_second_per_path": sum(g["wall"] for g in gr) / (len(ps) * horizon),
@@ -286,10 +279,20 @@ def _gas_paths(eng: Engine, ps: list, od: pathlib.Path, time: np.ndarray, horizo
                     "(the distribution over injection times, as a tracer fed at any moment sees it)"}
 
 
-def injected_rtd(eng: Engine, ps: list, od: pathlib.Path, scheme: str) -> dict:
+def rtd_summary(F: np.ndarray, dt: float) -> dict:
+    """A step response's last value and its residence times (transport.rtd_moments; the mean and spread only of a
+    response that has come through, F > 0.99: else they are not its distribution's)."""
+    m = rtd_moments(F, dt)
+    done = m["F_end"] > 0.99
+    return {"step_response_final": m["F_end"], "mean_residence_time": m["tau"] if done else float("nan"),
+            "residence_time_spread": m["sigma"] if done else float("nan"), "median_residence_time": m["t50"]}
+
+
+def injected_rtd(eng: Engine, ps: list, od: pathlib.Path, scheme: str) -> tuple[dict, float]:
     """The residence time distribution averaged over injection times: a step input at every ``every``-th frame of
     each path that leaves a window of half the path, its response over that window (jumps inside it included),
-    averaged over injections and paths (rtd_injected.csv: the mean and the spread over injections), its moments."""
+    averaged over injections and paths (rtd_injected.csv: the mean and the spread over injections); its summary,
+    and the largest tracer balance error of the injections."""
     n = len(ps[0].frames)
     window = max(1, n // 2)
     every = max(1, window // 4)
@@ -306,12 +309,7 @@ def injected_rtd(eng: Engine, ps: list, od: pathlib.Path, scheme: str) -> dict:
         f.write("time,mean,std\n")
         for j in range(mean.size):
             f.write(f"{j * dt:.6g},{mean[j]:.6f},{spread[j]:.6f}\n")
-    m = rtd_moments(mean, dt)
-    done = mean[-1] > 0.99
-    return {"injections": len(curves), "window": window * dt, "every": every * dt, "step_response_final": m["F_end"],
-            "mean_residence_time": m["tau"] if done else float("nan"),
-            "residence_time_spread": m["sigma"] if done else float("nan"), "median_residence_time": m["t50"],
-            "balance_error_max": balance}
+    return {"injections": len(curves), "window": window * dt, "every": every * dt, **rtd_summary(mean, dt)}, balance
 
 
 def lacey_summary(time: np.ndarray, Ls: np.ndarray) -> dict:
