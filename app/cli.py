@@ -159,11 +159,13 @@ def _add_rcfd(sub) -> None:
                     help="run, with --gas: the gas tracer's scheme: fct (flux-corrected, second order where smooth, "
                          "bounded; the default) or upwind (first order, as CFDEM's rCFD; 4x cheaper, its RTD spread "
                          "1.5x FCT's on the rcfd_bubbling bed: validation/rcfd/README.md, 0000)")
-    rc.add_argument("--jump", choices=("match", "stitch"), default=None,
-                    help="run: how the grain tracer crosses a jump: match (each grain takes the tag of one grain of "
-                         "the state left, paired by position; stored in RUN_DIR/rcfd/matchings.h5 for later runs; the "
-                         "default up to 10,000 grains) or stitch (cell volumes stitched, each grain takes its cell's "
-                         "mean tag; the default above); a database without grain cells always stitches")
+    rc.add_argument("--jump", choices=("match", "flow", "stitch"), default=None,
+                    help="run, validate: how the grain tracer crosses a jump: match (each grain takes the tag of one "
+                         "grain of the state left, paired by position by a dense assignment; the default up to "
+                         "10,000 grains), flow (paired the same way, the grains routed cell to cell along a flow: "
+                         "scales to a million grains), both stored in RUN_DIR/rcfd/matchings.h5 for later runs, or "
+                         "stitch (cell volumes stitched, each grain takes its cell's mean tag; the default above "
+                         "10,000 grains); a database without grain cells always stitches")
     rc.add_argument("--lag", type=int, default=1, help="run, validate: a frame spans LAG recorded frames, its shift "
                                                        "built from each grain's cell at its ends (motion that "
                                                        "reverses within it is no dispersion)")

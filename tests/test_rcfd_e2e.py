@@ -96,6 +96,17 @@ def test_analyze_and_reproducible_paths(recorded):
     st = json.loads((recorded / "rcfd" / "st" / "summary.json").read_text())
     assert st["jump"] == "stitch" and "matchings" not in st and st["tracer_drift_max"] <= 1e-12
     assert (recorded / "rcfd" / "st" / "path.csv").read_text() == (runs[0] / "path.csv").read_text()  # same paths
+    for name in ("fl", "fl2"):  # the flow matching: the same paths, stored beside the dense ones and reused
+        r = fbed("rcfd", "run", recorded, "--horizon", "0.5", "--paths", "3", "--seed", "3", "--name", name,
+                 "--jump", "flow")
+        assert r.returncode == 0, r.stderr[-3000:]
+    fl, fl2 = (json.loads((recorded / "rcfd" / n / "summary.json").read_text()) for n in ("fl", "fl2"))
+    assert fl["jump"] == "flow" and fl["matchings"]["stored"] == fl["matchings"]["used"] >= 1
+    assert fl2["matchings"]["loaded"] == fl["matchings"]["used"] and fl2["matchings"]["stored"] == 0
+    assert fl["tracer_drift_max"] <= 1e-12 and 0.0 <= fl["concentration_min"] <= fl["concentration_max"] <= 1.0
+    for f in ("path.csv", "mixing.csv"):
+        assert (recorded / "rcfd" / "fl" / f).read_text() == (recorded / "rcfd" / "fl2" / f).read_text()
+    assert (recorded / "rcfd" / "fl" / "path.csv").read_text() == (runs[0] / "path.csv").read_text()
     assert s["tracer_drift_max"] <= 1e-12
     assert 0.0 <= s["concentration_min"] and s["concentration_max"] <= 1.0
     M = np.loadtxt(runs[0] / "mixing.csv", delimiter=",", skiprows=1)
@@ -183,8 +194,8 @@ def test_validate_refuses_a_database_window_too_short_before_any_run(tmp_path):
 def test_a_bad_jump_names_the_option_and_its_choices(tmp_path):
     r = fbed("rcfd", "run", tmp_path, "--jump", "swap")
     assert r.returncode == 2 and "--jump" in r.stderr and "'match'" in r.stderr and "'stitch'" in r.stderr
-    assert "Traceback" not in r.stderr
-    assert "--jump {match,stitch}" in fbed("rcfd", "--help").stdout
+    assert "'flow'" in r.stderr and "Traceback" not in r.stderr
+    assert "--jump {match,flow,stitch}" in fbed("rcfd", "--help").stdout
 
 
 @pytest.mark.restart

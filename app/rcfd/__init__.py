@@ -8,7 +8,8 @@ run.h5; this package reads it back and works on it:
   period, the mean distance against lag, the database-length check, the Taylor time scale.
 - ``paths``: seeded Markov paths through the recorded frames.
 - ``transport``: the solids tracer moved by the recorded shift operators (exactly
-  conservative, bounded), the stitch at jumps, the mixing index.
+  conservative, bounded), the stitch at jumps, the mixing index; ``matching``/``flowmatch``: the
+  grain tracer's jumps, grains paired by position (a dense assignment, or routed along a flow).
 - ``commands``: ``fbed rcfd analyze|run``; ``validate``: ``fbed rcfd validate``.
 
 Method: Lichtenegger & Pirker 2016 (CES 153:394) for the recurrence statistics and paths;

@@ -22,7 +22,8 @@ def _db_dir(target: str) -> pathlib.Path:
 #: the actions each flag of `fbed rcfd` is read by (its dest -> actions); given to another, it did nothing (app.cli
 #: refuses it)
 FLAG_ACTIONS = {"horizon": ("run",), "paths": ("run", "validate"), "seed": ("run", "validate"), "tag": ("run",),
-                "name": ("run",), "start": ("run",), "gas": ("run",), "gas_scheme": ("run",), "jump": ("run",),
+                "name": ("run",), "start": ("run",), "gas": ("run",), "gas_scheme": ("run",),
+                "jump": ("run", "validate"),
                 "lag": ("run", "validate"),
                 "t0": ("validate",), "t1": ("validate",), "t2": ("validate",), "continuations": ("validate",),
                 "sensitivity": ("validate",), "overrides": ("validate",), "arch": ("validate",)}
@@ -105,7 +106,8 @@ def main(args) -> int:
     from .validate import validate
 
     return validate(args.target, args.t0, args.t1, args.t2, args.out, args.paths, args.seed, args.continuations,
-                    args.overrides, args.arch, log=log, lag=args.lag, sensitivity=args.sensitivity)
+                    args.overrides, args.arch, log=log, lag=args.lag, sensitivity=args.sensitivity,
+                    jump=args.jump or "auto")
 
 
 def _check_validate(args) -> None:

@@ -366,13 +366,13 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
               out: str | None = None, start: str = "end", engine: Engine | None = None, log=print,
               gas: bool | str = False, lag: int = 1, jump: str | None = None) -> dict:
     """`fbed rcfd run`: n_paths seeded Markov paths over ``horizon`` seconds from the database's last state
-    (start='end') or its first (start='begin'). ``jump``: 'match' or 'stitch' (Engine's ``jump``); None: match where
-    the database records each grain's cell, else stitch. ``gas``: also a gas tracer, by this scheme ('fct' or
+    (start='end') or its first (start='begin'). ``jump``: 'match', 'flow' or 'stitch' (Engine's ``jump``); None:
+    Engine's 'auto'. ``gas``: also a gas tracer, by this scheme ('fct' or
     'upwind'; True: 'fct')."""
     rd = pathlib.Path(run_dir)
     db = engine.db if engine else load(rd, lag)
-    if engine is None and jump == "match" and db.cells is None:
-        raise ValueError("jump 'match' pairs grains and needs each grain's cell per boundary (record with "
+    if engine is None and jump in ("match", "flow") and db.cells is None:
+        raise ValueError(f"jump {jump!r} pairs grains and needs each grain's cell per boundary (record with "
                          "probes.rcfd_grain_cells = true); use --jump stitch")
     eng = engine or Engine(db, jump=jump or "auto")
     dt = db.frame_interval
@@ -422,7 +422,7 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
         "t50": t50, "t90": t90, "t50_mean": nan_mean(t50), "t90_mean": nan_mean(t90),
         "lacey": lacey_summary(time, Ls), "jump": getattr(eng, "jump", "stitch"), **jump_summary(results),
         **path_bed_statistics(db, ps), "cost": cost_summary(eng, rd, results, horizon, t_path), "warnings": warnings}
-    if eng.jump == "match":
+    if eng.jump != "stitch":
         summary["matchings"] = {"store": str(eng.matchings_path), "loaded": eng.matchings_loaded, "stored": stored,
                                 "used": len({(j[1], j[2]) for p in ps for j in p.jumps if j[0] > 0}),
                                 "seconds": eng.stitch_seconds}

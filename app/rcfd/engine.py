@@ -3,9 +3,10 @@ grain volumes, the jump targets and stitches, and the transport of a tracer alon
 
 Solids: with each grain's cell recorded (boundary/cells), the tracer rides on the recorded grains along each
 sequence (transport.GrainTracer, ``solids="grains"``); at a jump the grains of the two states are matched one to
-one by position (matching.GrainMatcher, ``jump="match"``, the default) or the cell volumes are stitched and the tag
-averaged over each cell (``jump="stitch"``); the indices along a sequence come from the grains that change cell
-(sequence.SequenceIndex). The cell shifts (``solids="cells"``, transport.SolidsTracer) average over a cell every
+one by position, by a dense assignment (matching.GrainMatcher, ``jump="match"``, the default up to
+MATCH_MAX_GRAINS grains) or routed along a flow (flowmatch, ``jump="flow"``: scales to a million grains), or the
+cell volumes are stitched and the tag averaged over each cell (``jump="stitch"``); the indices along a sequence
+come from the grains that change cell (sequence.SequenceIndex). The cell shifts (``solids="cells"``, transport.SolidsTracer) average over a cell every
 frame. validation/rcfd/README.md measures them all against the real grains.
 """
 from __future__ import annotations
@@ -21,14 +22,18 @@ import numpy as np
 from . import paths as pathmod
 from . import recurrence as rec
 from .database import Database
+from .flowmatch import FlowGraph
 from .matching import GrainMatcher, grid_centres
 from .sequence import SequenceIndex
-from .stitch import LP_MAX_CELLS, Stitcher
+from .stitch import LP_MAX_CELLS, Stitcher, face_edges
 from .transport import GrainTracer, SolidsTracer, lacey_index, step_response
 
 # 'auto' matches grains up to here and stitches above: the matching's dense assignment grows as the cube of the grains
 # that change half cell (0.08-1.3 s a jump at 3,400 grains, 800-1,900 of them; validation/rcfd/README.md, 0a)
 MATCH_MAX_GRAINS = 10_000
+# the flow matching on half cells up to here, on the cells above (64 x 64 x 168 half cells: 23 s a jump, to measure)
+FLOW_HALF_MAX_CELLS = 100_000
+JUMPS = ("match", "flow", "stitch")
 BED_EPS = 0.99  # cells whose time-mean void fraction is below this are the bed's (they enter R)
 
 
@@ -95,8 +100,9 @@ class Engine:
                  stitch_flow: str = "auto"):
         """``matchings``: the HDF5 store of the matched jumps (matching.GrainMatcher.load/save), 'auto' for
         RUN_DIR/rcfd/matchings.h5 beside the database, None for none; ``jump``: how the grain tracer crosses a jump,
-        'match' (grains matched one to one by position, app.rcfd.matching; the default up to MATCH_MAX_GRAINS grains)
-        or 'stitch' (cell volumes stitched, then each grain takes its cell's mean tag); ``jump_grid``: 'cells'
+        'match' (grains matched one to one by position, app.rcfd.matching; the default up to MATCH_MAX_GRAINS grains),
+        'flow' (grains routed one to one along a flow, app.rcfd.flowmatch) or 'stitch' (cell volumes stitched, then
+        each grain takes its cell's mean tag); ``jump_grid``: 'cells'
         locates the grains on the cells even where octants give the half cells, 'half' on the half cells even for a
         stitch too large for the min-cost flow; ``stitch_flow``: the stitch's flow (app.rcfd.stitch.FLOWS)."""
         t = wallclock.perf_counter()
@@ -111,8 +117,8 @@ class Engine:
         self.solids = solids
         if jump == "auto":
             jump = "match" if solids == "grains" and db.cells.shape[1] <= MATCH_MAX_GRAINS else "stitch"
-        if jump not in ("match", "stitch") or (jump == "match" and solids != "grains"):
-            raise ValueError(f"jump must be 'match' (grain tracer only) or 'stitch', got {jump!r}")
+        if jump not in JUMPS or (jump in ("match", "flow") and solids != "grains"):
+            raise ValueError(f"jump must be 'match' or 'flow' (grain tracer only) or 'stitch', got {jump!r}")
         self.jump = jump
         self.st = st or statistics(db)
         self.ops = [db.shift(k) for k in range(db.n_frames)]
@@ -133,16 +139,19 @@ class Engine:
         # where the octants are recorded; a stitch only where its half-cell grid is small enough for the min-cost
         # flow (validated there), else on the cells (a million grains: 86,016 cells, not 688,128 half cells)
         self.half = self.solids == "grains" and db.octant is not None and jump_grid != "cells" and \
-            (jump == "match" or jump_grid == "half" or 8 * db.n_cells <= LP_MAX_CELLS)
+            (jump == "match" or jump_grid == "half" or 8 * db.n_cells <= (FLOW_HALF_MAX_CELLS if jump == "flow"
+                                                                         else LP_MAX_CELLS))
         grains = int(db.attrs.get("grains", 0)) or 1
         self.grain_volume_mean = float(np.mean(db.grain_volume)) if db.grain_volume is not None else \
             float(self.a[0].sum()) / grains  # [m^3]: the cell tracer's grains per cell for Lacey's index
         self.seq = SequenceIndex(db.cells, db.grain_volume, db.n_cells, self.a) if self.solids == "grains" else None
         if self.half:
             self.fine = db.fine_cells(slice(None))
-        if self.jump == "match":
+        if self.jump in ("match", "flow"):
             grid, shape, h = (self.fine, db.fine_shape, 0.5 * db.h) if self.half else (db.cells, db.shape, db.h)
-            self.matcher = GrainMatcher(grid, grid_centres(shape, db.origin, h), db.grain_volume)
+            mask = cells.repeat(2, 0).repeat(2, 1).repeat(2, 2) if self.half else cells
+            graph = FlowGraph(int(np.prod(shape)), face_edges(shape, mask)) if self.jump == "flow" else None
+            self.matcher = GrainMatcher(grid, grid_centres(shape, db.origin, h), db.grain_volume, graph=graph)
             if matchings == "auto":
                 matchings = pathlib.Path(db.path).parent / "rcfd" / "matchings.h5"
             self.matchings_path = matchings
@@ -160,7 +169,7 @@ class Engine:
 
     def save_matchings(self) -> int:
         """Store the matched jumps computed so far (see ``matchings``): how many were written."""
-        if self.jump != "match" or getattr(self, "matchings_path", None) is None:
+        if self.jump == "stitch" or getattr(self, "matchings_path", None) is None:
             return 0
         return self.matcher.save(self.matchings_path)
 
@@ -244,7 +253,7 @@ class Engine:
         """Carry the grain tracer across a jump (matched or stitched): (info, seconds spent building the operator:
         0 when cached)."""
         t = wallclock.perf_counter()
-        if self.jump == "match":
+        if self.jump != "stitch":
             fresh = (s_from, s_to) not in self.matcher.cache
             perm, info = self.matcher.operator(s_from, s_to)
             dt_s = (wallclock.perf_counter() - t) if fresh else 0.0

@@ -39,16 +39,11 @@ import h5py
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from .flowmatch import FLOOR, FlowGraph, ranked, route_class
+
 MATCH_VERSION = 1  # bumped whenever match_class changes what it computes (a stored matching is then not reused)
+FLOW_VERSION = 1  # the same for flowmatch.route_class
 MAX_CLASSES = 16  # distinct grain volumes a matching handles (a polydisperse bed has a continuum: stitch instead)
-
-
-def _ranked(cells: np.ndarray, key: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(order, cell, rank): the grains sorted by cell then ``key``, their cells, and their rank within the cell."""
-    order = np.lexsort((key, cells))
-    c = cells[order]
-    first = np.searchsorted(c, c, side="left")
-    return order, c, np.arange(c.size) - first
 
 
 def match_class(cf: np.ndarray, ct: np.ndarray, centres: np.ndarray, rng: np.random.Generator) -> tuple:
@@ -56,8 +51,8 @@ def match_class(cf: np.ndarray, ct: np.ndarray, centres: np.ndarray, rng: np.ran
     with grain g of j taking the tag of grain perm[g] of s; residual: the indices in j of grains matched across
     cells."""
     n = centres.shape[0]
-    of, cfs, rf = _ranked(cf, rng.random(cf.size), n)
-    ot, cts, rt = _ranked(ct, rng.random(ct.size), n)
+    of, cfs, rf = ranked(cf, rng.random(cf.size))
+    ot, cts, rt = ranked(ct, rng.random(ct.size))
     common = np.minimum(np.bincount(cf, minlength=n), np.bincount(ct, minlength=n))
     keep_f, keep_t = rf < common[cfs], rt < common[cts]
     perm = np.empty(cf.size, np.int64)
@@ -73,11 +68,15 @@ def match_class(cf: np.ndarray, ct: np.ndarray, centres: np.ndarray, rng: np.ran
 
 
 class GrainMatcher:
-    """Permutations between the grains of two states by position on a grid, cached per (s, j)."""
+    """Permutations between the grains of two states by position on a grid, cached per (s, j): by the dense
+    assignment (match_class) or, given the grid's ``graph``, by grains routed along a flow (flowmatch.route_class)."""
 
-    def __init__(self, cells: np.ndarray, centres: np.ndarray, volume: np.ndarray, seed: int = 0):
-        """cells (B, grains): each grain's grid cell per state; centres (cells, 3) [m]; volume (grains,) [m^3]."""
+    def __init__(self, cells: np.ndarray, centres: np.ndarray, volume: np.ndarray, seed: int = 0,
+                 graph: FlowGraph | None = None):
+        """cells (B, grains): each grain's grid cell per state; centres (cells, 3) [m]; volume (grains,) [m^3];
+        graph: the grid's face-neighbour graph, for the flow matching."""
         self.cells = cells
+        self.graph = graph
         self.centres = np.asarray(centres, np.float64)
         self.vol = np.asarray(volume, np.float64)
         classes, self.cls = np.unique(self.vol, return_inverse=True)
@@ -93,7 +92,11 @@ class GrainMatcher:
         """A digest of everything a matching depends on: the algorithm's version, the seed, every state's cells, the
         grid's centres and the grains' volumes."""
         h = hashlib.sha1(f"match v{MATCH_VERSION} seed {self.seed}".encode())
-        for a in (np.ascontiguousarray(self.cells, np.int64), self.centres, self.vol):
+        arrays = [np.ascontiguousarray(self.cells, np.int64), self.centres, self.vol]
+        if self.graph is not None:
+            h.update(f"flow v{FLOW_VERSION} floor {FLOOR}".encode())
+            arrays.append(self.graph.edges)
+        for a in arrays:
             h.update(str(a.shape).encode())
             h.update(np.ascontiguousarray(a).tobytes())
         return h.hexdigest()
@@ -143,16 +146,25 @@ class GrainMatcher:
         return len(new)
 
     def operator(self, s_from: int, s_to: int) -> tuple[np.ndarray, dict]:
-        """(perm, info): tau_new = tau[perm]; info: the grain volume matched across grid cells (its share of the
-        total: the least any jump moves, 0.5 sum |a_s - a_j| / sum a) and the RMS distance it moves [m]."""
+        """(perm, info): tau_new = tau[perm]; info: the grain volume matched across grid cells and its share of the
+        total (the dense assignment's is the least any jump moves, 0.5 sum |a_s - a_j| / sum a; a flow's is more,
+        each a shorter way), and the RMS distance it moves [m]."""
         key = (int(s_from), int(s_to))
         if key in self.cache:
             return self.cache[key]
         rng = np.random.default_rng([self.seed, *key])
         perm = np.empty(self.vol.size, np.int64)
         moved = []
+        cf, ct = self.cells[s_from], self.cells[s_to]
+        if self.graph is not None:
+            n = self.graph.n
+            density = 0.5 * (np.bincount(cf, minlength=n) + np.bincount(ct, minlength=n))
         for idx in self.members:
-            p, res = match_class(self.cells[s_from][idx], self.cells[s_to][idx], self.centres, rng)
+            if self.graph is None:
+                p, res = match_class(cf[idx], ct[idx], self.centres, rng)
+            else:
+                p, _ = route_class(cf[idx], ct[idx], self.graph, density, rng)
+                res = np.nonzero(ct[idx] != cf[idx][p])[0]
             perm[idx] = idx[p]
             moved.append(idx[res])
         moved = np.concatenate(moved)

@@ -1,0 +1,143 @@
+"""rCFD's flow matching: grains routed along a flow at a jump (app/rcfd/flowmatch.py; synthetic, no Taichi)."""
+import numpy as np
+import pytest
+
+from app.rcfd.flowmatch import FlowGraph, dag_levels, integer_flow
+from app.rcfd.matching import GrainMatcher, grid_centres
+from app.rcfd.stitch import face_edges
+from app.rcfd.transport import GrainTracer
+
+pytestmark = pytest.mark.unit
+
+
+def _graph(shape, mask=None):
+    mask = np.ones(shape, bool) if mask is None else mask
+    return FlowGraph(int(np.prod(shape)), face_edges(shape, mask))
+
+
+def _states(rng, g=900, shape=(8, 4, 10), B=4):
+    """Grains in the lower 60% of a box; each later state moves 30% of the last one's grains one cell, and a
+    block of them two cells up (a bubble's wake)."""
+    n = int(np.prod(shape))
+    ijk = np.stack([rng.integers(0, shape[0], g), rng.integers(0, shape[1], g), rng.integers(0, 6, g)], 1)
+    out = []
+    for _ in range(B):
+        out.append((ijk[:, 0] * shape[1] + ijk[:, 1]) * shape[2] + ijk[:, 2])
+        ijk = ijk.copy()
+        mv = rng.random(g) < 0.3
+        ijk[mv, rng.integers(0, 3)] += rng.choice([-1, 1], mv.sum())
+        ijk[ijk[:, 0] < 3, 2] += 2 * (rng.random(int((ijk[:, 0] < 3).sum())) < 0.2)
+        ijk = np.clip(ijk, 0, np.array(shape) - 1)
+    return np.stack(out), n
+
+
+def test_flow_matching_is_a_permutation_within_sizes_that_keeps_the_tag_exactly_and_reproduces():
+    rng = np.random.default_rng(7)
+    shape = (8, 4, 10)
+    cells, n = _states(rng, shape=shape)
+    vol = np.where(rng.random(cells.shape[1]) < 0.3, 2.0, 1.0)
+    for v in (1.0, 2.0):  # state 2: state 1's cells dealt to other grains of each size (nothing needs to move)
+        k = np.nonzero(vol == v)[0]
+        cells[2, k] = cells[1, rng.permutation(k)]
+    centres = grid_centres(shape, np.zeros(3), 1.0)
+    m = GrainMatcher(cells, centres, vol, seed=4, graph=_graph(shape))
+    tr = GrainTracer(vol, (rng.random(cells.shape[1]) < 0.4).astype(float), n)
+    tagged0 = float(np.sum(tr.vol * tr.tau))
+    for s, j in ((0, 1), (1, 3), (3, 0), (2, 0)):
+        perm, info = m.operator(s, j)
+        assert np.array_equal(np.sort(perm), np.arange(perm.size))
+        assert np.array_equal(vol[perm], vol)  # within each size class
+        tr.permute(perm)
+        assert abs(np.sum(tr.vol * tr.tau) - tagged0) <= 1e-12 * tagged0
+        assert set(np.unique(tr.tau)) <= {0.0, 1.0}  # a tag stays 0 or 1: nothing averaged
+        least = sum(0.5 * np.abs(np.bincount(cells[s][vol == v], minlength=n)
+                                 - np.bincount(cells[j][vol == v], minlength=n)).sum() * v for v in (1.0, 2.0))
+        assert info["moved_volume"] >= least * (1 - 1e-12)  # a flow moves at least what must change cell
+    for s, j in ((2, 2), (1, 2)):  # a self-jump, and a jump to the same occupancy: every grain stays in its cell
+        perm, info = m.operator(s, j)
+        assert info["moved_share"] == 0.0 and np.array_equal(cells[j], cells[s][perm])
+    again = GrainMatcher(cells, centres, vol, seed=4, graph=_graph(shape))
+    assert np.array_equal(again.operator(1, 3)[0], m.operator(1, 3)[0])  # reproducible from the seed
+    other = GrainMatcher(cells, centres, vol, seed=5, graph=_graph(shape))
+    assert not np.array_equal(other.operator(1, 3)[0], m.operator(1, 3)[0])
+    assert again.fingerprint() != GrainMatcher(cells, centres, vol, seed=4).fingerprint()  # not the dense one's
+
+
+def test_a_shifted_column_moves_every_grain_one_cell_not_one_grain_the_whole_way():
+    """One grain in each of cells 0-4 of a row, then in cells 1-5: the flow matching moves each grain one cell
+    (5 x 1^2 = 5 in squared distance); the dense assignment keeps cells 1-4 and moves one grain five cells (25).
+    A shift, not a long jump: the tag pattern moves with the column, as the grains do."""
+    shape = (6, 1, 1)
+    cells = np.stack([np.arange(5), np.arange(1, 6)])
+    centres = grid_centres(shape, np.zeros(3), 1.0)
+    for graph, hops in ((_graph(shape), [1] * 5), (None, [5])):
+        perm, info = GrainMatcher(cells, centres, np.ones(5), graph=graph).operator(0, 1)
+        d = cells[1] - cells[0][perm]
+        assert sorted(d[d != 0].tolist()) == hops
+    tau = np.array([1.0, 1, 0, 0, 0])  # the lower two tagged: after the shift, cells 1-2 hold them
+    perm, _ = GrainMatcher(cells, centres, np.ones(5), graph=_graph(shape)).operator(0, 1)
+    assert np.array_equal(tau[perm], tau)
+
+
+def test_the_flow_goes_round_an_empty_region_through_the_grains():
+    """A U of occupied cells in a box (the middle columns empty above the floor row). Six grains' worth moves from
+    the left arm to the right arm. The flow is weighed by the grains where they are, so it runs down the left arm,
+    along the floor and up the right arm, shifting the floor's grains on (all six of them move), not straight
+    across the empty middle, which the unweighted shortest route would take."""
+    shape = (5, 1, 4)
+    idx = np.arange(int(np.prod(shape))).reshape(shape)
+    arm_l, arm_r, floor = idx[0, 0, 1:], idx[4, 0, 1:], idx[1:4, 0, 0]
+    corners = [idx[0, 0, 0]] * 2 + [idx[4, 0, 0]] * 2
+    s = np.concatenate([np.repeat(arm_l, 3), arm_r, np.repeat(floor, 2), corners])
+    j = np.concatenate([arm_l, np.repeat(arm_r, 3), np.repeat(floor, 2), corners])
+    cells = np.stack([s, j])
+    perm, info = GrainMatcher(cells, grid_centres(shape, np.zeros(3), 1.0), np.ones(s.size),
+                              graph=_graph(shape)).operator(0, 1)
+    origin = cells[0][perm]  # the cell each grain of state j came from
+    from_floor = np.isin(origin, floor)
+    assert from_floor.sum() == 6 and np.all(cells[1][from_floor] != origin[from_floor])
+    assert not np.any(np.isin(cells[1], idx[1:4, 0, 1:]))  # (and nothing ends in the empty middle)
+    assert info["moved_share"] > 6 / s.size  # more grains move than the six that must: each a shorter way
+
+
+def test_whole_grain_flow_keeps_every_net_outflow_and_rounds_each_edge_down_or_up():
+    rng = np.random.default_rng(3)
+    for trial in range(20):
+        n = 30
+        order = rng.permutation(n)  # a random acyclic graph: edges from earlier to later in ``order``
+        a, b = rng.integers(0, n, (2, 120))
+        keep = a != b
+        a, b = a[keep], b[keep]
+        rank = np.argsort(order)
+        src, dst = np.where(rank[a] < rank[b], a, b), np.where(rank[a] < rank[b], b, a)
+        e = np.unique(np.stack([src, dst], 1), axis=0)
+        src, dst = e[:, 0], e[:, 1]
+        f = rng.exponential(1.5, src.size) * (rng.random(src.size) < 0.8)
+        # whole net outflows: move a fraction along a path so that every node's balance is an integer
+        bal = np.bincount(src, f, n) - np.bincount(dst, f, n)
+        frac = bal - np.round(bal)
+        if np.abs(frac).max() > 1e-9:  # settle the fractions on the edges into the sink of the order
+            last = order[-1]
+            for v in range(n):
+                if v != last and abs(frac[v]) > 1e-12:
+                    src, dst = np.append(src, v), np.append(dst, last)
+                    f = np.append(f, 1.0 - frac[v] if frac[v] > 0 else -frac[v])
+            e, inv = np.unique(np.stack([src, dst], 1), axis=0, return_inverse=True)
+            f = np.bincount(inv.ravel(), f)
+            src, dst = e[:, 0], e[:, 1]
+            bal = np.bincount(src, f, n) - np.bincount(dst, f, n)
+        supply = np.round(bal).astype(np.int64)
+        assert np.abs(bal - supply).max() < 1e-9
+        g = integer_flow(n, src, dst, f, supply)
+        assert np.array_equal(np.bincount(src, g, n) - np.bincount(dst, g, n), supply)
+        assert np.all(g >= np.floor(f - 1e-4)) and np.all(g <= np.ceil(f + 1e-4))
+        assert dag_levels(n, src[g > 0], dst[g > 0]).max() < n
+
+
+def test_a_closed_part_that_must_gain_grains_is_refused():
+    shape = (4, 1, 1)
+    mask = np.array([True, True, False, True]).reshape(shape)  # cell 3 joined to nothing
+    cells = np.stack([np.array([0, 1, 3]), np.array([0, 1, 1])])
+    m = GrainMatcher(cells, grid_centres(shape, np.zeros(3), 1.0), np.ones(3), graph=_graph(shape, mask))
+    with pytest.raises(ValueError, match="not joined"):
+        m.operator(0, 1)
