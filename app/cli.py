@@ -162,10 +162,10 @@ def _add_rcfd(sub) -> None:
     rc.add_argument("--jump", choices=("match", "flow", "stitch"), default=None,
                     help="run, validate: how the grain tracer crosses a jump: match (each grain takes the tag of one "
                          "grain of the state left, paired by position by a dense assignment; the default up to "
-                         "10,000 grains), flow (paired the same way, the grains routed cell to cell along a flow: "
-                         "scales to a million grains), both stored in RUN_DIR/rcfd/matchings.h5 for later runs, or "
-                         "stitch (cell volumes stitched, each grain takes its cell's mean tag; the default above "
-                         "10,000 grains); a database without grain cells always stitches")
+                         "10,000 grains), flow (paired one to one too, the grains routed cell to cell along a flow: "
+                         "scales to a million grains; the default above), both stored in RUN_DIR/rcfd/matchings.h5 "
+                         "for later runs, or stitch (cell volumes stitched, each grain takes its cell's mean tag: "
+                         "mixes faster); a database without grain cells always stitches")
     rc.add_argument("--lag", type=int, default=1, help="run, validate: a frame spans LAG recorded frames, its shift "
                                                        "built from each grain's cell at its ends (motion that "
                                                        "reverses within it is no dispersion)")

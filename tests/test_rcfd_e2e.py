@@ -227,6 +227,24 @@ def test_a_resumed_run_records_the_same_frames(recorded, tmp_path, stop):
         assert a.attrs["taylor_time"] == pytest.approx(b.attrs["taylor_time"], rel=1e-5)
 
 
+def test_above_the_dense_matchings_reach_the_grains_are_routed_along_a_flow(recorded, monkeypatch):
+    """'auto' pairs a database's grains by the dense assignment up to engine.MATCH_MAX_GRAINS and along a flow
+    above (it stitched there before, mixing faster: validation/rcfd/README.md, 0000a), on half cells while they are
+    few enough; a database without grain cells has only the stitch."""
+    from app.rcfd import engine
+    from app.rcfd.database import load
+
+    db = load(recorded, 1)
+    first = engine.Engine(db)
+    assert first.jump == "match" and first.half and first.matcher.graph is None
+    monkeypatch.setattr(engine, "MATCH_MAX_GRAINS", db.cells.shape[1] - 1)
+    e = engine.Engine(db, first.st)
+    assert e.jump == "flow" and e.half and e.matcher.graph.n == int(np.prod(db.fine_shape))
+    monkeypatch.setattr(engine, "FLOW_HALF_MAX_CELLS", db.n_cells)
+    assert not engine.Engine(db, first.st).half  # a large grid: on the cells
+    assert engine.Engine(db, first.st, solids="cells").jump == "stitch"
+
+
 def test_the_sensitivity_check_reruns_the_paths_with_frames_doubled_and_sequences_halved(recorded, tmp_path):
     """`fbed rcfd validate --sensitivity`'s part after the full runs: each variant's paths are built as named
     (a frame spanning two recorded frames; half the mean sequence) and checked against the full runs' curves

@@ -141,3 +141,35 @@ def test_a_closed_part_that_must_gain_grains_is_refused():
     m = GrainMatcher(cells, grid_centres(shape, np.zeros(3), 1.0), np.ones(3), graph=_graph(shape, mask))
     with pytest.raises(ValueError, match="not joined"):
         m.operator(0, 1)
+
+
+def test_prefetched_matchings_from_forked_workers_equal_the_ones_computed_one_by_one():
+    """GrainMatcher.prefetch builds the jumps in forked processes (run in a fresh interpreter without Taichi, as
+    `fbed rcfd run` is): the same permutations and info as one by one, for the flow and the dense matching."""
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent("""
+        import sys
+        import numpy as np
+        sys.path.insert(0, "tests")
+        from test_rcfd_flowmatch import _graph, _states
+        from app.rcfd.matching import GrainMatcher, grid_centres
+        shape = (8, 4, 10)
+        cells, n = _states(np.random.default_rng(9), shape=shape, B=6)
+        vol = np.where(np.random.default_rng(1).random(cells.shape[1]) < 0.3, 2.0, 1.0)
+        pairs = [(0, 3), (1, 4), (2, 5), (5, 0), (0, 3)]
+        for graph in (_graph(shape), None):
+            make = lambda: GrainMatcher(cells, grid_centres(shape, np.zeros(3), 1.0), vol, seed=3, graph=graph)
+            one, par = make(), make()
+            assert par.prefetch(pairs, workers=2) == 4 and "taichi" not in sys.modules
+            assert par.fresh == set(pairs) and par.prefetch(pairs, workers=2) == 0
+            for p in pairs:
+                a, b = one.operator(*p), par.cache[p]
+                assert np.array_equal(a[0], b[0]) and a[1] == b[1], p
+        print("same")
+    """)
+    root = __import__("pathlib").Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == "same", r.stderr[-3000:]

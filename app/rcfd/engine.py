@@ -4,10 +4,11 @@ grain volumes, the jump targets and stitches, and the transport of a tracer alon
 Solids: with each grain's cell recorded (boundary/cells), the tracer rides on the recorded grains along each
 sequence (transport.GrainTracer, ``solids="grains"``); at a jump the grains of the two states are matched one to
 one by position, by a dense assignment (matching.GrainMatcher, ``jump="match"``, the default up to
-MATCH_MAX_GRAINS grains) or routed along a flow (flowmatch, ``jump="flow"``: scales to a million grains), or the
+MATCH_MAX_GRAINS grains) or routed along a flow (flowmatch, ``jump="flow"``, the default above), or the
 cell volumes are stitched and the tag averaged over each cell (``jump="stitch"``); the indices along a sequence
-come from the grains that change cell (sequence.SequenceIndex). The cell shifts (``solids="cells"``, transport.SolidsTracer) average over a cell every
-frame. validation/rcfd/README.md measures them all against the real grains.
+come from the grains that change cell (sequence.SequenceIndex). The cell shifts (``solids="cells"``,
+transport.SolidsTracer) average over a cell every frame. validation/rcfd/README.md measures them all against the
+real grains.
 """
 from __future__ import annotations
 
@@ -28,10 +29,13 @@ from .sequence import SequenceIndex
 from .stitch import LP_MAX_CELLS, Stitcher, face_edges
 from .transport import GrainTracer, SolidsTracer, lacey_index, step_response
 
-# 'auto' matches grains up to here and stitches above: the matching's dense assignment grows as the cube of the grains
-# that change half cell (0.08-1.3 s a jump at 3,400 grains, 800-1,900 of them; validation/rcfd/README.md, 0a)
+# 'auto' matches grains by the dense assignment up to here and routes them along a flow above: the dense assignment
+# grows as the cube of the grains that change half cell (0.08-1.3 s a jump at 3,400 grains, 800-1,900 of them;
+# validation/rcfd/README.md, 0a). On a 13,600-grain bed the flow's mixing error was half the stitch's, at 1/60 of
+# its cost; on the 3,400-grain bed the dense assignment's was the smallest of the three (0000a)
 MATCH_MAX_GRAINS = 10_000
-# the flow matching on half cells up to here, on the cells above (64 x 64 x 168 half cells: 23 s a jump, to measure)
+# the flow matching on half cells up to here, on the cells above: 958,000 grains took 75 s a jump on 64 x 64 x 168
+# half cells and 4.9 s on 32 x 32 x 84 cells (2-core EPYC, benchmarks/flow_matching.py)
 FLOW_HALF_MAX_CELLS = 100_000
 JUMPS = ("match", "flow", "stitch")
 BED_EPS = 0.99  # cells whose time-mean void fraction is below this are the bed's (they enter R)
@@ -100,10 +104,10 @@ class Engine:
                  stitch_flow: str = "auto"):
         """``matchings``: the HDF5 store of the matched jumps (matching.GrainMatcher.load/save), 'auto' for
         RUN_DIR/rcfd/matchings.h5 beside the database, None for none; ``jump``: how the grain tracer crosses a jump,
-        'match' (grains matched one to one by position, app.rcfd.matching; the default up to MATCH_MAX_GRAINS grains),
-        'flow' (grains routed one to one along a flow, app.rcfd.flowmatch) or 'stitch' (cell volumes stitched, then
-        each grain takes its cell's mean tag); ``jump_grid``: 'cells'
-        locates the grains on the cells even where octants give the half cells, 'half' on the half cells even for a
+        'match' (grains matched one to one by position, app.rcfd.matching; the default up to MATCH_MAX_GRAINS
+        grains), 'flow' (grains routed one to one along a flow, app.rcfd.flowmatch; the default above) or 'stitch'
+        (cell volumes stitched, then each grain takes its cell's mean tag; the cell tracer's only jump);
+        ``jump_grid``: 'cells' locates the grains on the cells even where octants give the half cells, 'half' on the half cells even for a
         stitch too large for the min-cost flow; ``stitch_flow``: the stitch's flow (app.rcfd.stitch.FLOWS)."""
         t = wallclock.perf_counter()
         self.db = db
@@ -116,7 +120,7 @@ class Engine:
             raise ValueError(f"--solids must be 'grains' or 'cells', got {solids!r}")
         self.solids = solids
         if jump == "auto":
-            jump = "match" if solids == "grains" and db.cells.shape[1] <= MATCH_MAX_GRAINS else "stitch"
+            jump = "stitch" if solids != "grains" else "match" if db.cells.shape[1] <= MATCH_MAX_GRAINS else "flow"
         if jump not in JUMPS or (jump in ("match", "flow") and solids != "grains"):
             raise ValueError(f"jump must be 'match' or 'flow' (grain tracer only) or 'stitch', got {jump!r}")
         self.jump = jump
@@ -166,6 +170,18 @@ class Engine:
             self.fine_stitcher = Stitcher(fs, fine_mask, 0.5 * db.h, stitch_flow)
         self.prep_seconds = wallclock.perf_counter() - t + self.st["R_seconds"]
         self.stitch_seconds = 0.0
+
+    def prefetch_jumps(self, paths, workers: int | None = None) -> int:
+        """Build the matched jumps ``paths`` take (all but a jump at a path's start, which transport skips) before
+        the transport, in parallel (matching.GrainMatcher.prefetch); their wall time counts as the jumps'. How
+        many were built."""
+        if self.jump == "stitch":
+            return 0
+        t = wallclock.perf_counter()
+        n = self.matcher.prefetch([(s_from, s_to) for p in paths for pos, s_from, s_to, _ in p.jumps if pos > 0],
+                                  workers)
+        self.stitch_seconds += wallclock.perf_counter() - t
+        return n
 
     def save_matchings(self) -> int:
         """Store the matched jumps computed so far (see ``matchings``): how many were written."""

@@ -33,7 +33,11 @@ do not speed up linear_sum_assignment.)
 from __future__ import annotations
 
 import hashlib
+import multiprocessing
+import os
 import pathlib
+import sys
+from concurrent.futures import ProcessPoolExecutor
 
 import h5py
 import numpy as np
@@ -145,6 +149,30 @@ class GrainMatcher:
         self.fresh.difference_update(new)
         return len(new)
 
+    def prefetch(self, pairs, workers: int | None = None) -> int:
+        """Compute the matchings of ``pairs`` (s, j) not cached yet, in ``workers`` forked processes (default: one per
+        CPU; the states are shared, not copied), and cache them: the same permutations as one by one, each seeded by
+        its pair. One process where fork is missing or Taichi is loaded (its threads are not forked). How many were
+        computed."""
+        todo = sorted({(int(s), int(j)) for s, j in pairs} - set(self.cache))
+        if workers is None:
+            workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        workers = min(len(todo), workers)
+        if workers < 2 or "taichi" in sys.modules or "fork" not in multiprocessing.get_all_start_methods():
+            for key in todo:
+                self.operator(*key)
+            return len(todo)
+        global _FORKED
+        _FORKED = self
+        try:
+            with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
+                for key, res in zip(todo, pool.map(_forked_operator, todo)):
+                    self.cache[key] = res
+                    self.fresh.add(key)
+        finally:
+            _FORKED = None
+        return len(todo)
+
     def operator(self, s_from: int, s_to: int) -> tuple[np.ndarray, dict]:
         """(perm, info): tau_new = tau[perm]; info: the grain volume matched across grid cells and its share of the
         total (the dense assignment's is the least any jump moves, 0.5 sum |a_s - a_j| / sum a; a flow's is more,
@@ -174,6 +202,13 @@ class GrainMatcher:
         self.cache[key] = (perm, info)
         self.fresh.add(key)
         return perm, info
+
+
+_FORKED: GrainMatcher | None = None  # the matcher a prefetch's forked workers inherit
+
+
+def _forked_operator(key: tuple) -> tuple:
+    return _FORKED.operator(*key)
 
 
 def grid_centres(shape: tuple, origin: np.ndarray, h: float) -> np.ndarray:
