@@ -34,8 +34,8 @@ from .transport import GrainTracer, SolidsTracer, lacey_index, step_response
 # validation/rcfd/README.md, 0a). On a 13,600-grain bed the flow's mixing error was half the stitch's, at 1/60 of
 # its cost; on the 3,400-grain bed the dense assignment's was the smallest of the three (0000a)
 MATCH_MAX_GRAINS = 10_000
-# the flow matching on half cells up to here, on the cells above: 958,000 grains took 75 s a jump on 64 x 64 x 168
-# half cells and 4.9 s on 32 x 32 x 84 cells (2-core EPYC, benchmarks/flow_matching.py)
+# the flow matching on half cells up to here, on the cells above: 958,000 grains took 58 s a jump on 64 x 64 x 168
+# half cells and 3.3 s on 32 x 32 x 84 cells (2-core EPYC, benchmarks/flow_matching.py)
 FLOW_HALF_MAX_CELLS = 100_000
 JUMPS = ("match", "flow", "stitch")
 BED_EPS = 0.99  # cells whose time-mean void fraction is below this are the bed's (they enter R)
