@@ -107,8 +107,8 @@ class Engine:
         'match' (grains matched one to one by position, app.rcfd.matching; the default up to MATCH_MAX_GRAINS
         grains), 'flow' (grains routed one to one along a flow, app.rcfd.flowmatch; the default above) or 'stitch'
         (cell volumes stitched, then each grain takes its cell's mean tag; the cell tracer's only jump);
-        ``jump_grid``: 'cells' locates the grains on the cells even where octants give the half cells, 'half' on the half cells even for a
-        stitch too large for the min-cost flow; ``stitch_flow``: the stitch's flow (app.rcfd.stitch.FLOWS)."""
+        ``jump_grid``: 'cells' locates the grains on the cells even where octants give the half cells, 'half' on the
+        half cells even for a stitch too large for the min-cost flow; ``stitch_flow``: the stitch's flow (app.rcfd.stitch.FLOWS)."""
         t = wallclock.perf_counter()
         self.db = db
         if solids == "auto":
@@ -151,9 +151,10 @@ class Engine:
         self.seq = SequenceIndex(db.cells, db.grain_volume, db.n_cells, self.a) if self.solids == "grains" else None
         if self.half:
             self.fine = db.fine_cells(slice(None))
+        # the grid of the grain tracer's jumps: each grain's cell per state, the grid's shape, spacing and open cells
+        grid, shape, h, mask = (self.fine, db.fine_shape, 0.5 * db.h, cells.repeat(2, 0).repeat(2, 1).repeat(2, 2)) \
+            if self.half else (db.cells, db.shape, db.h, cells)
         if self.jump in ("match", "flow"):
-            grid, shape, h = (self.fine, db.fine_shape, 0.5 * db.h) if self.half else (db.cells, db.shape, db.h)
-            mask = cells.repeat(2, 0).repeat(2, 1).repeat(2, 2) if self.half else cells
             graph = FlowGraph(int(np.prod(shape)), face_edges(shape, mask)) if self.jump == "flow" else None
             self.matcher = GrainMatcher(grid, grid_centres(shape, db.origin, h), db.grain_volume, graph=graph)
             if matchings == "auto":
@@ -161,13 +162,11 @@ class Engine:
             self.matchings_path = matchings
             self.matchings_loaded = self.matcher.load(matchings) if matchings is not None else 0
         elif self.half:
-            fs = db.fine_shape
-            nf = int(np.prod(fs))
+            nf = int(np.prod(shape))
             idx = (self.fine + nf * np.arange(db.n_states)[:, None]).ravel()
             self.a_fine = np.bincount(idx, weights=np.tile(db.grain_volume, db.n_states),
                                       minlength=nf * db.n_states).reshape(db.n_states, nf)
-            fine_mask = cells.repeat(2, 0).repeat(2, 1).repeat(2, 2)
-            self.fine_stitcher = Stitcher(fs, fine_mask, 0.5 * db.h, stitch_flow)
+            self.fine_stitcher = Stitcher(shape, mask, h, stitch_flow)
         self.prep_seconds = wallclock.perf_counter() - t + self.st["R_seconds"]
         self.stitch_seconds = 0.0
 

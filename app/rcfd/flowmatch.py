@@ -100,7 +100,7 @@ def integer_flow(n: int, src: np.ndarray, dst: np.ndarray, f: np.ndarray, supply
     res = maximum_flow(sp.csr_matrix((cap, (rows, cols)), shape=(n + 2, n + 2)), S, T, method="dinic")
     if res.flow_value != need[pos].sum():
         raise ValueError(f"the flow matching found no whole-grain flow ({res.flow_value} of {need[pos].sum()})")
-    F = res.flow.tocsr()  # src -> dst and dst -> src are never both arcs of one edge: a DAG's edges are distinct
+    F = res.flow.tocsr()  # antisymmetric: F[src, dst] is the edge's net change over its up and down arcs
     g = g.copy()
     g[ku] += np.asarray(F[src[ku], dst[ku]]).ravel().astype(np.int64).clip(0)
     g[kd] -= np.asarray(F[dst[kd], src[kd]]).ravel().astype(np.int64).clip(0)
@@ -131,10 +131,9 @@ def dag_levels(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 
 def route_class(cf: np.ndarray, ct: np.ndarray, graph: FlowGraph, density: np.ndarray,
-                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Grains of one volume class with cells ``cf`` in state s and ``ct`` in state j: (perm, final), grain g of j
-    taking the tag of grain perm[g] of s; final: the cell each grain of s is routed to. ``density``: the grain
-    count per cell that weighs the flow (module text)."""
+                rng: np.random.Generator) -> np.ndarray:
+    """Grains of one volume class with cells ``cf`` in state s and ``ct`` in state j: perm, grain g of j taking the
+    tag of grain perm[g] of s. ``density``: the grain count per cell that weighs the flow (module text)."""
     n = graph.n
     ns, nj = np.bincount(cf, minlength=n), np.bincount(ct, minlength=n)
     final = cf.copy()
@@ -146,9 +145,10 @@ def route_class(cf: np.ndarray, ct: np.ndarray, graph: FlowGraph, density: np.nd
         out = np.bincount(src, g, n).astype(np.int64)
         leave = np.minimum(out, ns)  # own grains first
         stay_in = np.bincount(dst, g, n).astype(np.int64) - (out - leave)  # arrivals that stay
-        o = np.lexsort((rng.random(int(g.sum())), np.repeat(src, g)))
+        slot_from = np.repeat(src, g)
+        o = np.lexsort((rng.random(slot_from.size), slot_from))
         slot_to = np.repeat(dst, g)[o]  # each cell's outgoing grains' next cells, shuffled, cell by cell
-        slot0 = np.searchsorted(np.repeat(src, g)[o], np.arange(n))
+        slot0 = np.searchsorted(slot_from[o], np.arange(n))
         of, c, r = ranked(cf, rng.random(cf.size))
         go = r < leave[c]
         moving, at = of[go], slot_to[slot0[c[go]] + r[go]]
@@ -176,4 +176,4 @@ def route_class(cf: np.ndarray, ct: np.ndarray, graph: FlowGraph, density: np.nd
     ot, _, _ = ranked(ct, rng.random(ct.size))
     perm = np.empty(cf.size, np.int64)
     perm[ot] = of  # both sorted by (cell, rank), with the same count in every cell
-    return perm, final
+    return perm

@@ -191,7 +191,7 @@ class GrainMatcher:
             if self.graph is None:
                 p, res = match_class(cf[idx], ct[idx], self.centres, rng)
             else:
-                p, _ = route_class(cf[idx], ct[idx], self.graph, density, rng)
+                p = route_class(cf[idx], ct[idx], self.graph, density, rng)
                 res = np.nonzero(ct[idx] != cf[idx][p])[0]
             perm[idx] = idx[p]
             moved.append(idx[res])
