@@ -31,8 +31,8 @@ from .transport import GrainTracer, SolidsTracer, lacey_index, step_response
 
 # 'auto' matches grains by the dense assignment up to here and routes them along a flow above: the dense assignment
 # grows as the cube of the grains that change half cell (0.08-1.3 s a jump at 3,400 grains, 800-1,900 of them;
-# validation/rcfd/README.md, 0a). On a 13,600-grain bed the flow's mixing error was half the stitch's, at 1/60 of
-# its cost; on the 3,400-grain bed the dense assignment's was the smallest of the three (0000a)
+# validation/rcfd/README.md, 0a). On a 13,600-grain bed the flow's mixing error was half the stitch's, at about 1/60
+# of its cost (separate runs); on the 3,400-grain bed the dense assignment's was the smallest of the three (0000a)
 MATCH_MAX_GRAINS = 10_000
 # the flow matching on half cells up to here, on the cells above: 958,000 grains took 58 s a jump on 64 x 64 x 168
 # half cells and 3.3 s on 32 x 32 x 84 cells (2-core EPYC, benchmarks/flow_matching.py)
@@ -108,7 +108,8 @@ class Engine:
         grains), 'flow' (grains routed one to one along a flow, app.rcfd.flowmatch; the default above) or 'stitch'
         (cell volumes stitched, then each grain takes its cell's mean tag; the cell tracer's only jump);
         ``jump_grid``: 'cells' locates the grains on the cells even where octants give the half cells, 'half' on the
-        half cells even for a stitch too large for the min-cost flow; ``stitch_flow``: the stitch's flow (app.rcfd.stitch.FLOWS)."""
+        half cells even for a stitch too large for the min-cost flow; ``stitch_flow``: the stitch's flow
+        (app.rcfd.stitch.FLOWS)."""
         t = wallclock.perf_counter()
         self.db = db
         if solids == "auto":

@@ -25,8 +25,8 @@ Like the dense matching it is a permutation within each volume class: tags stay 
 kept to round-off. It moves more grains than the least that must change cell (a column's shift moves all its
 grains one cell), each a shorter way. On synthetic jumps of one size class its total squared distance was 4-9% under
 the dense matching's (which keeps every cell's common grains in place), with three classes 14-27% over; it took
-1/2-1/130 of the time, 3.3 s at 958,000 grains on 86,016 cells (benchmarks/flow_matching.py). Against full runs:
-validation/rcfd/README.md, 0000a.
+1/1.8-1/4.7 of its time at 3,400-7,000 grains (alternated), 3.3 s at 958,000 grains on 86,016 cells
+(benchmarks/flow_matching.py). Against full runs: validation/rcfd/README.md, 0000a.
 """
 from __future__ import annotations
 
