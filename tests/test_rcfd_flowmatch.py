@@ -132,6 +132,10 @@ def test_whole_grain_flow_keeps_every_net_outflow_and_rounds_each_edge_down_or_u
         assert np.array_equal(np.bincount(src, g, n) - np.bincount(dst, g, n), supply)
         assert np.all(g >= np.floor(f - 1e-4)) and np.all(g <= np.ceil(f + 1e-4))
         assert dag_levels(n, src[g > 0], dst[g > 0]).max() < n
+    # every edge rounded down (none may fall) or up (none may rise) first: the correction has only one direction
+    for f, want in ((0.4, 1), (1.6, 1), (0.6, 0)):
+        supply = np.array([want, -want])
+        assert integer_flow(2, np.array([0]), np.array([1]), np.array([f]), supply).tolist() == [want]
 
 
 def test_a_closed_part_that_must_gain_grains_is_refused():

@@ -100,11 +100,22 @@ def integer_flow(n: int, src: np.ndarray, dst: np.ndarray, f: np.ndarray, supply
     res = maximum_flow(sp.csr_matrix((cap, (rows, cols)), shape=(n + 2, n + 2)), S, T, method="dinic")
     if res.flow_value != need[pos].sum():
         raise ValueError(f"the flow matching found no whole-grain flow ({res.flow_value} of {need[pos].sum()})")
-    F = res.flow.tocsr()  # antisymmetric: F[src, dst] is the edge's net change over its up and down arcs
+    F = res.flow  # antisymmetric: F[src, dst] is the edge's net change over its up and down arcs
     g = g.copy()
-    g[ku] += np.asarray(F[src[ku], dst[ku]]).ravel().astype(np.int64).clip(0)
-    g[kd] -= np.asarray(F[dst[kd], src[kd]]).ravel().astype(np.int64).clip(0)
+    g[ku] += _entries(F, src[ku], dst[ku]).clip(0)
+    g[kd] -= _entries(F, dst[kd], src[kd]).clip(0)
     return g
+
+
+def _entries(F, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """F[rows[k], cols[k]] of a sparse matrix as int64 (0 where not stored), by a sorted key lookup: scipy's fancy
+    indexing returns a matrix, or a sparse matrix for an empty index, depending on the version."""
+    F = F.tocoo()
+    F.sum_duplicates()  # (row-major sorted, one entry per position)
+    keys = F.row.astype(np.int64) * F.shape[1] + F.col
+    q = rows.astype(np.int64) * F.shape[1] + cols
+    i = np.minimum(np.searchsorted(keys, q), max(keys.size - 1, 0))
+    return np.where(keys[i] == q, F.data[i], 0).astype(np.int64) if keys.size else np.zeros(q.size, np.int64)
 
 
 def dag_levels(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
