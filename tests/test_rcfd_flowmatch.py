@@ -177,3 +177,72 @@ def test_prefetched_matchings_from_forked_workers_equal_the_ones_computed_one_by
     root = __import__("pathlib").Path(__file__).resolve().parents[1]
     r = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and r.stdout.strip() == "same", r.stderr[-3000:]
+
+
+def test_a_prefetch_killed_by_a_time_limit_keeps_the_matchings_it_stored(tmp_path):
+    """A command cut off by a time limit (`timeout` signals the whole process group, the forked workers too) keeps
+    the jumps it had built: the prefetch stores them as they finish. The child stores after every jump and is
+    killed after the third: those three are in the store, and they are the permutations computed afresh."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent("""
+        import sys, time
+        import numpy as np
+        sys.path.insert(0, "tests")
+        from test_rcfd_flowmatch import _graph, _states
+        from app.rcfd.matching import GrainMatcher, grid_centres
+        shape = (8, 4, 10)
+        cells, n = _states(np.random.default_rng(9), shape=shape, B=8)
+        m = GrainMatcher(cells, grid_centres(shape, np.zeros(3), 1.0), np.ones(cells.shape[1]), graph=_graph(shape))
+
+        def progress(done, total):
+            print(done, total, flush=True)
+            if done == 3:
+                time.sleep(120)  # the kill comes here
+        m.prefetch([(s, (s + 3) % 8) for s in range(8)], workers=2, store=sys.argv[1], every=0.0, progress=progress)
+        print("not killed", flush=True)
+    """)
+    root = __import__("pathlib").Path(__file__).resolve().parents[1]
+    store = tmp_path / "matchings.h5"
+    proc = subprocess.Popen([sys.executable, "-c", code, str(store)], cwd=root, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        lines = [proc.stdout.readline() for _ in range(3)]
+        assert lines[-1].split() == ["3", "8"], (lines, proc.stderr.read()[-3000:] if proc.poll() else "")
+        os.killpg(proc.pid, signal.SIGTERM)
+        assert proc.wait(60) == -signal.SIGTERM
+        shape = (8, 4, 10)
+        cells, n = _states(np.random.default_rng(9), shape=shape, B=8)
+        m = GrainMatcher(cells, grid_centres(shape, np.zeros(3), 1.0), np.ones(cells.shape[1]), graph=_graph(shape))
+        assert m.load(store) == 3
+        fresh = GrainMatcher(cells, grid_centres(shape, np.zeros(3), 1.0), np.ones(cells.shape[1]),
+                             graph=_graph(shape))
+        for key, (perm, info) in m.cache.items():
+            assert np.array_equal(perm, fresh.operator(*key)[0]) and info == fresh.operator(*key)[1]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
+def test_a_signal_that_comes_while_the_store_is_written_waits_for_the_write_to_end():
+    import os
+    import signal
+
+    from app.rcfd.matching import _signals_held
+
+    got = []
+    old = signal.signal(signal.SIGTERM, lambda *a: got.append("signal"))
+    try:
+        with _signals_held():
+            os.kill(os.getpid(), signal.SIGTERM)
+            got.append("write finished")
+        for _ in range(100):  # (a Python handler runs at the interpreter's next check)
+            if len(got) == 2:
+                break
+        assert got == ["write finished", "signal"]
+    finally:
+        signal.signal(signal.SIGTERM, old)

@@ -388,7 +388,8 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
     t_path = wallclock.perf_counter()
     ps = [eng.path(n_frames, start_state, (seed, i)) for i in range(n_paths)]
     t_path = wallclock.perf_counter() - t_path
-    eng.prefetch_jumps(ps)
+    eng.prefetch_jumps(ps, progress=lambda done, total: log(
+        f"fbed: rcfd run: {done}/{total} jumps built and stored in {eng.matchings_path}"))
     results = [eng.transport(p, c0, start_state) for p in ps]
     stored = eng.save_matchings()
     time = np.arange(n_frames + 1) * dt

@@ -171,23 +171,25 @@ class Engine:
         self.prep_seconds = wallclock.perf_counter() - t + self.st["R_seconds"]
         self.stitch_seconds = 0.0
 
-    def prefetch_jumps(self, paths, workers: int | None = None) -> int:
+    def prefetch_jumps(self, paths, workers: int | None = None, progress=None) -> int:
         """Build the matched jumps ``paths`` take (all but a jump at a path's start, which transport skips) before
-        the transport, in parallel (matching.GrainMatcher.prefetch); their wall time counts as the jumps'. How
-        many were built."""
+        the transport, in parallel (matching.GrainMatcher.prefetch), storing them as they finish (``matchings``);
+        their wall time counts as the jumps'. ``progress(done, total)`` after each store. How many were built."""
         if self.jump == "stitch":
             return 0
         t = wallclock.perf_counter()
         n = self.matcher.prefetch([(s_from, s_to) for p in paths for pos, s_from, s_to, _ in p.jumps if pos > 0],
-                                  workers)
+                                  workers, store=self.matchings_path, progress=progress)
         self.stitch_seconds += wallclock.perf_counter() - t
         return n
 
     def save_matchings(self) -> int:
-        """Store the matched jumps computed so far (see ``matchings``): how many were written."""
+        """Store the matched jumps computed so far (see ``matchings``): how many this engine has written in all
+        (prefetch_jumps stores as it goes)."""
         if self.jump == "stitch" or getattr(self, "matchings_path", None) is None:
             return 0
-        return self.matcher.save(self.matchings_path)
+        self.matcher.save(self.matchings_path)
+        return self.matcher.stored
 
     def fluxes(self):
         """The frame-mean face fluxes of every frame, read once (float32)."""

@@ -23,7 +23,7 @@ Step 2 is the cost: a dense assignment of ~1000 grains takes 0.1-1.3 s. The matc
 on the two states' grid cells, the grains' volumes and the seed, and a database has at most one jump target per
 state, so a database needs at most as many matchings as it has states, whatever the tag, seed, horizon or number of
 paths. ``GrainMatcher.load``/``save`` keep them in an HDF5 store (by default RUN_DIR/rcfd/matchings.h5, written by
-`fbed rcfd run`), under a fingerprint of everything they depend on: a later run on the same database reuses them
+`fbed rcfd run` as they are built), under a fingerprint of everything they depend on: a later run on the same database reuses them
 bit for bit, a re-recorded database or another grid or seed gets a new group.
 (Measured and rejected, validation/rcfd/README.md: pairing the rest within coarser blocks first raises the squared
 distance moved by 10-200%; a sparse assignment (min_weight_full_bipartite_matching) on the pairs within 8 half
@@ -36,8 +36,12 @@ import hashlib
 import multiprocessing
 import os
 import pathlib
+import signal
 import sys
-from concurrent.futures import ProcessPoolExecutor
+import threading
+import time
+from contextlib import contextmanager
+from concurrent.futures import ProcessPoolExecutor, as_completed
 
 import h5py
 import numpy as np
@@ -47,6 +51,7 @@ from .flowmatch import FLOOR, FlowGraph, ranked, route_class
 
 MATCH_VERSION = 1  # bumped whenever match_class changes what it computes (a stored matching is then not reused)
 FLOW_VERSION = 1  # the same for flowmatch.route_class
+SAVE_EVERY = 30.0  # [s] between the saves of a prefetch's finished matchings (what a killed command keeps)
 MAX_CLASSES = 16  # distinct grain volumes a matching handles (a polydisperse bed has a continuum: stitch instead)
 
 
@@ -90,7 +95,8 @@ class GrainMatcher:
         self.members = [np.nonzero(self.cls == k)[0] for k in range(classes.size)]
         self.seed = int(seed)
         self.cache: dict = {}
-        self.fresh: set = set()  # the pairs computed here (not loaded): what save() writes
+        self.fresh: set = set()  # the pairs computed here (not loaded) and not saved yet: what save() writes
+        self.stored = 0  # how many save() has written, in all
 
     def fingerprint(self) -> str:
         """A digest of everything a matching depends on: the algorithm's version, the seed, every state's cells, the
@@ -133,7 +139,7 @@ class GrainMatcher:
         path = pathlib.Path(path)
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            with h5py.File(path, "a") as f:
+            with _signals_held(), h5py.File(path, "a") as f:
                 g = f.require_group(self.fingerprint())
                 for s, j in new:
                     name = f"{s}_{j}"
@@ -147,30 +153,48 @@ class GrainMatcher:
         except (OSError, ValueError):
             return 0
         self.fresh.difference_update(new)
+        self.stored += len(new)
         return len(new)
 
-    def prefetch(self, pairs, workers: int | None = None) -> int:
+    def prefetch(self, pairs, workers: int | None = None, store=None, every: float = SAVE_EVERY, progress=None) -> int:
         """Compute the matchings of ``pairs`` (s, j) not cached yet, in ``workers`` forked processes (default: one per
         CPU; the states are shared, not copied), and cache them: the same permutations as one by one, each seeded by
-        its pair. One process where fork is missing or Taichi is loaded (its threads are not forked). How many were
-        computed."""
+        its pair. One process where fork is missing or Taichi is loaded (its threads are not forked). With a
+        ``store`` (HDF5 path) the finished ones are saved every ``every`` seconds [s] and at the end, so a command
+        that is killed keeps what it built; ``progress(done, total)`` is called after each of those saves. How many
+        were computed."""
         todo = sorted({(int(s), int(j)) for s, j in pairs} - set(self.cache))
         if workers is None:
             workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
         workers = min(len(todo), workers)
+        last, done = time.monotonic(), 0
+
+        def finished(key, res):
+            nonlocal last, done
+            self.cache[key] = res
+            self.fresh.add(key)
+            done += 1
+            if store is not None and time.monotonic() - last >= every:
+                self.save(store)
+                last = time.monotonic()
+                if progress is not None:
+                    progress(done, len(todo))
+
         if workers < 2 or "taichi" in sys.modules or "fork" not in multiprocessing.get_all_start_methods():
             for key in todo:
-                self.operator(*key)
-            return len(todo)
-        global _FORKED
-        _FORKED = self
-        try:
-            with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
-                for key, res in zip(todo, pool.map(_forked_operator, todo)):
-                    self.cache[key] = res
-                    self.fresh.add(key)
-        finally:
-            _FORKED = None
+                finished(key, self.operator(*key))
+        else:
+            global _FORKED
+            _FORKED = self
+            try:
+                with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
+                    futures = {pool.submit(_forked_operator, key): key for key in todo}
+                    for fut in as_completed(futures):
+                        finished(futures[fut], fut.result())
+            finally:
+                _FORKED = None
+        if store is not None:
+            self.save(store)
         return len(todo)
 
     def operator(self, s_from: int, s_to: int) -> tuple[np.ndarray, dict]:
@@ -202,6 +226,26 @@ class GrainMatcher:
         self.cache[key] = (perm, info)
         self.fresh.add(key)
         return perm, info
+
+
+@contextmanager
+def _signals_held():
+    """SIGINT and SIGTERM held back while the store is written and raised after it: a command stopped by a time
+    limit ends between two saves, not inside one, so the HDF5 file it leaves is whole. (A handler that notes the
+    signal, not a signal mask: any of the process's threads may take a signal sent to it. Only the main thread can
+    set handlers; SIGKILL cannot be held.)"""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    got = []
+    old = {s: signal.signal(s, lambda signum, frame: got.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, signal.SIG_DFL if handler is None else handler)
+        if got:
+            signal.raise_signal(got[0])
 
 
 _FORKED: GrainMatcher | None = None  # the matcher a prefetch's forked workers inherit
