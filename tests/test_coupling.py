@@ -141,8 +141,10 @@ def _serial_and_parallel_steps(serial):
 def test_one_thread_serial_coupling_matches_the_parallel_kernels(session_runtime_after):
     """On one CPU thread the coupling's halves, the DEM's diagnostics and its sort each run as one serial task
     (``serial``); they must agree with the parallel kernels. On one thread the same bodies run in the same
-    order: integers, the list and the grains' state agree to the bit, the drag sums to 1e-12 (measured: 1 ulp;
-    Taichi compiles with fast math, so LLVM may contract an inlined body's arithmetic otherwise). Against two
+    order: integers, the list and the grains' positions agree to the bit, velocities, spins and the drag sums to
+    1e-12 (measured: 1 ulp; Taichi compiles with fast math, so LLVM may contract an inlined body's arithmetic
+    otherwise: on the 2-core AMD EPYC the velocities and spins agreed to the bit, on an AVX-512 Intel Xeon they
+    differ by 1 ulp in 35 of 1,200 velocity and 70 of 1,200 spin components, 2026-12-07). Against two
     threads the float atomics sum in another order: 1e-9 relative leaves 60 substeps of a colliding bed room
     for that rounding to grow, and is far below any physical change."""
     from app.sim import runtime
@@ -159,7 +161,7 @@ def test_one_thread_serial_coupling_matches_the_parallel_kernels(session_runtime
     for other, rtol in ((same, 1e-12), (two, 1e-9)):
         for key, ref in list(cells.items()) + list(state.items()):
             got = other[1][key] if key in cells else other[2][key]
-            if ref.dtype.kind != "f" or (other is same and key in ("position", "velocity", "omega")):
+            if ref.dtype.kind != "f" or (other is same and key == "position"):
                 assert np.array_equal(got, ref), key
             else:
                 np.testing.assert_allclose(got, ref, rtol=rtol, atol=rtol * max(np.abs(ref).max(), 1e-300),

@@ -54,7 +54,12 @@ def bed_height(dem):
 def settled():
     scene, dem, flow, sim = build(0.0, 0.25)
     sim.run()
-    assert dem.diagnostics()["max_speed"] < 0.05
+    # settled: 99% of the grains below 5 mm/s, and none still falling from the pour (2 m/s from 0.25 m). Not the
+    # fastest grain below 5 cm/s: that is one grain hopping on the surface, and chaos decides its speed (0.021 m/s
+    # on 2 threads, 0.058 on 1 of an AVX-512 Xeon; the 99th percentile 7e-4 and 1.5e-4 m/s, 2026-12-07); a hop of
+    # 0.2 mm moves neither the bed height (2% = 0.6 mm) nor the pressure drop the tests read
+    speed = np.linalg.norm(dem.read("velocity"), axis=1)
+    assert np.quantile(speed, 0.99) < 0.005 and speed.max() < 0.2
     return dem.state_arrays()
 
 
