@@ -246,3 +246,36 @@ def test_a_signal_that_comes_while_the_store_is_written_waits_for_the_write_to_e
         assert got == ["write finished", "signal"]
     finally:
         signal.signal(signal.SIGTERM, old)
+
+
+def test_jacobi_cg_solves_each_column_of_a_singular_consistent_laplacian_like_scipys_cg():
+    """flowmatch.jacobi_cg (the flow's and the stitch's potentials): every column to its relative residual, the
+    same solution as scipy's Jacobi-preconditioned cg from zero (both stay orthogonal to the constants), a row
+    without a diagonal (a closed cell) left at 0, a zero column at 0, and a clear error when out of iterations."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import cg
+
+    from app.rcfd.flowmatch import jacobi_cg
+
+    rng = np.random.default_rng(5)
+    shape = (6, 5, 7)
+    mask = rng.random(shape) < 0.9
+    e = face_edges(shape, mask)
+    n = int(np.prod(shape))
+    w = rng.uniform(0.01, 30.0, e.shape[0])  # conductances over three decades, as the grain-weighted flow's
+    A = sp.csr_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n))
+    L = (sp.diags(np.asarray(A.sum(1)).ravel()) - A).tocsr()
+    comp = _graph(shape, mask).components
+    B = rng.integers(-5, 6, (n, 3)).astype(float)
+    B[L.diagonal() == 0] = 0.0
+    for c in range(2):  # consistent: zero sum over every connected part
+        B[:, c] -= (np.bincount(comp, B[:, c]) / np.bincount(comp))[comp] * (L.diagonal() > 0)
+    B[:, 2] = 0.0
+    X = jacobi_cg(L, B, 1e-12, 20 * n, "test")
+    assert X.shape == B.shape and np.all(X[L.diagonal() == 0] == 0.0) and np.all(X[:, 2] == 0.0)
+    for c in range(2):
+        assert np.linalg.norm(L @ X[:, c] - B[:, c]) <= 1e-12 * np.linalg.norm(B[:, c])
+        ref = cg(L, B[:, c], rtol=1e-13, maxiter=20 * n, M=sp.diags(1.0 / np.maximum(L.diagonal(), 1e-300)))[0]
+        assert np.abs(X[:, c] - ref).max() <= 1e-8 * np.abs(ref).max()
+    with pytest.raises(ValueError, match="test did not converge in 3 iterations: hint"):
+        jacobi_cg(L, B, 1e-12, 3, "test", ": hint")

@@ -33,7 +33,6 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, maximum_flow
-from scipy.sparse.linalg import cg
 
 FLOOR = 1e-2  # the conductance's floor, as a share of the mean grain count over occupied cells
 TOLERANCE = 1e-4  # [grains] how far an edge's rounded count may lie outside floor/ceiling of the solved flow
@@ -57,28 +56,63 @@ class FlowGraph:
                             shape=(self.n, self.n))
         self.components = connected_components(adj, directed=False)[1]
 
-    def potential_flow(self, b: np.ndarray, density: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(src, dst, f): the flow of least sum f^2 / w with net outflow ``b`` per cell (module text, step 1),
-        edges oriented downhill, f > 0 [grains]."""
+    def potential_flows(self, B: np.ndarray, density: np.ndarray) -> list:
+        """[(src, dst, f)] per column of ``B`` (cells, k): the flow of least sum f^2 / w with net outflow ``B[:, c]``
+        per cell (module text, step 1), edges oriented downhill, f > 0 [grains]. One Laplacian for the k solves
+        (jacobi_cg)."""
         e = self.edges
         occupied = density[density > 0]
         w = 0.5 * (density[e[:, 0]] + density[e[:, 1]]) + FLOOR * (occupied.mean() if occupied.size else 1.0)
-        tot = np.bincount(self.components, weights=b)
-        if np.abs(tot).max(initial=0.0) > 1e-9 * max(np.abs(b).sum(), 1.0):
+        tot = np.stack([np.bincount(self.components, weights=b, minlength=self.n) for b in B.T])
+        if np.abs(tot).max(initial=0.0) > 1e-9 * max(np.abs(B).sum(0).max(initial=0.0), 1.0):
             raise ValueError("the flow matching's problem failed: a part of the cells not joined to the rest by open "
                              "faces would have to gain or lose grains")
         A = sp.csr_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(self.n, self.n))
-        diag = np.asarray(A.sum(1)).ravel()
-        lap = (sp.diags(diag) - A).tocsr()
-        phi, status = cg(lap, b, rtol=1e-12, maxiter=20 * self.n, M=sp.diags(1.0 / np.maximum(diag, 1e-300)))
-        if status != 0:
-            raise ValueError(f"the flow matching's potential did not converge in {20 * self.n} iterations")
-        g = (phi[e[:, 0]] - phi[e[:, 1]]) * w
-        keep = np.abs(g) > 1e-12 * max(np.abs(b).max(), 1.0)
-        fwd = g[keep] > 0
-        src = np.where(fwd, e[keep, 0], e[keep, 1])
-        dst = np.where(fwd, e[keep, 1], e[keep, 0])
-        return src, dst, np.abs(g[keep])
+        lap = (sp.diags(np.asarray(A.sum(1)).ravel()) - A).tocsr()
+        Phi = jacobi_cg(lap, B, 1e-12, 20 * self.n, "the flow matching's potential")
+        out = []
+        for phi, b in zip(Phi.T, B.T):
+            g = (phi[e[:, 0]] - phi[e[:, 1]]) * w
+            keep = np.abs(g) > 1e-12 * max(np.abs(b).max(), 1.0)
+            fwd = g[keep] > 0
+            out.append((np.where(fwd, e[keep, 0], e[keep, 1]), np.where(fwd, e[keep, 1], e[keep, 0]), np.abs(g[keep])))
+        return out
+
+
+def jacobi_cg(A: sp.csr_matrix, B: np.ndarray, rtol: float, maxiter: int, what: str, hint: str = "") -> np.ndarray:
+    """X (n, k) with A X = B, A symmetric positive semi-definite, B (n, k) consistent: conjugate gradients
+    preconditioned by A's diagonal (rows without one are left at 0), every column to ||r|| <= rtol ||b|| [2-norm],
+    the k columns side by side. No BLAS call: the vector products are numpy's own loops, so it runs on one thread
+    whatever else runs (scipy's cg takes BLAS's dot, whose threads, with a prefetch's worker on every core, made a
+    solve up to 20x slower: validation/rcfd/README.md, 0000b). ValueError naming ``what`` (and ``hint``) if it has
+    not converged in ``maxiter`` iterations."""
+    B = np.ascontiguousarray(np.asarray(B, np.float64).reshape(A.shape[0], -1).T)  # (k, n): rows contiguous
+    d = A.diagonal()
+    inv = np.divide(1.0, d, out=np.zeros_like(d), where=d > 0)
+
+    def dots(U, V):
+        return np.einsum("ij,ij->i", U, V)
+
+    X, R, Q = np.zeros_like(B), B.copy(), np.empty_like(B)
+    Z = inv * R
+    P, rz = Z.copy(), dots(R, Z)
+    target = rtol * np.sqrt(dots(B, B))
+    for _ in range(maxiter):
+        live = np.sqrt(dots(R, R)) > target
+        if not live.any():
+            return X.T
+        for c in range(B.shape[0]):
+            Q[c] = A @ P[c]
+        pq = dots(P, Q)
+        alpha = np.divide(rz, pq, out=np.zeros_like(rz), where=live & (pq > 0))[:, None]
+        X += alpha * P
+        R -= alpha * Q
+        np.multiply(inv, R, out=Z)
+        rz_new = dots(R, Z)
+        beta = np.divide(rz_new, rz, out=np.zeros_like(rz), where=live & (rz > 0))[:, None]
+        P = Z + beta * P
+        rz = rz_new
+    raise ValueError(f"{what} did not converge in {maxiter} iterations{hint}")
 
 
 def integer_flow(n: int, src: np.ndarray, dst: np.ndarray, f: np.ndarray, supply: np.ndarray) -> np.ndarray:
@@ -141,15 +175,28 @@ def dag_levels(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return level
 
 
-def route_class(cf: np.ndarray, ct: np.ndarray, graph: FlowGraph, density: np.ndarray,
-                rng: np.random.Generator) -> np.ndarray:
-    """Grains of one volume class with cells ``cf`` in state s and ``ct`` in state j: perm, grain g of j taking the
-    tag of grain perm[g] of s. ``density``: the grain count per cell that weighs the flow (module text)."""
+def class_flows(graph: FlowGraph, cfs: list, cts: list, density: np.ndarray) -> list:
+    """The real flow (src, dst, f) of each volume class, its grains with cells ``cfs[c]`` in state s and ``cts[c]``
+    in state j, or None where the two occupancies are equal; ``density``: the grain count per cell that weighs the
+    flows (module text)."""
     n = graph.n
+    b = [np.bincount(cf, minlength=n) - np.bincount(ct, minlength=n) for cf, ct in zip(cfs, cts)]
+    moving = [k for k, bk in enumerate(b) if bk.any()]
+    out = [None] * len(b)
+    if moving:
+        for k, flow in zip(moving, graph.potential_flows(np.stack([b[k] for k in moving], 1).astype(float), density)):
+            out[k] = flow
+    return out
+
+
+def route_class(cf: np.ndarray, ct: np.ndarray, n: int, flow, rng: np.random.Generator) -> np.ndarray:
+    """Grains of one volume class with cells ``cf`` in state s and ``ct`` in state j, on a grid of ``n`` cells:
+    perm, grain g of j taking the tag of grain perm[g] of s, the grains routed along the real ``flow`` (src, dst,
+    f) of class_flows (None: the occupancies are equal)."""
     ns, nj = np.bincount(cf, minlength=n), np.bincount(ct, minlength=n)
     final = cf.copy()
-    if not np.array_equal(ns, nj):
-        src, dst, f = graph.potential_flow((ns - nj).astype(np.float64), density)
+    if flow is not None:
+        src, dst, f = flow
         g = integer_flow(n, src, dst, f, ns - nj)
         k = g > 0
         src, dst, g = src[k], dst[k], g[k]

@@ -47,10 +47,10 @@ import h5py
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .flowmatch import FLOOR, FlowGraph, ranked, route_class
+from .flowmatch import FLOOR, FlowGraph, class_flows, ranked, route_class
 
 MATCH_VERSION = 1  # bumped whenever match_class changes what it computes (a stored matching is then not reused)
-FLOW_VERSION = 1  # the same for flowmatch.route_class
+FLOW_VERSION = 2  # the same for flowmatch's flow and routing (2: the three classes' potentials solved together)
 SAVE_EVERY = 30.0  # [s] between the saves of a prefetch's finished matchings (what a killed command keeps)
 MAX_CLASSES = 16  # distinct grain volumes a matching handles (a polydisperse bed has a continuum: stitch instead)
 
@@ -211,11 +211,13 @@ class GrainMatcher:
         if self.graph is not None:
             n = self.graph.n
             density = 0.5 * (np.bincount(cf, minlength=n) + np.bincount(ct, minlength=n))
-        for idx in self.members:
+            flows = class_flows(self.graph, [cf[idx] for idx in self.members], [ct[idx] for idx in self.members],
+                                density)
+        for k, idx in enumerate(self.members):
             if self.graph is None:
                 p, res = match_class(cf[idx], ct[idx], self.centres, rng)
             else:
-                p = route_class(cf[idx], ct[idx], self.graph, density, rng)
+                p = route_class(cf[idx], ct[idx], n, flows[k], rng)
                 res = np.nonzero(ct[idx] != cf[idx][p])[0]
             perm[idx] = idx[p]
             moved.append(idx[res])

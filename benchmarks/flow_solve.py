@@ -1,0 +1,101 @@
+"""The flow matching's potential solve: scipy's cg against flowmatch.jacobi_cg, alone and one per core at once.
+
+`fbed rcfd run` builds its jumps in forked workers, one per core (GrainMatcher.prefetch). scipy's cg takes its vector
+products from BLAS (numpy's dot), and OpenBLAS runs those on as many threads as there are cores, in every worker: a
+core's worth of threads per worker on each core. flowmatch.jacobi_cg is the same preconditioned conjugate gradients
+on numpy's own loops (one thread), and solves the three size classes' potentials together (one pass over the
+matrix an iteration). Per case: the Laplacian and right-hand sides of a synthetic jump (benchmarks/flow_matching.py's
+states), solved by (a) scipy's cg, a class at a time, as before, and (b) jacobi_cg, all three at once; each alone,
+then in ``--workers`` forked processes at once (what a prefetch does). Methods alternated ``--rounds`` times, medians
+of the wall time of one jump's solves (in the workers: the slowest worker's). Appends to benchmarks/RESULTS.md.
+
+    python3 benchmarks/flow_solve.py
+"""
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import os
+import pathlib
+import statistics
+import sys
+import time
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.linalg import cg
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from app.bench.common import append_results  # noqa: E402
+from app.rcfd.flowmatch import FLOOR, jacobi_cg  # noqa: E402
+from app.rcfd.stitch import face_edges  # noqa: E402
+from flow_matching import states  # noqa: E402
+
+CASES = ((7000, (32, 8, 32)), (958000, (32, 32, 84)))
+_PROBLEM = None  # (L, B) the forked workers inherit
+
+
+def problem(grains: int, shape: tuple):
+    cells, vol = states(grains, shape, 1.0, np.random.default_rng(1))
+    n = int(np.prod(shape))
+    e = face_edges(shape, np.ones(shape, bool))
+    density = 0.5 * (np.bincount(cells[0], minlength=n) + np.bincount(cells[1], minlength=n))
+    w = 0.5 * (density[e[:, 0]] + density[e[:, 1]]) + FLOOR * density[density > 0].mean()
+    A = sp.csr_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n))
+    L = (sp.diags(np.asarray(A.sum(1)).ravel()) - A).tocsr()
+    B = np.stack([np.bincount(cells[0][vol == v], minlength=n) - np.bincount(cells[1][vol == v], minlength=n)
+                  for v in np.unique(vol)], 1).astype(np.float64)
+    return L, B
+
+
+def solve(method: str) -> float:
+    L, B = _PROBLEM
+    t = time.perf_counter()
+    if method == "scipy cg":
+        M = sp.diags(1.0 / L.diagonal())
+        X = np.stack([cg(L, b, rtol=1e-12, maxiter=20 * L.shape[0], M=M)[0] for b in B.T], 1)
+    else:
+        X = jacobi_cg(L, B, 1e-12, 20 * L.shape[0], "bench")
+    wall = time.perf_counter() - t
+    assert np.abs(L @ X - B).max() < 1e-6 * np.abs(B).max()
+    return wall
+
+
+def main(argv=None) -> int:
+    global _PROBLEM
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)))
+    ap.add_argument("--max-grains", type=int, default=10**7)
+    ap.add_argument("--dry", action="store_true", help="print, do not append to RESULTS.md")
+    a = ap.parse_args(argv)
+    ctx = multiprocessing.get_context("fork")
+    rows = []
+    for grains, shape in CASES:
+        if grains > a.max_grains:
+            continue
+        _PROBLEM = problem(grains, shape)
+        walls = {(m, k): [] for m in ("scipy cg", "jacobi_cg") for k in (1, a.workers)}
+        with ctx.Pool(a.workers) as pool:
+            for _ in range(a.rounds):
+                for m in ("scipy cg", "jacobi_cg"):
+                    walls[(m, 1)].append(solve(m))
+                    walls[(m, a.workers)].append(max(pool.map(solve, [m] * a.workers)))
+        for k in (1, a.workers):
+            old, new = walls[("scipy cg", k)], walls[("jacobi_cg", k)]
+            rows.append({"grains": grains, "grid": "x".join(map(str, shape)), "solving at once": k,
+                         "scipy cg, 3 solves [s]": f"{statistics.median(old):.3g}",
+                         "jacobi_cg, 3 at once [s]": f"{statistics.median(new):.3g}",
+                         "ratio, paired median": f"{statistics.median(o / n for o, n in zip(old, new)):.2f}",
+                         "rounds": a.rounds})
+        print(rows[-2:], flush=True)
+    append_results("The flow matching's potential: scipy cg against jacobi_cg, alone and one per core "
+                   "(benchmarks/flow_solve.py)", rows, "cpu", dry=a.dry)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
