@@ -23,8 +23,8 @@ Step 2 is the cost: a dense assignment of ~1000 grains takes 0.1-1.3 s. The matc
 on the two states' grid cells, the grains' volumes and the seed, and a database has at most one jump target per
 state, so a database needs at most as many matchings as it has states, whatever the tag, seed, horizon or number of
 paths. ``GrainMatcher.load``/``save`` keep them in an HDF5 store (by default RUN_DIR/rcfd/matchings.h5, written by
-`fbed rcfd run` as they are built), under a fingerprint of everything they depend on: a later run on the same database reuses them
-bit for bit, a re-recorded database or another grid or seed gets a new group.
+`fbed rcfd run` as they are built), under a fingerprint of everything they depend on: a later run on the same
+database reuses them bit for bit, a re-recorded database or another grid or seed gets a new group.
 (Measured and rejected, validation/rcfd/README.md: pairing the rest within coarser blocks first raises the squared
 distance moved by 10-200%; a sparse assignment (min_weight_full_bipartite_matching) on the pairs within 8 half
 cells is infeasible for a quarter of the jumps, up to 3% costlier and 1.6-2.5x faster; integer or perturbed costs
