@@ -175,12 +175,15 @@ def main(argv=None) -> int:
     account = {k: s[k] for k in keys}
     print(json.dumps(account, indent=1)[:3000])
     row = {"grains": f"{a.grains:,}", "states": a.states, "paths x horizon": f"{a.paths} x {a.horizon:g} s",
-           "workers": len(os.sched_getaffinity(0)), "database GB": f"{size:.2f}", "built in s": f"{build:.0f}",
+           "workers": len(os.sched_getaffinity(0)), "database GB": f"{size:.2f}",
+           "built in s": "reused" if a.reuse and build < 1 else f"{build:.0f}",
            "changes cell per frame": f"{info['moved_share_per_frame']:.3f}",
            "analyze s (peak GB)": f"{an['seconds']:.0f} ({an['peak_GB']:.1f})",
            "run s (peak GB)": f"{run['seconds']:.0f} ({run['peak_GB']:.1f})",
            "jumps built": s.get("matchings", {}).get("used", "-"),
-           "jump s (wall, all workers)": f"{s['stitch_seconds']:.0f}" if "stitch_seconds" in s else "-"}
+           "jumps s (wall)": f"{s['cost']['stitch_seconds']:.0f}" if "cost" in s else "-",
+           "transport s per path-second": f"{s['cost']['rcfd_wall_per_simulated_second_per_path']:.2f}"
+           if "cost" in s else "-"}
     print(row)
     if an["rc"] == 0 and run["rc"] == 0:
         append_results("rCFD at the poppy bed's size: `fbed rcfd analyze` and `run` on a synthetic database "
