@@ -169,6 +169,8 @@ def _add_rcfd(sub) -> None:
     rc.add_argument("--lag", type=int, default=1, help="run, validate: a frame spans LAG recorded frames, its shift "
                                                        "built from each grain's cell at its ends (motion that "
                                                        "reverses within it is no dispersion)")
+    rc.add_argument("--workers", type=int, default=None, help="run: processes the jumps and the paths are spread "
+                    "over (default: one per core)")
     rc.add_argument("--t0", type=float, help="validate: start of the database [s]")
     rc.add_argument("--t1", type=float, help="validate: end of the database, start of the continuations [s]")
     rc.add_argument("--t2", type=float, help="validate: end of the continuations [s]")

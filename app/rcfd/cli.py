@@ -23,7 +23,7 @@ def _db_dir(target: str) -> pathlib.Path:
 #: refuses it)
 FLAG_ACTIONS = {"horizon": ("run",), "paths": ("run", "validate"), "seed": ("run", "validate"), "tag": ("run",),
                 "name": ("run",), "start": ("run",), "gas": ("run",), "gas_scheme": ("run",),
-                "jump": ("run", "validate"),
+                "jump": ("run", "validate"), "workers": ("run",),
                 "lag": ("run", "validate"),
                 "t0": ("validate",), "t1": ("validate",), "t2": ("validate",), "continuations": ("validate",),
                 "sensitivity": ("validate",), "overrides": ("validate",), "arch": ("validate",)}
@@ -57,6 +57,9 @@ def main(args) -> int:
             print(f"{k} = {v:.6g}" if isinstance(v, float) else f"{k} = {v}")
         return 0
     if args.action == "run":
+        if args.workers is not None and args.workers < 1:
+            raise ConfigError(f"--workers must be at least 1, got {args.workers}", "", "--workers",
+                              hint="leave it out for one per core")
         d = _db_dir(args.target)
         if not (args.horizon > 0 and math.isfinite(args.horizon)):
             raise ConfigError(f"--horizon must be a positive time in s, got {args.horizon:g}", "", "--horizon")
@@ -77,7 +80,7 @@ def main(args) -> int:
         try:
             s = commands.run_paths(str(d), args.horizon, args.paths, args.seed, args.tag, args.name, args.out,
                                    args.start, log=log, gas=args.gas and (args.gas_scheme or "fct"), lag=args.lag,
-                                   jump=args.jump)
+                                   jump=args.jump, workers=args.workers)
         except ValueError as err:
             key = next((k for k in ("--lag", "--horizon", "--tag") if k in str(err)),
                        "--jump" if str(err).startswith("jump") else "RUN_DIR")

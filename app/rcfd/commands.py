@@ -364,11 +364,12 @@ def cost_summary(eng: Engine, rd: pathlib.Path, results: list, horizon: float, t
 
 def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | None, name: str | None = None,
               out: str | None = None, start: str = "end", engine: Engine | None = None, log=print,
-              gas: bool | str = False, lag: int = 1, jump: str | None = None) -> dict:
+              gas: bool | str = False, lag: int = 1, jump: str | None = None, workers: int | None = None) -> dict:
     """`fbed rcfd run`: n_paths seeded Markov paths over ``horizon`` seconds from the database's last state
     (start='end') or its first (start='begin'). ``jump``: 'match', 'flow' or 'stitch' (Engine's ``jump``); None:
     Engine's 'auto'. ``gas``: also a gas tracer, by this scheme ('fct' or
-    'upwind'; True: 'fct')."""
+    'upwind'; True: 'fct'). ``workers``: processes the jumps and the paths are spread over (default: one per
+    core)."""
     rd = pathlib.Path(run_dir)
     db = engine.db if engine else load(rd, lag)
     if engine is None and jump in ("match", "flow") and db.cells is None:
@@ -388,9 +389,9 @@ def run_paths(run_dir: str, horizon: float, n_paths: int, seed: int, tag: str | 
     t_path = wallclock.perf_counter()
     ps = [eng.path(n_frames, start_state, (seed, i)) for i in range(n_paths)]
     t_path = wallclock.perf_counter() - t_path
-    eng.prefetch_jumps(ps, progress=lambda done, total: log(
+    eng.prefetch_jumps(ps, workers, progress=lambda done, total: log(
         f"fbed: rcfd run: {done}/{total} jumps built and stored in {eng.matchings_path}"))
-    results = [eng.transport(p, c0, start_state) for p in ps]
+    results = eng.transport_paths(ps, c0, start_state, workers)
     stored = eng.save_matchings()
     time = np.arange(n_frames + 1) * dt
     Ms = np.stack([r["M"] for r in results])

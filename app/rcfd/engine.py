@@ -20,6 +20,7 @@ import time as wallclock
 import h5py
 import numpy as np
 
+from . import forked
 from . import paths as pathmod
 from . import recurrence as rec
 from .database import Database
@@ -182,6 +183,19 @@ class Engine:
                                   workers, store=self.matchings_path, progress=progress)
         self.stitch_seconds += wallclock.perf_counter() - t
         return n
+
+    def transport_paths(self, paths, c0: np.ndarray, start_state: int, workers: int | None = None) -> list:
+        """transport() of every path from ``start_state``, in path order: in ``workers`` forked processes (default
+        one per core; forked.py) when no operator is built on the way (the grain tracer with matched jumps, built
+        beforehand by prefetch_jumps), the same results as one by one; else one by one here (stitches are built
+        and cached as the paths reach them)."""
+        workers = min(len(paths), forked.cores() if workers is None else workers)
+        if workers < 2 or not forked.can_fork() or self.solids != "grains" or self.jump == "stitch":
+            return [self.transport(p, c0, start_state) for p in paths]
+        out = [None] * len(paths)
+        for k, res in forked.forked(self, "transport", [(p, c0, start_state) for p in paths], workers):
+            out[k] = res
+        return out
 
     def save_matchings(self) -> int:
         """Store the matched jumps computed so far (see ``matchings``): how many this engine has written in all

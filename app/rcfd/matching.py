@@ -33,20 +33,17 @@ do not speed up linear_sum_assignment.)
 from __future__ import annotations
 
 import hashlib
-import multiprocessing
-import os
 import pathlib
 import signal
-import sys
 import threading
 import time
 from contextlib import contextmanager
-from concurrent.futures import ProcessPoolExecutor, as_completed
 
 import h5py
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from . import forked
 from .flowmatch import FLOOR, FlowGraph, class_flows, ranked, route_class
 
 MATCH_VERSION = 1  # bumped whenever match_class changes what it computes (a stored matching is then not reused)
@@ -164,9 +161,7 @@ class GrainMatcher:
         that is killed keeps what it built; ``progress(done, total)`` is called after each of those saves. How many
         were computed."""
         todo = sorted({(int(s), int(j)) for s, j in pairs} - set(self.cache))
-        if workers is None:
-            workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-        workers = min(len(todo), workers)
+        workers = min(len(todo), forked.cores() if workers is None else workers)
         last, done = time.monotonic(), 0
 
         def finished(key, res):
@@ -180,19 +175,12 @@ class GrainMatcher:
                 if progress is not None:
                     progress(done, len(todo))
 
-        if workers < 2 or "taichi" in sys.modules or "fork" not in multiprocessing.get_all_start_methods():
+        if workers < 2 or not forked.can_fork():
             for key in todo:
                 finished(key, self.operator(*key))
         else:
-            global _FORKED
-            _FORKED = self
-            try:
-                with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
-                    futures = {pool.submit(_forked_operator, key): key for key in todo}
-                    for fut in as_completed(futures):
-                        finished(futures[fut], fut.result())
-            finally:
-                _FORKED = None
+            for k, res in forked.forked(self, "operator", todo, workers):
+                finished(todo[k], res)
         if store is not None:
             self.save(store)
         return len(todo)
@@ -248,13 +236,6 @@ def _signals_held():
             signal.signal(s, signal.SIG_DFL if handler is None else handler)
         if got:
             signal.raise_signal(got[0])
-
-
-_FORKED: GrainMatcher | None = None  # the matcher a prefetch's forked workers inherit
-
-
-def _forked_operator(key: tuple) -> tuple:
-    return _FORKED.operator(*key)
 
 
 def grid_centres(shape: tuple, origin: np.ndarray, h: float) -> np.ndarray:
