@@ -34,9 +34,10 @@
 # U_mf curves of the four laws in the 24 mm column), mri_rcfd (issue 20: `fbed rcfd analyze` and a 10 s `rcfd run`
 # of RCFD_PATHS paths, default 5, on runs/mri_$MRI_LAW, which must have recorded rCFD frames: give mri_law e.g.
 # MRI_SET="--set probes.rcfd_from=1.6 --set probes.rcfd_z_max=0.25 --set probes.rcfd_tag=z<0.065"; a million
-# grains are routed along a flow on the 3 mm cells (the default above 10,000 grains: 3.3 s a jump on one EPYC core,
-# the jumps built in parallel on the host's cores and stored as they finish in $R/rcfd/matchings.h5, so mri_rcfd
-# run again on the warm machine after a cut-off goes on from them; a stitch, --jump stitch, over-mixes the grain tracer:
+# grains are routed along a flow on the 3 mm cells (the default above 10,000 grains: 3.3 s a jump on one core,
+# the jumps built and the paths moved in parallel on the host's cores, the jumps stored as they finish in
+# $R/rcfd/matchings.h5, so mri_rcfd run again on the warm machine after a cut-off goes on from them; the whole
+# stage about 2 minutes on 16 cores, estimated from a synthetic database on one, benchmarks/rcfd_scale.py); a stitch, --jump stitch, over-mixes the grain tracer:
 # validation/rcfd/README.md, 00b and 0000a, before reading its mixing). Estimated (not measured) on one H200: 240-400 s per simulated
 # second of the 1e6-grain bed, so mri_prepare 2-4 min and a 0.3 s mri_law cost probe 2-3 min fit one command
 # together; a full law (3.1 s) is 13-21 min and fits no 10-minute command: cut it with MRI_SET (run.duration,
