@@ -93,11 +93,11 @@ def jacobi_cg(A: sp.csr_matrix, B: np.ndarray, rtol: float, maxiter: int, what: 
     def dots(U, V):
         return np.einsum("ij,ij->i", U, V)
 
-    X, R, Q = np.zeros_like(B), B.copy(), np.empty_like(B)
+    X, R, Q, T = np.zeros_like(B), B.copy(), np.empty_like(B), np.empty_like(B)
     Z = inv * R
     P, rz = Z.copy(), dots(R, Z)
     target = rtol * np.sqrt(dots(B, B))
-    for _ in range(maxiter):
+    for _ in range(maxiter):  # (in place, the same operations in the same order as X += alpha * P etc.)
         live = np.sqrt(dots(R, R)) > target
         if not live.any():
             return X.T
@@ -105,12 +105,13 @@ def jacobi_cg(A: sp.csr_matrix, B: np.ndarray, rtol: float, maxiter: int, what: 
             Q[c] = A @ P[c]
         pq = dots(P, Q)
         alpha = np.divide(rz, pq, out=np.zeros_like(rz), where=live & (pq > 0))[:, None]
-        X += alpha * P
-        R -= alpha * Q
+        X += np.multiply(alpha, P, out=T)
+        R -= np.multiply(alpha, Q, out=T)
         np.multiply(inv, R, out=Z)
         rz_new = dots(R, Z)
         beta = np.divide(rz_new, rz, out=np.zeros_like(rz), where=live & (rz > 0))[:, None]
-        P = Z + beta * P
+        P *= beta
+        P += Z
         rz = rz_new
     raise ValueError(f"{what} did not converge in {maxiter} iterations{hint}")
 
