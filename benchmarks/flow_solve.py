@@ -30,7 +30,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from app.bench.common import append_results  # noqa: E402
-from app.rcfd.flowmatch import FLOOR, jacobi_cg  # noqa: E402
+from app.rcfd.flowmatch import FlowGraph, jacobi_cg  # noqa: E402
 from app.rcfd.stitch import face_edges  # noqa: E402
 from flow_matching import states  # noqa: E402
 
@@ -41,11 +41,8 @@ _PROBLEM = None  # (L, B) the forked workers inherit
 def problem(grains: int, shape: tuple):
     cells, vol = states(grains, shape, 1.0, np.random.default_rng(1))
     n = int(np.prod(shape))
-    e = face_edges(shape, np.ones(shape, bool))
     density = 0.5 * (np.bincount(cells[0], minlength=n) + np.bincount(cells[1], minlength=n))
-    w = 0.5 * (density[e[:, 0]] + density[e[:, 1]]) + FLOOR * density[density > 0].mean()
-    A = sp.csr_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n))
-    L = (sp.diags(np.asarray(A.sum(1)).ravel()) - A).tocsr()
+    L, _ = FlowGraph(n, face_edges(shape, np.ones(shape, bool))).laplacian(density)
     B = np.stack([np.bincount(cells[0][vol == v], minlength=n) - np.bincount(cells[1][vol == v], minlength=n)
                   for v in np.unique(vol)], 1).astype(np.float64)
     return L, B

@@ -129,14 +129,15 @@ def _reused(path: pathlib.Path, a) -> dict | None:
 
 
 def timed(cmd: list[str]) -> dict:
-    """Run a command: its wall time [s], peak resident memory [GB] (the largest of its process tree's) and rc."""
+    """Run a command: its wall time [s], peak resident memory [GB] and rc. The peak is the largest resident set of
+    any process this script has waited for so far (the OS keeps no other): analyze's, then the larger of analyze's
+    and run's."""
     t = time.perf_counter()
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
     peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     if r.returncode:
         print(r.stdout[-2000:], r.stderr[-4000:], file=sys.stderr)
-    return {"seconds": time.perf_counter() - t, "peak_GB": max(peak, before) / 1e6, "rc": r.returncode,
+    return {"seconds": time.perf_counter() - t, "peak_GB": peak / 1e6, "rc": r.returncode,
             "out": r.stdout}
 
 

@@ -190,7 +190,7 @@ class Engine:
         beforehand by prefetch_jumps), the same results as one by one; else one by one here (stitches are built
         and cached as the paths reach them)."""
         workers = min(len(paths), forked.cores() if workers is None else workers)
-        if workers < 2 or not forked.can_fork() or self.solids != "grains" or self.jump == "stitch":
+        if workers < 2 or not forked.can_fork() or self.jump == "stitch":  # (the cell tracer always stitches)
             return [self.transport(p, c0, start_state) for p in paths]
         out = [None] * len(paths)
         for k, res in forked.forked(self, "transport", [(p, c0, start_state) for p in paths], workers):

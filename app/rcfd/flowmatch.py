@@ -56,19 +56,24 @@ class FlowGraph:
                             shape=(self.n, self.n))
         self.components = connected_components(adj, directed=False)[1]
 
+    def laplacian(self, density: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
+        """(L, w): the weighted graph Laplacian of the flow (module text, step 1) and its edges' conductances w."""
+        e = self.edges
+        occupied = density[density > 0]
+        w = 0.5 * (density[e[:, 0]] + density[e[:, 1]]) + FLOOR * (occupied.mean() if occupied.size else 1.0)
+        A = sp.csr_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(self.n, self.n))
+        return (sp.diags(np.asarray(A.sum(1)).ravel()) - A).tocsr(), w
+
     def potential_flows(self, B: np.ndarray, density: np.ndarray) -> list:
         """[(src, dst, f)] per column of ``B`` (cells, k): the flow of least sum f^2 / w with net outflow ``B[:, c]``
         per cell (module text, step 1), edges oriented downhill, f > 0 [grains]. One Laplacian for the k solves
         (jacobi_cg)."""
         e = self.edges
-        occupied = density[density > 0]
-        w = 0.5 * (density[e[:, 0]] + density[e[:, 1]]) + FLOOR * (occupied.mean() if occupied.size else 1.0)
         tot = np.stack([np.bincount(self.components, weights=b, minlength=self.n) for b in B.T])
         if np.abs(tot).max(initial=0.0) > 1e-9 * max(np.abs(B).sum(0).max(initial=0.0), 1.0):
             raise ValueError("the flow matching's problem failed: a part of the cells not joined to the rest by open "
                              "faces would have to gain or lose grains")
-        A = sp.csr_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(self.n, self.n))
-        lap = (sp.diags(np.asarray(A.sum(1)).ravel()) - A).tocsr()
+        lap, w = self.laplacian(density)
         Phi = jacobi_cg(lap, B, 1e-12, 20 * self.n, "the flow matching's potential")
         out = []
         for phi, b in zip(Phi.T, B.T):
