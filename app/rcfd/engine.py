@@ -36,7 +36,8 @@ from .transport import GrainTracer, SolidsTracer, lacey_index, step_response
 # of its cost (separate runs); on the 3,400-grain bed the dense assignment's was the smallest of the three (0000a)
 MATCH_MAX_GRAINS = 10_000
 # the flow matching on half cells up to here, on the cells above: 958,000 grains took 58 s a jump on 64 x 64 x 168
-# half cells and 3.3 s on 32 x 32 x 84 cells (2-core EPYC, benchmarks/flow_matching.py)
+# half cells and 3.3 s on 32 x 32 x 84 cells (2-core EPYC, benchmarks/flow_matching.py); 39-42 s and 2.2-2.3 s since
+# the potentials' multigrid (benchmarks/flow_jump_ab.py)
 FLOW_HALF_MAX_CELLS = 100_000
 JUMPS = ("match", "flow", "stitch")
 BED_EPS = 0.99  # cells whose time-mean void fraction is below this are the bed's (they enter R)
@@ -157,7 +158,7 @@ class Engine:
         grid, shape, h, mask = (self.fine, db.fine_shape, 0.5 * db.h, cells.repeat(2, 0).repeat(2, 1).repeat(2, 2)) \
             if self.half else (db.cells, db.shape, db.h, cells)
         if self.jump in ("match", "flow"):
-            graph = FlowGraph(int(np.prod(shape)), face_edges(shape, mask)) if self.jump == "flow" else None
+            graph = FlowGraph(int(np.prod(shape)), face_edges(shape, mask), shape) if self.jump == "flow" else None
             self.matcher = GrainMatcher(grid, grid_centres(shape, db.origin, h), db.grain_volume, graph=graph)
             if matchings == "auto":
                 matchings = pathlib.Path(db.path).parent / "rcfd" / "matchings.h5"

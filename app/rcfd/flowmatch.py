@@ -9,7 +9,8 @@ a flow, one cell at a time, and then paired with j's grains within each cell:
 1. the flow: on the graph of face-neighbouring cells, the one of least sum f_e^2 / w_e for the grains' net
    outflow b = n_s - n_j of each cell (counts of one volume class), with conductance w_e the mean grain count of
    the edge's two cells in the two states plus a small floor (``FLOOR`` of the mean over occupied cells). It is
-   w_e times the gradient of a potential, L_w phi = b (conjugate gradients): the linearised least-kinetic-energy
+   w_e times the gradient of a potential, L_w phi = b (conjugate gradients with a multigrid preconditioner,
+   potential.py): the linearised least-kinetic-energy
    (Wasserstein-2) displacement, which moves grains where grains are and goes round empty cells where it can.
    It runs downhill in phi, so it has no cycle;
 2. rounded to whole grains: an integer flow with each edge's count the floor or the ceiling of its real flow and
@@ -26,7 +27,8 @@ kept to round-off. It moves more grains than the least that must change cell (a 
 grains one cell), each a shorter way. On synthetic jumps of one size class its total squared distance was 4-9% under
 the dense matching's (which keeps every cell's common grains in place), with three classes 14-27% over; it took
 1/1.8-1/4.7 of its time at 3,400-7,000 grains (alternated), 3.3 s at 958,000 grains on 86,016 cells
-(benchmarks/flow_matching.py). Against full runs: validation/rcfd/README.md, 0000a.
+(benchmarks/flow_matching.py; 2.2-2.3 s since the multigrid, benchmarks/flow_jump_ab.py). Against full runs:
+validation/rcfd/README.md, 0000a and 0000c.
 """
 from __future__ import annotations
 
@@ -34,22 +36,38 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, maximum_flow
 
+from .potential import GridMultigrid, pcg
+
 FLOOR = 1e-2  # the conductance's floor, as a share of the mean grain count over occupied cells
 TOLERANCE = 1e-4  # [grains] how far an edge's rounded count may lie outside floor/ceiling of the solved flow
 
 
-def ranked(cells: np.ndarray, key: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(order, cell, rank): the grains sorted by cell then ``key``, their cells, and their rank within the cell."""
-    order = np.lexsort((key, cells))
+def ranked(cells: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(order, cell, rank): the grains sorted by cell, in random order within a cell (``rng``), their cells, and
+    their rank within the cell."""
+    order = shuffled_order(cells, rng)
     c = cells[order]
     return order, c, np.arange(c.size) - np.searchsorted(c, c, side="left")
 
 
-class FlowGraph:
-    """The face-neighbour graph of a grid's cells that grains may occupy; ``edges`` (E, 2) flat indices."""
+def shuffled_order(keys: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The order that sorts the non-negative integers ``keys``, ties in random order (``rng``): one argsort of
+    key * N + a random permutation of 0..N-1 (distinct keys), 3.3x faster than a lexsort on (random float, key) at
+    320,000 grains on 86,016 cells (26 against 87 ms, AMD EPYC)."""
+    n = keys.size
+    return np.argsort(keys.astype(np.int64) * max(n, 1) + rng.permutation(n))
 
-    def __init__(self, n: int, edges: np.ndarray):
+
+class FlowGraph:
+    """The face-neighbour graph of a grid's cells that grains may occupy; ``edges`` (E, 2) flat indices; ``shape``:
+    the grid's, when the n cells are a box (flat index (i * ny + j) * nz + k): the potentials are then solved with a
+    multigrid preconditioner (potential.GridMultigrid), else with A's diagonal."""
+
+    def __init__(self, n: int, edges: np.ndarray, shape: tuple | None = None):
         self.n = int(n)
+        if shape is not None and int(np.prod(shape)) != self.n:
+            raise ValueError(f"a grid of shape {tuple(shape)} has {int(np.prod(shape))} cells, not {self.n}")
+        self.shape = None if shape is None else tuple(int(s) for s in shape)
         self.edges = np.asarray(edges, np.int64)
         e = self.edges
         adj = sp.csr_matrix((np.ones(2 * e.shape[0]), (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])),
@@ -67,14 +85,15 @@ class FlowGraph:
     def potential_flows(self, B: np.ndarray, density: np.ndarray) -> list:
         """[(src, dst, f)] per column of ``B`` (cells, k): the flow of least sum f^2 / w with net outflow ``B[:, c]``
         per cell (module text, step 1), edges oriented downhill, f > 0 [grains]. One Laplacian for the k solves
-        (jacobi_cg)."""
+        (potential.pcg)."""
         e = self.edges
         tot = np.stack([np.bincount(self.components, weights=b, minlength=self.n) for b in B.T])
         if np.abs(tot).max(initial=0.0) > 1e-9 * max(np.abs(B).sum(0).max(initial=0.0), 1.0):
             raise ValueError("the flow matching's problem failed: a part of the cells not joined to the rest by open "
                              "faces would have to gain or lose grains")
         lap, w = self.laplacian(density)
-        Phi = jacobi_cg(lap, B, 1e-12, 20 * self.n, "the flow matching's potential")
+        mg = GridMultigrid(lap, self.shape) if self.shape is not None else None
+        Phi = pcg(lap, B, 1e-12, 20 * self.n, "the flow matching's potential", precondition=mg)
         out = []
         for phi, b in zip(Phi.T, B.T):
             g = (phi[e[:, 0]] - phi[e[:, 1]]) * w
@@ -82,43 +101,6 @@ class FlowGraph:
             fwd = g[keep] > 0
             out.append((np.where(fwd, e[keep, 0], e[keep, 1]), np.where(fwd, e[keep, 1], e[keep, 0]), np.abs(g[keep])))
         return out
-
-
-def jacobi_cg(A: sp.csr_matrix, B: np.ndarray, rtol: float, maxiter: int, what: str, hint: str = "") -> np.ndarray:
-    """X (n, k) with A X = B, A symmetric positive semi-definite, B (n, k) consistent: conjugate gradients
-    preconditioned by A's diagonal (rows without one are left at 0), every column to ||r|| <= rtol ||b|| [2-norm],
-    the k columns side by side. No BLAS call: the vector products are numpy's own loops, so it runs on one thread
-    whatever else runs (scipy's cg takes BLAS's dot, whose threads, with a prefetch's worker on every core, made a
-    solve up to 20x slower: validation/rcfd/README.md, 0000b). ValueError naming ``what`` (and ``hint``) if it has
-    not converged in ``maxiter`` iterations."""
-    B = np.ascontiguousarray(np.asarray(B, np.float64).reshape(A.shape[0], -1).T)  # (k, n): rows contiguous
-    d = A.diagonal()
-    inv = np.divide(1.0, d, out=np.zeros_like(d), where=d > 0)
-
-    def dots(U, V):
-        return np.einsum("ij,ij->i", U, V)
-
-    X, R, Q, T = np.zeros_like(B), B.copy(), np.empty_like(B), np.empty_like(B)
-    Z = inv * R
-    P, rz = Z.copy(), dots(R, Z)
-    target = rtol * np.sqrt(dots(B, B))
-    for _ in range(maxiter):  # (in place, the same operations in the same order as X += alpha * P etc.)
-        live = np.sqrt(dots(R, R)) > target
-        if not live.any():
-            return X.T
-        for c in range(B.shape[0]):
-            Q[c] = A @ P[c]
-        pq = dots(P, Q)
-        alpha = np.divide(rz, pq, out=np.zeros_like(rz), where=live & (pq > 0))[:, None]
-        X += np.multiply(alpha, P, out=T)
-        R -= np.multiply(alpha, Q, out=T)
-        np.multiply(inv, R, out=Z)
-        rz_new = dots(R, Z)
-        beta = np.divide(rz_new, rz, out=np.zeros_like(rz), where=live & (rz > 0))[:, None]
-        P *= beta
-        P += Z
-        rz = rz_new
-    raise ValueError(f"{what} did not converge in {maxiter} iterations{hint}")
 
 
 def integer_flow(n: int, src: np.ndarray, dst: np.ndarray, f: np.ndarray, supply: np.ndarray) -> np.ndarray:
@@ -210,10 +192,10 @@ def route_class(cf: np.ndarray, ct: np.ndarray, n: int, flow, rng: np.random.Gen
         leave = np.minimum(out, ns)  # own grains first
         stay_in = np.bincount(dst, g, n).astype(np.int64) - (out - leave)  # arrivals that stay
         slot_from = np.repeat(src, g)
-        o = np.lexsort((rng.random(slot_from.size), slot_from))
+        o = shuffled_order(slot_from, rng)
         slot_to = np.repeat(dst, g)[o]  # each cell's outgoing grains' next cells, shuffled, cell by cell
         slot0 = np.searchsorted(slot_from[o], np.arange(n))
-        of, c, r = ranked(cf, rng.random(cf.size))
+        of, c, r = ranked(cf, rng)
         go = r < leave[c]
         moving, at = of[go], slot_to[slot0[c[go]] + r[go]]
         hops = np.zeros(cf.size, np.int64)
@@ -236,8 +218,8 @@ def route_class(cf: np.ndarray, ct: np.ndarray, n: int, flow, rng: np.random.Gen
             at = np.concatenate([at, slot_to[slot0[gc] + leave[gc] + rk - stay_in[gc]]])
         if moving.size:
             raise ValueError("the flow matching left grains unrouted")
-    of, _, _ = ranked(final, rng.random(final.size))
-    ot, _, _ = ranked(ct, rng.random(ct.size))
+    of, _, _ = ranked(final, rng)
+    ot, _, _ = ranked(ct, rng)
     perm = np.empty(cf.size, np.int64)
     perm[ot] = of  # both sorted by (cell, rank), with the same count in every cell
     return perm

@@ -46,8 +46,10 @@ from scipy.optimize import linear_sum_assignment
 from . import forked
 from .flowmatch import FLOOR, FlowGraph, class_flows, ranked, route_class
 
-MATCH_VERSION = 1  # bumped whenever match_class changes what it computes (a stored matching is then not reused)
-FLOW_VERSION = 2  # the same for flowmatch's flow and routing (2: the three classes' potentials solved together)
+MATCH_VERSION = 2  # bumped whenever match_class changes what it computes (a stored matching is then not reused;
+#                   2: the random order within a cell drawn as a permutation, flowmatch.ranked)
+FLOW_VERSION = 3  # the same for flowmatch's flow and routing (2: the three classes' potentials solved together;
+#                  3: ranked's permutation, and the potentials' multigrid preconditioner on a box of cells)
 SAVE_EVERY = 30.0  # [s] between the saves of a prefetch's finished matchings (what a killed command keeps)
 MAX_CLASSES = 16  # distinct grain volumes a matching handles (a polydisperse bed has a continuum: stitch instead)
 
@@ -57,8 +59,8 @@ def match_class(cf: np.ndarray, ct: np.ndarray, centres: np.ndarray, rng: np.ran
     with grain g of j taking the tag of grain perm[g] of s; residual: the indices in j of grains matched across
     cells."""
     n = centres.shape[0]
-    of, cfs, rf = ranked(cf, rng.random(cf.size))
-    ot, cts, rt = ranked(ct, rng.random(ct.size))
+    of, cfs, rf = ranked(cf, rng)
+    ot, cts, rt = ranked(ct, rng)
     common = np.minimum(np.bincount(cf, minlength=n), np.bincount(ct, minlength=n))
     keep_f, keep_t = rf < common[cfs], rt < common[cts]
     perm = np.empty(cf.size, np.int64)
@@ -101,7 +103,7 @@ class GrainMatcher:
         h = hashlib.sha1(f"match v{MATCH_VERSION} seed {self.seed}".encode())
         arrays = [np.ascontiguousarray(self.cells, np.int64), self.centres, self.vol]
         if self.graph is not None:
-            h.update(f"flow v{FLOW_VERSION} floor {FLOOR}".encode())
+            h.update(f"flow v{FLOW_VERSION} floor {FLOOR} grid {self.graph.shape}".encode())
             arrays.append(self.graph.edges)
         for a in arrays:
             h.update(str(a.shape).encode())

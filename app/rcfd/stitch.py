@@ -29,7 +29,8 @@ from scipy.optimize import linprog
 from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 
-from .flowmatch import dag_levels, jacobi_cg
+from .flowmatch import dag_levels
+from .potential import pcg
 
 LP_MAX_CELLS = 20_000  # 'auto': the min-cost flow up to here (1.9 s at 10,752 cells, 31 s at 36,288)
 FLOWS = ("auto", "lp", "potential")
@@ -155,7 +156,7 @@ class Stitcher:
         size = np.bincount(self.components[self.nodes])
         mean = np.divide(tot, size, out=np.zeros_like(tot), where=size > 0)  # (labels of closed cells: no nodes)
         b[self.nodes] -= mean[self.components[self.nodes]]  # the round-off, so that each part's sum is zero
-        phi = jacobi_cg(self.laplacian, b, 1e-14, 20 * self.n, "the stitch's potential", ": use flow 'lp'")[:, 0]
+        phi = pcg(self.laplacian, b, 1e-14, 20 * self.n, "the stitch's potential", ": use flow 'lp'")[:, 0]
         e = self.edges
         g = (phi[e[:, 0]] - phi[e[:, 1]]) * scale
         fwd = g > 0
