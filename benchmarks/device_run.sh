@@ -34,7 +34,7 @@
 # U_mf curves of the four laws in the 24 mm column), mri_rcfd (issue 20: `fbed rcfd analyze` and a 10 s `rcfd run`
 # of RCFD_PATHS paths, default 5, on runs/mri_$MRI_LAW, which must have recorded rCFD frames: give mri_law e.g.
 # MRI_SET="--set probes.rcfd_from=1.6 --set probes.rcfd_z_max=0.25 --set probes.rcfd_tag=z<0.065"; a million
-# grains are routed along a flow on the 3 mm cells (the default above 10,000 grains: 3.3 s a jump on one core,
+# grains are routed along a flow on the 3 mm cells (the default above 10,000 grains: 2.2 s a jump on one core,
 # the jumps built and the paths moved in parallel on the host's cores, the jumps stored as they finish in
 # $R/rcfd/matchings.h5, so mri_rcfd run again on the warm machine after a cut-off goes on from them; the whole
 # stage about 2 minutes on 16 cores, estimated from a synthetic database on one, benchmarks/rcfd_scale.py); a stitch, --jump stitch, over-mixes the grain tracer:
