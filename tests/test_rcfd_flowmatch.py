@@ -255,6 +255,8 @@ def _singular_laplacian(rng, shape, round_=False):
     decades, as the grain-weighted flow's; right-hand sides consistent on every part, the third zero."""
     import scipy.sparse as sp
 
+    from app.rcfd.potential import graph_laplacian
+
     mask = rng.random(shape) < 0.9
     if round_:
         i, j = np.indices(shape[:2]) + 0.5
@@ -262,8 +264,7 @@ def _singular_laplacian(rng, shape, round_=False):
     e = face_edges(shape, mask)
     n = int(np.prod(shape))
     w = rng.uniform(0.01, 30.0, e.shape[0])
-    A = sp.csr_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n))
-    L = (sp.diags(np.asarray(A.sum(1)).ravel()) - A).tocsr()
+    L = graph_laplacian(sp.csr_matrix((np.r_[w, w], (np.r_[e[:, 0], e[:, 1]], np.r_[e[:, 1], e[:, 0]])), shape=(n, n)))
     comp = _graph(shape, mask).components
     B = rng.integers(-5, 6, (n, 3)).astype(float)
     B[L.diagonal() == 0] = 0.0

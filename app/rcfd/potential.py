@@ -28,13 +28,18 @@ def _inverse_diagonal(A: sp.csr_matrix) -> np.ndarray:
     return np.divide(1.0, d, out=np.zeros_like(d), where=d > 0)
 
 
+def graph_laplacian(W: sp.spmatrix) -> sp.csr_matrix:
+    """diag(W 1) - W of a symmetric matrix of weights W >= 0 between distinct cells (zero diagonal)."""
+    return (sp.diags(np.asarray(W.sum(1)).ravel()) - W).tocsr()
+
+
 def _laplacian(A: sp.csr_matrix) -> sp.csr_matrix:
     """A with its diagonal set to minus the sum of each row's other entries: a Galerkin operator P^T L P of a graph
     Laplacian L is one, but only to round-off, and a coarsest level of one cell would then hold that round-off, whose
     pseudo-inverse is huge (conjugate gradients then never converged)."""
     off = (A - sp.diags(A.diagonal())).tocsr()
     off.eliminate_zeros()
-    return (off - sp.diags(np.asarray(off.sum(1)).ravel())).tocsr()
+    return graph_laplacian(-off)
 
 
 def _each_row(M: sp.csr_matrix, X: np.ndarray) -> np.ndarray:
